@@ -1,0 +1,220 @@
+"""The two-stage calibration: DE then LM on F1st for the model, then on F2nd for the correction.
+
+This is the only place that joins the hand–eye pieces (dataset, model, objective) to the
+general optimisers.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._x64 import in_float64
+from .dataset import Dataset, check_min_landmarks
+from .models import AbstractParametric, AffinePair, get_model
+from .objective import (
+    AbstractObjective,
+    Stage1Objective,
+    Stage2Objective,
+    chain_points,
+    fitness,
+    norms,
+    stage2_errors,
+)
+from .optim import differential_evolution, levenberg_marquardt
+from .result import CalibrationResult, StageResult, rig_to_dict
+
+# A parameter closer than this fraction of its range to a bound is reported as on the bound.
+BOUND_FRACTION = 1e-3
+
+
+@dataclass(frozen=True)
+class Settings:
+    """How to calibrate.
+
+    Attributes:
+        model: stage-1 model name, ``"htm"`` or ``"dh"``.
+        seed: PRNG seed; the same seed gives the same result bit for bit.
+        population: DE population N (both stages).
+        generations: most DE generations G (both stages).
+        early_stop: stop DE when the population's fitness spread is below ``tol``.
+        tol: relative spread for the early stop, ``std(F) <= tol·|mean(F)|``.
+        crossover: DE's CR. mutation: DE's F (differential weight).
+        polish: run Levenberg–Marquardt from the best DE member of each stage.
+
+    The paper's settings are ``population=10000, generations=10000, early_stop=False``; the
+    defaults reach the same optimum on the paper's data in seconds.
+    """
+
+    model: str = "htm"
+    seed: int = 1
+    population: int = 500
+    generations: int = 3000
+    early_stop: bool = True
+    tol: float = 1e-3
+    crossover: float = 0.9
+    mutation: float = 0.5
+    polish: bool = True
+
+
+def _optimise(
+    objective: AbstractObjective,
+    cls: type[AbstractParametric],
+    search: dict[str, tuple[float, float]],
+    key: jax.Array,
+    settings: Settings,
+    progress: bool,
+    label: str,
+) -> tuple[np.ndarray, dict[str, Any], dict[str, Any], dict[str, list[float]], dict[str, float]]:
+    """DE then box-constrained LM on one objective; LM is kept only if it lowers F."""
+    lower, upper = cls.search_bounds(search)
+    t0 = time.perf_counter()
+    de = differential_evolution(
+        objective, lower, upper, key=key, population=settings.population,
+        generations=settings.generations, crossover=settings.crossover,
+        mutation=settings.mutation, tol=settings.tol, early_stop=settings.early_stop,
+        progress=progress, desc=label,
+    )  # fmt: skip
+    t1 = time.perf_counter()
+    x = de.x
+    polish: dict[str, Any] = {"ran": settings.polish, "accepted": False, "F_before": de.f}
+    if settings.polish:
+        lm = levenberg_marquardt(objective.residuals, de.x, lower, upper)
+        f_lm = float(objective(jnp.asarray(lm.x)))
+        accepted = bool(np.isfinite(f_lm) and f_lm < de.f)
+        polish.update(
+            accepted=accepted, F_after=f_lm, steps=lm.steps, solver_converged=lm.solver_ok,
+            pinned=[cls.param_names[i] for i in lm.pinned],
+        )  # fmt: skip
+        if accepted:
+            x = lm.x
+    t2 = time.perf_counter()
+    de_info = {
+        "F": de.f, "generations": de.generations, "evaluations": de.evaluations,
+        "converged": de.converged,
+    }  # fmt: skip
+    convergence = {
+        "best_F": [float(v) for v in de.best_history],
+        "median_F": [float(v) for v in de.median_history],
+    }
+    return x, de_info, polish, convergence, {"de": t1 - t0, "polish": t2 - t1}
+
+
+def _stage_result(objective, x, cls, de_info, polish, convergence) -> StageResult:
+    errors = objective.errors(jnp.asarray(x))
+    F, f1, f2 = (float(v) for v in fitness(errors))
+    n1, n2 = (np.asarray(v) for v in norms(errors))
+    e1, e2 = np.asarray(errors.image_vs_tablet), np.asarray(errors.hand)
+    residuals = [
+        {
+            "m": m,
+            "image_vs_tablet_xy_mm": e1[m].tolist(),
+            "image_vs_tablet_mm": float(n1[m]),
+            "hand_xy_mm": e2[m].tolist(),
+            "hand_mm": float(n2[m]),
+        }  # fmt: skip
+        for m in range(len(n1))
+    ]
+    params = dict(zip(cls.param_names, (float(v) for v in x), strict=True))
+    return StageResult(F, f1, f2, params, residuals, de_info, polish, convergence)
+
+
+def bound_warnings(
+    params: dict[str, float], cls: type[AbstractParametric], search: dict
+) -> list[str]:
+    """One warning per parameter sitting on a bound of its search range."""
+    lower, upper = cls.search_bounds(search)
+    out = []
+    for name, unit, lo, hi in zip(cls.param_names, cls.param_units, lower, upper, strict=True):
+        v, width, u = params[name], hi - lo, "" if unit == "1" else f" {unit}"
+        side = (
+            "lower"
+            if v - lo <= BOUND_FRACTION * width
+            else ("upper" if hi - v <= BOUND_FRACTION * width else None)
+        )
+        if side:
+            wider = (lo - width, hi) if side == "lower" else (lo, hi + width)
+            out.append(
+                f"{name} = {v:.4g}{u} is on the {side} bound of its search range "
+                f"[{lo:g}, {hi:g}]; the optimum may lie outside it: widen it in the dataset's "
+                f"[search] table, e.g. {name} = [{wider[0]:g}, {wider[1]:g}]"
+            )
+    return out
+
+
+def _sign_twin(objective, cls, x) -> dict[str, Any]:
+    names = getattr(cls, "sign_twin", ())
+    if not names:
+        return {}
+    idx = [cls.param_names.index(n) for n in names]
+    flipped = np.array(x, copy=True)
+    flipped[idx] = -flipped[idx]
+    return {
+        "params": list(names),
+        "found": {n: float(x[i]) for n, i in zip(names, idx, strict=True)},
+        "F_found": float(objective(jnp.asarray(x))),
+        "F_flipped": float(objective(jnp.asarray(flipped))),
+        "note": "flipping the signs of " + " and ".join(names) + " together mirrors the "
+        "tablet through its own plane and gives the same F",
+    }
+
+
+@in_float64
+def calibrate(
+    dataset: Dataset, settings: Settings = Settings(), *, progress: bool = False
+) -> CalibrationResult:
+    """Fit the stage-1 model and the stage-2 correction to a dataset.
+
+    Args:
+        dataset: a validated dataset (see :func:`handeye_jax.dataset.load_dataset`).
+        settings: model, seed and optimiser settings.
+        progress: show progress bars on stderr.
+    """
+    t_start = time.perf_counter()
+    model_cls = get_model(settings.model)
+    check_min_landmarks(dataset, len(model_cls.param_names), dataset.source)
+    check_min_landmarks(dataset, len(AffinePair.param_names), dataset.source)
+    obs = dataset.observations()
+    key1, key2 = jax.random.split(jax.random.PRNGKey(settings.seed))
+
+    obj1 = Stage1Objective(model_cls, obs)
+    x1, de1, pol1, conv1, t1 = _optimise(
+        obj1, model_cls, dataset.search, key1, settings, progress, "stage 1 DE"
+    )
+    stage1 = _stage_result(obj1, x1, model_cls, de1, pol1, conv1)
+
+    points = chain_points(model_cls.from_vector(jnp.asarray(x1)), obs)
+    obj2 = Stage2Objective(AffinePair, points, obs.centre_index)
+    x2, de2, pol2, conv2, t2 = _optimise(
+        obj2, AffinePair, dataset.search, key2, settings, progress, "stage 2 DE"
+    )
+    stage2 = _stage_result(obj2, x2, AffinePair, de2, pol2, conv2)
+    _, centres = stage2_errors(AffinePair.from_vector(jnp.asarray(x2)), points, obs.centre_index)
+
+    warnings = bound_warnings(stage1.params, model_cls, dataset.search) + bound_warnings(
+        stage2.params, AffinePair, dataset.search
+    )
+    timings = {
+        "stage1_de": t1["de"], "stage1_polish": t1["polish"],
+        "stage2_de": t2["de"], "stage2_polish": t2["polish"],
+        "total": time.perf_counter() - t_start,
+    }  # fmt: skip
+    return CalibrationResult(
+        model=settings.model,
+        seed=settings.seed,
+        settings=asdict(settings),
+        dataset=dataset.name,
+        rig=rig_to_dict(obs.rig),
+        stage1=stage1,
+        stage2=stage2,
+        centre_index=obs.centre_index,
+        centres_mm=np.asarray(centres).tolist(),
+        timings_s=timings,
+        sign_twin=_sign_twin(obj1, model_cls, x1),
+        warnings=warnings,
+    )

@@ -1,0 +1,171 @@
+"""``handeye-jax``: a thin command line over the Python API.
+
+Every failure caused by input prints one line naming the file and field and exits with
+status 2; nothing is written unless it is complete.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from .errors import InputError
+
+PROG = "handeye-jax"
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # one line, no usage block
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1 (got {v})")
+    return v
+
+
+def _population(text: str) -> int:
+    v = _positive_int(text)
+    if v < 4:
+        raise argparse.ArgumentTypeError(f"DE/rand/1 needs at least 4 members (got {v})")
+    return v
+
+
+def _output_path(path: str | None) -> Path | None:
+    if path is None:
+        return None
+    p = Path(path)
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        raise InputError(p, "", f"cannot write: folder {str(parent)!r} does not exist")
+    if p.is_dir():
+        raise InputError(p, "", "cannot write: is a folder")
+    return p
+
+
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from .calibrate import Settings, calibrate
+    from .dataset import load_dataset
+    from .summary import format_summary
+
+    out = _output_path(args.out)
+    dataset = load_dataset(args.dataset)
+    settings = Settings(
+        model=args.model,
+        seed=args.seed,
+        population=args.population,
+        generations=args.generations,
+        early_stop=not args.no_early_stop,
+    )
+    result = calibrate(dataset, settings, progress=not args.quiet)
+    print(format_summary(result))
+    if out is not None:
+        result.save(out)
+        print(f"result written to {out}")
+    return 0
+
+
+def _cmd_predict(args: argparse.Namespace) -> int:
+    from ._atomic import write_text_atomic
+    from .predict import points_csv_text, read_points_csv
+    from .result import load_result
+
+    out = _output_path(args.out)
+    result = load_result(args.result)
+    header, rows, values = read_points_csv(args.points)
+    hand_xy = result.predict(values[:, :2], values[:, 2], values[:, 3], stage=args.stage)
+    text = points_csv_text(header, rows, hand_xy)
+    if out is None:
+        sys.stdout.write(text)
+    else:
+        write_text_atomic(out, text)
+        print(f"{len(rows)} hand commands (stage {args.stage}, mm) written to {out}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from .calibrate import Settings
+    from .models import model_registry
+
+    d = Settings()
+    parser = _Parser(
+        prog=PROG,
+        description="Hand-eye calibration of a camera + pen end-effector from tablet landmarks.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    cal = sub.add_parser(
+        "calibrate",
+        help="fit the model (stage 1) and the affine correction (stage 2) to a dataset",
+        description="Fit a dataset by DE + Levenberg-Marquardt in two stages. The paper's own "
+        "settings are --population 10000 --generations 10000 --no-early-stop.",
+    )
+    cal.add_argument("dataset", help="dataset file (handeye-jax.dataset/1 TOML; mm, deg, px)")
+    cal.add_argument("--model", choices=sorted(model_registry()), default=d.model)
+    cal.add_argument("--seed", type=int, default=d.seed, help=f"PRNG seed (default {d.seed})")
+    cal.add_argument(
+        "--population", type=_population, default=d.population,
+        help=f"DE population N, both stages (default {d.population})",
+    )  # fmt: skip
+    cal.add_argument(
+        "--generations", type=_positive_int, default=d.generations,
+        help=f"most DE generations G, both stages (default {d.generations})",
+    )  # fmt: skip
+    cal.add_argument(
+        "--no-early-stop", action="store_true",
+        help="run all generations instead of stopping when the population has converged",
+    )  # fmt: skip
+    cal.add_argument("--out", metavar="RESULT.json", help="write the result (JSON) here")
+    cal.add_argument("--quiet", action="store_true", help="no progress bars")
+    cal.set_defaults(func=_cmd_calibrate)
+
+    pre = sub.add_parser(
+        "predict",
+        help="hand commands for image points",
+        description="Read a CSV with header u,v,depth,hand_angle (px, px, mm, deg) and write it "
+        "back with hand_x,hand_y (mm, robot base frame) added: where to send the hand so "
+        "that the pen touches each point.",
+    )
+    pre.add_argument("result", help="result file from 'calibrate --out'")
+    pre.add_argument("points", help="CSV with header u,v,depth,hand_angle")
+    pre.add_argument("--out", metavar="OUT.csv", help="write here instead of standard output")
+    pre.add_argument(
+        "--stage", type=int, choices=(1, 2), default=2,
+        help="2: eq. (25) with the affine correction (default); 1: eq. (8), model only",
+    )  # fmt: skip
+    pre.set_defaults(func=_cmd_predict)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except InputError as e:
+        print(f"{PROG}: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; nothing was written", file=sys.stderr)
+        return 130
+    except Exception as e:  # the user gets one line; developers can ask for the traceback
+        if os.environ.get("HANDEYE_JAX_DEBUG"):
+            raise
+        print(
+            f"{PROG}: internal error: {type(e).__name__}: {e} "
+            "(set HANDEYE_JAX_DEBUG=1 for the traceback)",
+            file=sys.stderr,
+        )
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

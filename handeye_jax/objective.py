@@ -1,0 +1,153 @@
+"""The fitness functions F1st (eqs. 17–20) and F2nd (eqs. 21–25), written once for any model.
+
+Both compare four point sets in the base frame's x-y plane (section 3.5), computed by
+:func:`chain_points`. Each objective is an equinox Module mapping a flat parameter vector to a
+scalar, so it is a pytree the optimisers can ``jit`` and ``vmap`` without knowing what it is.
+"""
+
+from __future__ import annotations
+
+import abc
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from .models import AbstractCorrection, AbstractModel
+from .observations import Observations
+
+# Smoothing of |e| for the least-squares form of the objective, mm. Below it the polish sees a
+# quadratic, so noise-free data still converges quadratically to zero; above it, the sum of
+# squared residuals equals F to within this many mm per landmark.
+NORM_SMOOTHING_MM = 1e-9
+
+
+class ChainPoints(eqx.Module):
+    """The four point sets the objectives compare, in the base frame, x-y only, mm.
+
+    Attributes:
+        image_xy: landmarks through the image chain, ``x_bi`` of eq. (5).
+        tablet_xy: landmarks through the tablet chain, ``x_bt`` of eq. (10).
+        pen_offset_xy: the pen offset ``x'`` at each touch, eqs. (6)–(7).
+        hand_target_xy: the touch-compensated hand positions ``x_r'`` of eq. (20).
+    """
+
+    image_xy: Float[Array, "n 2"]
+    tablet_xy: Float[Array, "n 2"]
+    pen_offset_xy: Float[Array, "n 2"]
+    hand_target_xy: Float[Array, "n 2"]
+
+
+def chain_points(model: AbstractModel, obs: Observations) -> ChainPoints:
+    """Evaluate the model's transform chain on one calibration's observations."""
+    x_bi = model.image_to_base(obs.image_px, obs.depth_mm, obs.rig)
+    x_bt = model.tablet_to_base(obs.tablet_mm)
+    x_off = model.pen_offset(obs.phi_deg())
+    touch_base = model.tablet_vector_to_base(obs.touch_error_mm)
+    return ChainPoints(
+        image_xy=x_bi[:, :2],
+        tablet_xy=x_bt[:, :2],
+        pen_offset_xy=x_off[:, :2],
+        hand_target_xy=obs.hand_xy_mm - touch_base[:, :2],
+    )
+
+
+class Errors(eqx.Module):
+    """Per-landmark error vectors of one stage, mm: ``f1`` and ``f2`` are their mean norms."""
+
+    image_vs_tablet: Float[Array, "n 2"]
+    hand: Float[Array, "n 2"]
+
+
+def stage1_errors(points: ChainPoints) -> Errors:
+    """Eqs. (18)–(19): ``x_bi − x_bt`` and ``(x_bi − x') − x_r'``."""
+    return Errors(
+        image_vs_tablet=points.image_xy - points.tablet_xy,
+        hand=points.image_xy - points.pen_offset_xy - points.hand_target_xy,
+    )
+
+
+def stage2_errors(
+    correction: AbstractCorrection, points: ChainPoints, centre_index: int
+) -> tuple[Errors, Float[Array, "2 2"]]:
+    """Eqs. (22)–(23) with A2 acting on A1's output, as eq. (25) deploys it (notes, item 5).
+
+    Returns the errors and the two centres of rotation (rows: A1's, A2's), mm. Each centre is
+    landmark ``centre_index`` of the points that map turns.
+    """
+    centre1 = points.image_xy[centre_index]
+    a1 = correction.first(points.image_xy, centre1)
+    hand_cmd = a1 - points.pen_offset_xy
+    centre2 = hand_cmd[centre_index]
+    a2 = correction.second(hand_cmd, centre2)
+    errors = Errors(image_vs_tablet=a1 - points.tablet_xy, hand=a2 - points.hand_target_xy)
+    return errors, jnp.stack([centre1, centre2])
+
+
+def norms(errors: Errors) -> tuple[Float[Array, " n"], Float[Array, " n"]]:
+    """Per-landmark Euclidean error lengths ``(|e1|, |e2|)``, mm."""
+    return (
+        jnp.linalg.norm(errors.image_vs_tablet, axis=-1),
+        jnp.linalg.norm(errors.hand, axis=-1),
+    )
+
+
+def fitness(errors: Errors) -> tuple[Float[Array, ""], Float[Array, ""], Float[Array, ""]]:
+    """``(F, f1, f2)``: the mean error lengths and their sum, eqs. (17) and (21), mm."""
+    n1, n2 = norms(errors)
+    f1, f2 = jnp.mean(n1), jnp.mean(n2)
+    return f1 + f2, f1, f2
+
+
+def sqrt_residuals(errors: Errors) -> Float[Array, " 4n"]:
+    """Residuals whose sum of squares is F: each error vector scaled by ``(|e|² + ε²)^(-1/4)``.
+
+    This is how a least-squares solver (Levenberg–Marquardt) minimises the same mean of
+    Euclidean lengths that DE does, rather than a sum of squares.
+    """
+
+    def scaled(e):
+        n = e.shape[0]
+        w = (jnp.sum(e**2, axis=-1, keepdims=True) + NORM_SMOOTHING_MM**2) ** -0.25
+        return (e * w / jnp.sqrt(n)).reshape(-1)
+
+    return jnp.concatenate([scaled(errors.image_vs_tablet), scaled(errors.hand)])
+
+
+class AbstractObjective(eqx.Module):
+    """A stage's fitness as a function of a flat parameter vector ``theta``.
+
+    Calling it gives F (mm); :meth:`residuals` gives the least-squares form of the same F.
+    """
+
+    @abc.abstractmethod
+    def errors(self, theta: Float[Array, " d"]) -> Errors:
+        """The per-landmark error vectors at ``theta``."""
+
+    def __call__(self, theta: Float[Array, " d"]) -> Float[Array, ""]:
+        return fitness(self.errors(theta))[0]
+
+    def residuals(self, theta: Float[Array, " d"]) -> Float[Array, " r"]:
+        return sqrt_residuals(self.errors(theta))
+
+
+class Stage1Objective(AbstractObjective):
+    """F1st as a function of a model's flat parameter vector."""
+
+    model_cls: type[AbstractModel] = eqx.field(static=True)
+    obs: Observations
+
+    def errors(self, theta: Float[Array, " d"]) -> Errors:
+        return stage1_errors(chain_points(self.model_cls.from_vector(theta), self.obs))
+
+
+class Stage2Objective(AbstractObjective):
+    """F2nd as a function of a correction's flat parameter vector, the model held fixed."""
+
+    correction_cls: type[AbstractCorrection] = eqx.field(static=True)
+    points: ChainPoints
+    centre_index: int = eqx.field(static=True)
+
+    def errors(self, theta: Float[Array, " d"]) -> Errors:
+        correction = self.correction_cls.from_vector(theta)
+        return stage2_errors(correction, self.points, self.centre_index)[0]

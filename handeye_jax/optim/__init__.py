@@ -1,0 +1,6 @@
+"""General-purpose optimisers: they minimise functions of flat vectors and know nothing else."""
+
+from .de import DEResult, differential_evolution
+from .polish import PolishResult, levenberg_marquardt
+
+__all__ = ["DEResult", "PolishResult", "differential_evolution", "levenberg_marquardt"]

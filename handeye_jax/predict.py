@@ -1,0 +1,100 @@
+"""From observed image points to hand commands: eq. (8) after stage 1, eq. (25) after stage 2.
+
+Also the points CSV (``u,v,depth,hand_angle`` in px, px, mm, deg) that the CLI reads and writes.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from pathlib import Path
+
+import numpy as np
+from jaxtyping import Array, Float
+
+from .errors import InputError
+from .models import AbstractCorrection, AbstractModel
+from .observations import Rig
+
+POINTS_HEADER = ("u", "v", "depth", "hand_angle")
+OUTPUT_COLUMNS = ("hand_x", "hand_y")
+
+
+def hand_command(
+    model: AbstractModel,
+    rig: Rig,
+    image_px: Float[Array, "n 2"],
+    depth_mm: Float[Array, " n"],
+    hand_angle_deg: Float[Array, " n"],
+    correction: AbstractCorrection | None = None,
+    centres_mm: Float[Array, "2 2"] | None = None,
+) -> Float[Array, "n 2"]:
+    """Where to send the hand, ``(x, y)`` in mm in the base frame, so the pen touches each point.
+
+    Args:
+        model: a fitted stage-1 model.
+        rig: the rig the model was fitted with (intrinsics, capture pose, angle convention).
+        image_px: ``(u, v)`` of each target in the captured picture, px.
+        depth_mm: depth at each target, mm.
+        hand_angle_deg: the hand angle θh the robot will touch with, deg.
+        correction: the fitted stage-2 correction; ``None`` gives eq. (8) (stage 1).
+        centres_mm: the correction's centres of rotation (rows: A1, A2), fixed at calibration.
+    """
+    x_bi = model.image_to_base(image_px, depth_mm, rig)[:, :2]
+    offset = model.pen_offset(rig.phi_deg(hand_angle_deg))[:, :2]
+    if correction is None:
+        return x_bi - offset
+    return correction.second(correction.first(x_bi, centres_mm[0]) - offset, centres_mm[1])
+
+
+def read_points_csv(path: str | Path) -> tuple[list[str], list[list[str]], np.ndarray]:
+    """Read a points CSV; returns ``(header, rows, values)`` with ``values`` (n, 4) float64.
+
+    The header must start with ``u,v,depth,hand_angle``; extra columns are kept as they are.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(path, "", f"cannot read file: {e}") from None
+    reader = csv.reader(io.StringIO(text))
+    lines = [row for row in reader if any(cell.strip() for cell in row)]
+    if not lines:
+        raise InputError(path, "header", f"file is empty; expected {','.join(POINTS_HEADER)}")
+    header = [h.strip() for h in lines[0]]
+    if tuple(header[:4]) != POINTS_HEADER:
+        raise InputError(
+            path, "header", f"expected {','.join(POINTS_HEADER)}, got {','.join(header)}"
+        )
+    clash = [c for c in OUTPUT_COLUMNS if c in header]
+    if clash:
+        raise InputError(path, "header", f"already has output column {clash[0]}")
+    rows = lines[1:]
+    if not rows:
+        raise InputError(path, "rows", "no points after the header")
+    values = np.empty((len(rows), 4))
+    for i, row in enumerate(rows, start=2):
+        if len(row) != len(header):
+            raise InputError(path, f"line {i}", f"has {len(row)} fields, header has {len(header)}")
+        for j, name in enumerate(POINTS_HEADER):
+            try:
+                x = float(row[j])
+            except ValueError:
+                raise InputError(path, f"line {i}.{name}", f"not a number: {row[j]!r}") from None
+            if not math.isfinite(x):
+                raise InputError(path, f"line {i}.{name}", f"must be finite (got {row[j]})")
+            if name == "depth" and x <= 0:
+                raise InputError(path, f"line {i}.depth", f"must be > 0 mm (got {row[j]})")
+            values[i - 2, j] = x
+    return header, rows, values
+
+
+def points_csv_text(header: list[str], rows: list[list[str]], hand_xy_mm: np.ndarray) -> str:
+    """The input CSV with ``hand_x,hand_y`` (mm) appended to every row."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow([*header, *OUTPUT_COLUMNS])
+    for row, (x, y) in zip(rows, hand_xy_mm, strict=True):
+        writer.writerow([*row, f"{x:.6f}", f"{y:.6f}"])
+    return out.getvalue()

@@ -1,0 +1,268 @@
+"""The calibration result and its file format, ``handeye-jax.result/1`` (JSON).
+
+A result is self-contained: with the rig it was fitted on (intrinsics, capture pose, hand-angle
+convention) it predicts hand commands without the dataset.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ._atomic import write_text_atomic
+from ._x64 import in_float64
+from .errors import InputError
+from .models import AbstractCorrection, AbstractModel, AffinePair, get_model, model_registry
+from .observations import Rig
+from .predict import hand_command
+
+FORMAT = "handeye-jax.result/1"
+
+
+@dataclass(frozen=True)
+class StageResult:
+    """One stage's optimum.
+
+    Attributes:
+        F, f1, f2: the fitness and its two terms, mm.
+        params: parameter name → value (mm, deg or 1, as the model's ``param_units`` say).
+        residuals_mm: per landmark, the error vectors and lengths of both terms, mm.
+        de: DE summary (generations, evaluations, converged, F found by DE).
+        polish: LM summary (accepted, F before and after, steps, parameters pinned to a bound).
+        convergence: best and median F after each DE generation, mm.
+    """
+
+    F: float
+    f1: float
+    f2: float
+    params: dict[str, float]
+    residuals_mm: list[dict[str, Any]]
+    de: dict[str, Any]
+    polish: dict[str, Any]
+    convergence: dict[str, list[float]] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class CalibrationResult:
+    """Everything a calibration produced, and what is needed to use it."""
+
+    model: str
+    seed: int
+    settings: dict[str, Any]
+    dataset: str
+    rig: dict[str, Any]
+    stage1: StageResult
+    stage2: StageResult
+    centre_index: int
+    centres_mm: list[list[float]]
+    timings_s: dict[str, float]
+    sign_twin: dict[str, Any]
+    warnings: list[str]
+    format: str = FORMAT
+
+    # -- use -----------------------------------------------------------------------------
+    def fitted_model(self) -> AbstractModel:
+        """The stage-1 model as a JAX pytree (float64 leaves)."""
+        with _x64():
+            return get_model(self.model).from_dict(self.stage1.params)
+
+    def fitted_correction(self) -> AbstractCorrection:
+        """The stage-2 correction as a JAX pytree."""
+        with _x64():
+            return AffinePair.from_dict(self.stage2.params)
+
+    def fitted_rig(self) -> Rig:
+        with _x64():
+            return rig_from_dict(self.rig)
+
+    @in_float64
+    def predict(
+        self,
+        image_px: Float[Array, "n 2"],
+        depth_mm: Float[Array, " n"],
+        hand_angle_deg: Float[Array, " n"],
+        stage: int = 2,
+    ) -> np.ndarray:
+        """Hand commands ``(x, y)`` in mm for image points, eq. (25) (stage 2) or (8) (stage 1)."""
+        if stage not in (1, 2):
+            raise ValueError(f"stage must be 1 or 2 (got {stage})")
+        out = hand_command(
+            self.fitted_model(),
+            self.fitted_rig(),
+            jnp.asarray(image_px, dtype=float),
+            jnp.asarray(depth_mm, dtype=float),
+            jnp.asarray(hand_angle_deg, dtype=float),
+            correction=self.fitted_correction() if stage == 2 else None,
+            centres_mm=jnp.asarray(self.centres_mm, dtype=float),
+        )
+        return np.asarray(out)
+
+    # -- files ---------------------------------------------------------------------------
+    def to_json(self) -> str:
+        def stage(s: StageResult) -> dict[str, Any]:
+            return {
+                "F": s.F, "f1": s.f1, "f2": s.f2, "params": s.params,
+                "residuals_mm": s.residuals_mm, "de": s.de, "polish": s.polish,
+                "convergence": s.convergence,
+            }  # fmt: skip
+
+        doc = {
+            "format": self.format,
+            "model": self.model,
+            "seed": self.seed,
+            "settings": self.settings,
+            "dataset": self.dataset,
+            "rig": self.rig,
+            "stage1": stage(self.stage1),
+            "stage2": stage(self.stage2),
+            "centre_index": self.centre_index,
+            "centres_mm": self.centres_mm,
+            "timings_s": self.timings_s,
+            "sign_twin": self.sign_twin,
+            "warnings": self.warnings,
+        }
+        return json.dumps(doc, indent=2, allow_nan=False) + "\n"
+
+    def save(self, path: str | Path) -> None:
+        """Write the result atomically: the file is complete or not written at all."""
+        write_text_atomic(path, self.to_json())
+
+
+def _x64():
+    import jax
+
+    return jax.enable_x64(True)
+
+
+def rig_to_dict(rig: Rig) -> dict[str, Any]:
+    return {
+        "camera_px": {
+            "fx": float(rig.fx_px), "fy": float(rig.fy_px),
+            "cx": float(rig.cx_px), "cy": float(rig.cy_px),
+        },
+        "capture_hand_position_mm": [float(x) for x in rig.capture_position_mm],
+        "hand_angle": {"zero_deg": float(rig.angle_zero_deg), "sign": int(rig.angle_sign)},
+    }  # fmt: skip
+
+
+def rig_from_dict(d: dict[str, Any]) -> Rig:
+    cam = d["camera_px"]
+    return Rig(
+        cam["fx"], cam["fy"], cam["cx"], cam["cy"],
+        d["capture_hand_position_mm"], d["hand_angle"]["zero_deg"], d["hand_angle"]["sign"],
+    )  # fmt: skip
+
+
+# -- loading with validation ---------------------------------------------------------------
+
+
+class _Reader:
+    """Pulls typed fields out of a parsed JSON document, naming the field on failure."""
+
+    def __init__(self, path: Path):
+        self.path = path
+
+    def fail(self, where: str, message: str):
+        raise InputError(self.path, where, message)
+
+    def get(self, obj: Any, key: str, where: str) -> Any:
+        if not isinstance(obj, dict):
+            self.fail(where, "must be an object")
+        if key not in obj:
+            self.fail(f"{where}.{key}" if where else key, "missing")
+        return obj[key]
+
+    def number(self, obj: Any, key: str, where: str, positive: bool = False) -> float:
+        x = self.get(obj, key, where)
+        name = f"{where}.{key}" if where else key
+        if isinstance(x, bool) or not isinstance(x, int | float):
+            self.fail(name, f"must be a number (got {x!r})")
+        if not math.isfinite(x):
+            self.fail(name, f"must be finite (got {x})")
+        if positive and x <= 0:
+            self.fail(name, f"must be > 0 (got {x})")
+        return float(x)
+
+    def vector(self, obj: Any, key: str, where: str, n: int) -> list[float]:
+        x = self.get(obj, key, where)
+        name = f"{where}.{key}" if where else key
+        if not isinstance(x, list) or len(x) != n:
+            self.fail(name, f"must be a list of {n} numbers (got {x!r})")
+        return [self.number({"v": v}, "v", name) for v in x]
+
+    def params(self, obj: Any, where: str, names: tuple[str, ...]) -> dict[str, float]:
+        p = self.get(obj, "params", where)
+        if not isinstance(p, dict):
+            self.fail(f"{where}.params", "must be an object")
+        unknown = sorted(set(p) - set(names))
+        if unknown:
+            self.fail(f"{where}.params.{unknown[0]}", "unknown parameter")
+        return {n: self.number(p, n, f"{where}.params") for n in names}
+
+
+def load_result(path: str | Path) -> CalibrationResult:
+    """Read and validate a ``handeye-jax.result/1`` file; raises :class:`InputError`."""
+    path = Path(path)
+    r = _Reader(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(path, "", f"cannot read file: {e}") from None
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise InputError(path, "", f"not valid JSON: {e}") from None
+    if not isinstance(doc, dict):
+        r.fail("", "must be a JSON object")
+    if r.get(doc, "format", "") != FORMAT:
+        r.fail("format", f"expected {FORMAT!r}, got {doc.get('format')!r}")
+    model = r.get(doc, "model", "")
+    if model not in model_registry():
+        r.fail("model", f"unknown model {model!r}; known: {', '.join(sorted(model_registry()))}")
+    rig = r.get(doc, "rig", "")
+    cam = r.get(rig, "camera_px", "rig")
+    for k in ("fx", "fy"):
+        r.number(cam, k, "rig.camera_px", positive=True)
+    for k in ("cx", "cy"):
+        r.number(cam, k, "rig.camera_px")
+    r.vector(rig, "capture_hand_position_mm", "rig", 3)
+    angle = r.get(rig, "hand_angle", "rig")
+    r.number(angle, "zero_deg", "rig.hand_angle")
+    if r.number(angle, "sign", "rig.hand_angle") not in (1.0, -1.0):
+        r.fail("rig.hand_angle.sign", f"must be 1 or -1 (got {angle['sign']})")
+    centres = r.get(doc, "centres_mm", "")
+    if not isinstance(centres, list) or len(centres) != 2:
+        r.fail("centres_mm", "must be a list of two [x, y] points")
+    for i in range(2):
+        r.vector({"c": centres[i]}, "c", f"centres_mm[{i}]", 2)
+
+    def stage(key: str, names: tuple[str, ...]) -> StageResult:
+        s = r.get(doc, key, "")
+        return StageResult(
+            F=r.number(s, "F", key), f1=r.number(s, "f1", key), f2=r.number(s, "f2", key),
+            params=r.params(s, key, names),
+            residuals_mm=s.get("residuals_mm", []), de=s.get("de", {}),
+            polish=s.get("polish", {}), convergence=s.get("convergence", {}),
+        )  # fmt: skip
+
+    return CalibrationResult(
+        model=model,
+        seed=int(r.number(doc, "seed", "")),
+        settings=doc.get("settings", {}),
+        dataset=str(doc.get("dataset", "")),
+        rig=rig,
+        stage1=stage("stage1", get_model(model).param_names),
+        stage2=stage("stage2", AffinePair.param_names),
+        centre_index=int(doc.get("centre_index", 0)),
+        centres_mm=centres,
+        timings_s=doc.get("timings_s", {}),
+        sign_twin=doc.get("sign_twin", {}),
+        warnings=list(doc.get("warnings", [])),
+    )

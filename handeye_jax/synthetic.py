@@ -1,0 +1,93 @@
+"""Exact data from known parameters: run a model's chain backwards.
+
+Given a model (the truth), a rig and where the landmarks are drawn, this computes what the
+camera would see (``image_px``, depth) and where the hand must be for the pen to touch each
+landmark, optionally off by a given touch error. With no noise, the model that made the data
+fits it with F = 0; the tests use this to check that calibration recovers the truth.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from . import geometry as geo
+from ._x64 import in_float64
+from .dataset import Camera, Dataset
+from .models import AbstractModel
+from .observations import Rig
+
+
+@in_float64
+def synthesize_dataset(
+    truth: AbstractModel,
+    rig: Rig,
+    tablet_px: np.ndarray,
+    hand_angle_deg: np.ndarray,
+    *,
+    ppi: float = 267.0,
+    scale: float = 2.0,
+    touch_error_px: np.ndarray | None = None,
+    tablet_height_mm: float = 120.0,
+    name: str = "synthetic",
+    search: dict[str, tuple[float, float]] | None = None,
+) -> Dataset:
+    """A noise-free dataset that ``truth`` explains exactly.
+
+    Args:
+        truth: the model whose parameters generate the data.
+        rig: intrinsics, capture position (mm) and hand-angle convention.
+        tablet_px: where the landmarks are drawn, tablet px, shape (n, 2).
+        hand_angle_deg: the hand angle θh of each touch, deg, shape (n,).
+        ppi, scale: the tablet's pixel density and display scale (eq. 9).
+        touch_error_px: where the pen touched relative to each landmark, tablet px; the hand
+            positions include it, and the dataset records it, so F stays 0.
+        tablet_height_mm: height of the tablet surface in the base frame, mm. It does not
+            enter the objective (x-y only) but sets the depths the camera sees.
+        name: the dataset's name.
+        search: ``[search]`` overrides to record in the dataset.
+    """
+    tablet_px = np.asarray(tablet_px, dtype=float)
+    n = tablet_px.shape[0]
+    touch_px = np.zeros((n, 2)) if touch_error_px is None else np.asarray(touch_error_px, float)
+    mm = geo.mm_per_tablet_px(ppi, scale)
+
+    p_base = truth.tablet_to_base(jnp.asarray(tablet_px * mm))
+    p_base = p_base.at[:, 2].add(tablet_height_mm)
+    R_bh, t_bh = rig.T_base_hand_capture()
+    R_hc, t_hc = truth.camera_mount()
+    p_hand = (p_base - t_bh) @ R_bh
+    p_camera = (p_hand - t_hc) @ R_hc
+    image_px, depth_mm = geo.project(p_camera, rig.fx_px, rig.fy_px, rig.cx_px, rig.cy_px)
+
+    touched = truth.tablet_to_base(jnp.asarray((tablet_px + touch_px) * mm))[:, :2]
+    offset = truth.pen_offset(rig.phi_deg(jnp.asarray(hand_angle_deg, dtype=float)))[:, :2]
+    hand_xy = touched - offset
+
+    return Dataset(
+        name=name,
+        camera=Camera(float(rig.fx_px), float(rig.fy_px), float(rig.cx_px), float(rig.cy_px)),
+        capture_position_mm=np.asarray(rig.capture_position_mm, dtype=float),
+        tablet_ppi=float(ppi),
+        tablet_scale=float(scale),
+        hand_angle_zero_deg=float(rig.angle_zero_deg),
+        hand_angle_sign=int(rig.angle_sign),
+        search=dict(search or {}),
+        tablet_px=tablet_px,
+        image_px=np.asarray(image_px, dtype=float),
+        depth_mm=np.asarray(depth_mm, dtype=float),
+        hand_xy_mm=np.asarray(hand_xy, dtype=float),
+        hand_angle_deg=np.asarray(hand_angle_deg, dtype=float),
+        touch_error_px=touch_px,
+    )
+
+
+def snake_grid_px(
+    xs: tuple[float, ...] = (400.0, 720.0, 1040.0), ys: tuple[float, ...] = (150.0, 350.0, 550.0)
+) -> np.ndarray:
+    """Landmarks on a grid, numbered in snake order (the paper's 3×3 layout by default), px."""
+    rows = []
+    for r, y in enumerate(ys):
+        row = [(x, y) for x in xs]
+        rows.extend(row[::-1] if r % 2 else row)
+    return np.array(rows, dtype=float)

@@ -1,0 +1,166 @@
+"""The command line: the main job, prediction, and one-line errors that write nothing."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from handeye_jax import load_result
+from handeye_jax.cli import main
+
+PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
+FAST = ["--population", "200", "--generations", "400", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def result_file(tmp_path_factory):
+    out = tmp_path_factory.mktemp("cal") / "result.json"
+    assert main(["calibrate", str(PAPER), "--out", str(out), *FAST]) == 0
+    return out
+
+
+def test_calibrate_writes_a_loadable_result(result_file, capsys):
+    doc = json.loads(result_file.read_text())
+    assert doc["format"] == "handeye-jax.result/1"
+    assert doc["model"] == "htm" and doc["dataset"] == "paper2023"
+    for stage in ("stage1", "stage2"):
+        assert set(doc[stage]) >= {"F", "f1", "f2", "params", "residuals_mm"}
+        assert len(doc[stage]["residuals_mm"]) == 9
+    assert set(doc["timings_s"]) >= {"total", "stage1_de", "stage2_de"}
+    r = load_result(result_file)
+    assert r.stage1.params == doc["stage1"]["params"]
+
+
+def test_calibrate_summary_names_units(tmp_path, capsys):
+    assert main(["calibrate", str(PAPER), *FAST]) == 0
+    out = capsys.readouterr().out
+    assert "stage 1: F = " in out and "stage 2: F = " in out and " mm" in out
+    assert "xc" in out and "alpha_t" in out and "deg" in out and "time:" in out
+
+
+def test_predict_adds_hand_commands(result_file, tmp_path, capsys):
+    pts = tmp_path / "points.csv"
+    pts.write_text("u,v,depth,hand_angle\n338,244,169.2,90\n119,105,168.2,0\n")
+    out = tmp_path / "out.csv"
+    assert main(["predict", str(result_file), str(pts), "--out", str(out)]) == 0
+    lines = out.read_text().splitlines()
+    assert lines[0] == "u,v,depth,hand_angle,hand_x,hand_y"
+    xy = np.array([[float(v) for v in line.split(",")[4:]] for line in lines[1:]])
+    r = load_result(result_file)
+    want = r.predict(np.array([[338, 244], [119, 105.0]]), np.array([169.2, 168.2]),
+                     np.array([90.0, 0.0]))  # fmt: skip
+    np.testing.assert_allclose(xy, want, atol=1e-6)
+    # The fitted hand positions of the paper are within a few mm of landmark 4 and 0's.
+    assert np.linalg.norm(xy[0] - [327, -17]) < 3 and np.linalg.norm(xy[1] - [289, 1]) < 3
+    assert main(["predict", str(result_file), str(pts), "--stage", "1"]) == 0
+    stage1 = capsys.readouterr().out.splitlines()
+    assert stage1[0].endswith("hand_x,hand_y") and len(stage1) == 3
+
+
+def _bad_dataset(tmp_path, old, new):
+    text = PAPER.read_text()
+    assert old in text
+    p = tmp_path / "bad.toml"
+    p.write_text(text.replace(old, new, 1))
+    return p
+
+
+BAD_DATASETS = [
+    ("depth = 169.2", "depth = -1.0", "landmarks[4].depth"),
+    ("depth = 169.2", "depth = nan", "landmarks[4].depth"),
+    ("ppi = 267.0", "ppi = 0.0", "tablet.ppi"),
+    ("fx = 617.7", "fox = 617.7", "camera"),
+    ('format = "handeye-jax.dataset/1"', 'format = "other/2"', "format"),
+    ("image_px = [338.0, 244.0]", "image_px = [338.0]", "landmarks[4].image_px"),
+]
+
+
+@pytest.mark.parametrize("old,new,field", BAD_DATASETS)
+def test_bad_dataset_gives_one_line_and_writes_nothing(tmp_path, capsys, old, new, field):
+    bad = _bad_dataset(tmp_path, old, new)
+    out = tmp_path / "result.json"
+    assert main(["calibrate", str(bad), "--out", str(out), *FAST]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert str(bad) in err and field in err
+    assert not out.exists()
+
+
+def test_existing_output_survives_a_failed_run(tmp_path, capsys):
+    bad = _bad_dataset(tmp_path, "depth = 169.2", "depth = 0.0")
+    out = tmp_path / "result.json"
+    out.write_text("precious")
+    assert main(["calibrate", str(bad), "--out", str(out), *FAST]) == 2
+    assert out.read_text() == "precious"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.toml", "result.json"]
+
+
+def test_search_range_errors(tmp_path, capsys):
+    text = PAPER.read_text() + "\n[search]\nxt = [250.0, 100.0]\n"
+    bad = tmp_path / "range.toml"
+    bad.write_text(text)
+    assert main(["calibrate", str(bad), *FAST]) == 2
+    assert "search.xt" in capsys.readouterr().err
+    bad.write_text(PAPER.read_text() + "\n[search]\nbogus = [0.0, 1.0]\n")
+    assert main(["calibrate", str(bad), *FAST]) == 2
+    assert "bogus" in capsys.readouterr().err
+
+
+def test_missing_and_unreadable_files(tmp_path, capsys):
+    assert main(["calibrate", str(tmp_path / "nope.toml"), *FAST]) == 2
+    assert "nope.toml" in capsys.readouterr().err
+    binary = tmp_path / "junk.toml"
+    binary.write_bytes(b"\xff\xfe\x00garbage")
+    assert main(["calibrate", str(binary), *FAST]) == 2
+    assert "junk.toml" in capsys.readouterr().err
+    assert main(["calibrate", str(PAPER), "--out", str(tmp_path / "no" / "r.json"), *FAST]) == 2
+    assert "does not exist" in capsys.readouterr().err
+
+
+def test_bad_result_and_points_files(result_file, tmp_path, capsys):
+    pts = tmp_path / "p.csv"
+    pts.write_text("u,v,depth,hand_angle\n1,2,3,4\n")
+    doc = json.loads(result_file.read_text())
+    doc["stage1"]["params"]["xc"] = "oops"
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(doc))
+    assert main(["predict", str(bad), str(pts)]) == 2
+    assert "stage1.params.xc" in capsys.readouterr().err
+    bad.write_text("{not json")
+    assert main(["predict", str(bad), str(pts)]) == 2
+    assert "not valid JSON" in capsys.readouterr().err
+    for text, field in [
+        ("x,y\n1,2\n", "header"),
+        ("u,v,depth,hand_angle\n1,2,-3,4\n", "line 2.depth"),
+        ("u,v,depth,hand_angle\n1,nan,3,4\n", "line 2.v"),
+        ("u,v,depth,hand_angle\n1,2,3\n", "line 2"),
+        ("u,v,depth,hand_angle\n", "rows"),
+    ]:
+        pts.write_text(text)
+        out = tmp_path / "o.csv"
+        assert main(["predict", str(result_file), str(pts), "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert field in err and str(pts) in err and len(err.strip().splitlines()) == 1
+        assert not out.exists()
+
+
+@pytest.mark.parametrize("args", [["--population", "2"], ["--generations", "0"],
+                                  ["--model", "nope"], ["--seed", "x"]])  # fmt: skip
+def test_bad_arguments_are_one_line(args, capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["calibrate", str(PAPER), *args])
+    assert e.value.code == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_console_script_runs_without_traceback(tmp_path):
+    bad = _bad_dataset(tmp_path, "scale = 2.0", "scale = -2.0")
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    p = subprocess.run([sys.executable, "-m", "handeye_jax.cli", "calibrate", str(bad)],
+                       capture_output=True, text=True, env=env)  # fmt: skip
+    assert p.returncode == 2
+    assert "Traceback" not in p.stderr and "tablet.scale" in p.stderr

@@ -1,0 +1,621 @@
+"""The ``handeye-jax.dataset/1`` format: the paper's file, round trips, validation, atomic save."""
+
+from __future__ import annotations
+
+import copy
+import math
+import os
+import pickle
+import stat
+import tempfile
+import tomllib
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+import tomli_w
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from handeye_jax import dataset as dataset_mod
+from handeye_jax.dataset import (
+    FORMAT,
+    Camera,
+    Dataset,
+    check_min_landmarks,
+    dataset_to_toml,
+    known_search_names,
+    load_dataset,
+    save_dataset,
+)
+from handeye_jax.errors import InputError
+from handeye_jax.models import AffinePair, model_registry
+
+PAPER = Path(__file__).resolve().parent.parent / "data" / "paper2023.toml"
+
+
+@pytest.fixture(scope="module")
+def paper() -> Dataset:
+    return load_dataset(PAPER)
+
+
+@pytest.fixture
+def paper_doc() -> dict:
+    return tomllib.loads(PAPER.read_text(encoding="utf-8"))
+
+
+# -- the paper's data ---------------------------------------------------------------------------
+
+
+def test_paper_file_values(paper: Dataset):
+    assert paper.name == "paper2023"
+    assert paper.source == PAPER
+    assert paper.n_landmarks == 9
+    assert paper.camera == Camera(617.7, 617.7, 316.5, 242.3)
+    np.testing.assert_array_equal(paper.capture_position_mm, [320.0, -70.0, 290.0])
+    assert (paper.tablet_ppi, paper.tablet_scale) == (267.0, 2.0)
+    assert (paper.hand_angle_zero_deg, paper.hand_angle_sign) == (90.0, -1)
+    assert type(paper.hand_angle_sign) is int
+    assert paper.search == {}
+    np.testing.assert_array_equal(paper.image_px[4], [338.0, 244.0])
+    assert paper.depth_mm[4] == 169.2
+    np.testing.assert_array_equal(paper.tablet_px[4], [720.0, 350.0])
+    np.testing.assert_array_equal(paper.hand_xy_mm[4], [327.0, -17.0])
+    np.testing.assert_array_equal(paper.touch_error_px[4], [-3.0, -1.0])
+    np.testing.assert_array_equal(paper.hand_angle_deg, 22.5 * np.arange(9))
+    assert paper.mm_per_tablet_px == pytest.approx(0.19026, abs=1e-5)
+    assert paper.mm_per_tablet_px == 25.4 / 267.0 * 2.0
+    for a in (paper.tablet_px, paper.image_px, paper.depth_mm, paper.hand_xy_mm):
+        assert a.dtype == np.float64
+
+
+def test_paper_tablet_grid_is_the_snake(paper: Dataset):
+    xs, ys = (400.0, 720.0, 1040.0), (150.0, 350.0, 550.0)
+    rows = [[(x, y) for x in xs] for y in ys]
+    expected = rows[0] + rows[1][::-1] + rows[2]
+    np.testing.assert_array_equal(paper.tablet_px, expected)
+
+
+def test_paper_table2_rows(paper: Dataset):
+    image = [(119, 105), (339, 108), (558, 109), (556, 246), (338, 244), (119, 242),
+             (118, 379), (337, 379), (554, 381)]  # fmt: skip
+    depth = [168.2, 168.6, 167.7, 167.5, 169.2, 168.7, 168.6, 170.2, 168.9]
+    hand = [(289, 1), (347, 8), (403, 14), (395, -20), (327, -17), (257, -16),
+            (249, -59), (305, -67), (363, -77)]  # fmt: skip
+    touch = [(-3, 1), (-2, 3), (-1, 5), (-1, 4), (-3, -1), (3, 3), (2, 0), (-1, 3), (1, 2)]
+    np.testing.assert_array_equal(paper.image_px, image)
+    np.testing.assert_array_equal(paper.depth_mm, depth)
+    np.testing.assert_array_equal(paper.hand_xy_mm, hand)
+    np.testing.assert_array_equal(paper.touch_error_px, touch)
+
+
+def test_paper_file_is_dataset_to_toml_output_plus_citation(paper: Dataset):
+    text = PAPER.read_text(encoding="utf-8")
+    generated = dataset_to_toml(paper)
+    assert text.endswith(generated)
+    assert all(line.startswith("#") for line in text[: -len(generated)].splitlines())
+
+
+def test_observations_and_rig(paper: Dataset):
+    with jax.enable_x64(True):
+        obs = paper.observations()
+    assert obs.centre_index == 4
+    assert obs.n_landmarks == 9
+    for a in (obs.image_px, obs.depth_mm, obs.tablet_mm, obs.hand_xy_mm, obs.hand_angle_deg,
+              obs.touch_error_mm, obs.rig.fx_px, obs.rig.capture_position_mm):  # fmt: skip
+        assert a.dtype == np.float64
+    mm = paper.mm_per_tablet_px
+    np.testing.assert_allclose(obs.tablet_mm, paper.tablet_px * mm, rtol=0, atol=0)
+    np.testing.assert_allclose(obs.touch_error_mm, paper.touch_error_px * mm, rtol=0, atol=0)
+    np.testing.assert_array_equal(obs.image_px, paper.image_px)
+    rig = obs.rig
+    assert float(rig.fx_px) == 617.7 and float(rig.cy_px) == 242.3
+    assert (float(rig.angle_zero_deg), float(rig.angle_sign)) == (90.0, -1.0)
+    np.testing.assert_array_equal(rig.capture_position_mm, [320.0, -70.0, 290.0])
+    with jax.enable_x64(True):
+        np.testing.assert_array_equal(obs.phi_deg(), 90.0 - 22.5 * np.arange(9))
+
+
+def test_observations_are_float64_whatever_the_callers_setting(paper: Dataset):
+    with jax.enable_x64(False):
+        obs = paper.observations()
+    assert obs.tablet_mm.dtype == np.float64
+    assert obs.rig.fx_px.dtype == np.float64
+
+
+# -- round trips ----------------------------------------------------------------------------------
+
+
+def test_save_load_round_trip(paper: Dataset, tmp_path: Path):
+    target = tmp_path / "copy.toml"
+    save_dataset(paper, target)
+    again = load_dataset(target)
+    assert again == paper
+    assert again.source == target
+    assert os.listdir(tmp_path) == ["copy.toml"]
+
+
+def test_round_trip_with_search_and_changes(paper: Dataset, tmp_path: Path):
+    changed = paper.replace(
+        name="with search",
+        search={"xt": (100.0, 250.0), "X1": (-1.5, 2.0)},
+        hand_angle_sign=1,
+        depth_mm=paper.depth_mm + 0.1,
+    )
+    assert changed != paper
+    assert paper.search == {}  # replace made a copy
+    target = tmp_path / "s.toml"
+    save_dataset(changed, target)
+    again = load_dataset(target)
+    assert again == changed
+    assert again.search == {"xt": (100.0, 250.0), "X1": (-1.5, 2.0)}
+    assert "[search]" in target.read_text(encoding="utf-8")
+
+
+def test_dataset_to_toml_writes_floats_in_the_documented_order(paper: Dataset):
+    text = dataset_to_toml(paper.replace(search={"xt": (100, 250)}))
+    doc = tomllib.loads(text)
+    assert list(doc) == ["format", "name", "camera", "capture", "tablet", "hand_angle",
+                         "search", "landmarks"]  # fmt: skip
+    assert list(doc["camera"]) == ["fx", "fy", "cx", "cy"]
+    assert list(doc["landmarks"][0]) == ["tablet_px", "image_px", "depth", "hand_xy",
+                                         "hand_angle", "touch_error_px"]  # fmt: skip
+    assert doc["format"] == FORMAT
+    assert doc["hand_angle"]["sign"] == -1
+    assert type(doc["tablet"]["ppi"]) is float
+    assert all(type(v) is float for v in doc["search"]["xt"])
+    assert all(type(v) is float for v in doc["landmarks"][0]["tablet_px"])
+    assert "tablet_px = [400.0, 150.0]" in text  # pairs on one line
+
+
+finite = st.floats(allow_nan=False, allow_infinity=False)
+positive = st.floats(min_value=0.0, exclude_min=True, allow_nan=False, allow_infinity=False)
+pair = st.tuples(finite, finite)
+
+
+@st.composite
+def datasets(draw) -> Dataset:
+    tablet = draw(st.lists(pair, min_size=1, max_size=12, unique=True))
+    n = len(tablet)
+    search_range = st.tuples(finite, finite).filter(lambda t: t[0] < t[1])
+    return Dataset(
+        name=draw(st.text(min_size=1, max_size=30).filter(lambda s: s.strip() != "")),
+        camera=Camera(draw(positive), draw(positive), draw(finite), draw(finite)),
+        capture_position_mm=np.array(draw(st.tuples(finite, finite, finite))),
+        tablet_ppi=draw(positive),
+        tablet_scale=draw(positive),
+        hand_angle_zero_deg=draw(finite),
+        hand_angle_sign=draw(st.sampled_from([1, -1])),
+        search=draw(
+            st.dictionaries(st.sampled_from(sorted(known_search_names())), search_range, max_size=4)
+        ),  # fmt: skip
+        tablet_px=np.array(tablet),
+        image_px=np.array(draw(st.lists(pair, min_size=n, max_size=n))),
+        depth_mm=np.array(draw(st.lists(positive, min_size=n, max_size=n))),
+        hand_xy_mm=np.array(draw(st.lists(pair, min_size=n, max_size=n))),
+        hand_angle_deg=np.array(draw(st.lists(finite, min_size=n, max_size=n))),
+        touch_error_px=np.array(draw(st.lists(pair, min_size=n, max_size=n))),
+    )
+
+
+def _unique_pairs(a: np.ndarray) -> bool:
+    return len({(float(x), float(y)) for x, y in a}) == len(a)
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(ds=datasets())
+def test_any_valid_dataset_round_trips_exactly(ds: Dataset):
+    if not _unique_pairs(ds.tablet_px):  # 0.0 and -0.0 are distinct to `unique`, not to us
+        return
+    text = dataset_to_toml(ds)
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "d.toml"
+        path.write_text(text, encoding="utf-8")
+        again = load_dataset(path)
+    assert again == ds
+    assert again.name == ds.name
+    for name in ("tablet_px", "image_px", "depth_mm", "hand_xy_mm", "hand_angle_deg",
+                 "touch_error_px", "capture_position_mm"):  # fmt: skip
+        a, b = getattr(again, name), getattr(ds, name)
+        assert a.tobytes() == b.tobytes() or np.array_equal(a, b)  # bit-exact up to ±0
+    assert again.search == ds.search
+    assert dataset_to_toml(again) == text
+
+
+# -- validation -----------------------------------------------------------------------------------
+
+
+def _set(doc: dict, keys: tuple, value) -> None:
+    *head, last = keys
+    for k in head:
+        doc = doc[k]
+    doc[last] = value
+
+
+def _delete(doc: dict, keys: tuple) -> None:
+    *head, last = keys
+    for k in head:
+        doc = doc[k]
+    del doc[last]
+
+
+def setting(*keys, value):
+    return lambda doc: _set(doc, keys, value)
+
+
+def deleting(*keys):
+    return lambda doc: _delete(doc, keys)
+
+
+def _dup_tablet(doc: dict) -> None:
+    doc["landmarks"][7]["tablet_px"] = list(doc["landmarks"][1]["tablet_px"])
+
+
+def _rename(doc: dict, keys: tuple, new: str) -> None:
+    *head, last = keys
+    for k in head:
+        doc = doc[k]
+    doc[new] = doc.pop(last)
+
+
+# (id, mutation of the parsed paper document, expected field, expected message fragment)
+DOC_CASES = [
+    ("format-wrong", setting("format", value="handeye-jax.dataset/2"), "format", "expected"),
+    ("format-missing", deleting("format"), "format", "missing"),
+    ("name-empty", setting("name", value=""), "name", "non-empty string"),
+    ("name-blank", setting("name", value="   "), "name", "non-empty string"),
+    ("name-not-string", setting("name", value=3), "name", "got integer 3"),
+    ("top-unknown", setting("colour", value="red"), "colour", "unknown key"),
+    ("top-missing-table", deleting("camera"), "camera", "missing"),
+    ("top-missing-landmarks", deleting("landmarks"), "landmarks", "missing"),
+    ("table-not-table", setting("tablet", value=267), "tablet", "must be a table"),
+    ("camera-unknown", lambda d: _rename(d, ("camera", "fy"), "fz"), "camera.fz", "unknown key"),
+    ("camera-missing", deleting("camera", "cy"), "camera.cy", "missing"),
+    (
+        "capture-unknown",
+        setting("capture", "hand_angle", value=0.0),
+        "capture.hand_angle",
+        "unknown key",
+    ),
+    ("capture-missing", deleting("capture", "hand_position"), "capture.hand_position", "missing"),
+    ("tablet-missing", deleting("tablet", "scale"), "tablet.scale", "missing"),
+    (
+        "angle-unknown",
+        setting("hand_angle", "offset", value=1.0),
+        "hand_angle.offset",
+        "unknown key",
+    ),
+    (
+        "landmark-unknown",
+        lambda d: _rename(d, ("landmarks", 3, "depth"), "depht"),
+        "landmarks[3].depht",
+        "did you mean 'depth'",
+    ),
+    (
+        "landmark-missing",
+        deleting("landmarks", 5, "hand_angle"),
+        "landmarks[5].hand_angle",
+        "missing",
+    ),
+    ("bool-not-number", setting("camera", "cx", value=True), "camera.cx", "got boolean true"),
+    (
+        "string-not-number",
+        setting("landmarks", 2, "depth", value="168"),
+        "landmarks[2].depth",
+        "must be a number",
+    ),
+    (
+        "bool-in-vector",
+        setting("landmarks", 0, "hand_xy", value=[289.0, False]),
+        "landmarks[0].hand_xy[1]",
+        "must be a number",
+    ),
+    (
+        "nan",
+        setting("landmarks", 1, "hand_angle", value=math.nan),
+        "landmarks[1].hand_angle",
+        "must be finite (got nan)",
+    ),
+    (
+        "inf-in-vector",
+        setting("capture", "hand_position", value=[320.0, math.inf, 290.0]),
+        "capture.hand_position[1]",
+        "must be finite (got inf)",
+    ),
+    (
+        "vector-too-short",
+        setting("capture", "hand_position", value=[320.0, -70.0]),
+        "capture.hand_position",
+        "array of 3 numbers (got an array of 2)",
+    ),
+    (
+        "pair-too-long",
+        setting("landmarks", 0, "image_px", value=[1.0, 2.0, 3.0]),
+        "landmarks[0].image_px",
+        "array of 2 numbers",
+    ),
+    (
+        "pair-not-array",
+        setting("landmarks", 4, "touch_error_px", value=3.0),
+        "landmarks[4].touch_error_px",
+        "array of 2 numbers",
+    ),
+    ("fx-negative", setting("camera", "fx", value=-1.0), "camera.fx", "must be > 0 (got -1.0)"),
+    ("fy-zero", setting("camera", "fy", value=0), "camera.fy", "must be > 0 (got 0)"),
+    ("ppi-zero", setting("tablet", "ppi", value=0.0), "tablet.ppi", "must be > 0"),
+    ("scale-negative", setting("tablet", "scale", value=-2), "tablet.scale", "must be > 0"),
+    (
+        "depth-zero",
+        setting("landmarks", 3, "depth", value=0.0),
+        "landmarks[3].depth",
+        "must be > 0 (got 0.0)",
+    ),
+    ("sign-zero", setting("hand_angle", "sign", value=0), "hand_angle.sign", "must be 1 or -1"),
+    ("sign-half", setting("hand_angle", "sign", value=-0.5), "hand_angle.sign", "1 or -1"),
+    ("sign-two", setting("hand_angle", "sign", value=2), "hand_angle.sign", "1 or -1"),
+    ("sign-bool", setting("hand_angle", "sign", value=True), "hand_angle.sign", "number"),
+    ("search-not-table", setting("search", value=[1.0, 2.0]), "search", "must be a table"),
+    (
+        "search-unknown",
+        setting("search", value={"xtt": [1.0, 2.0]}),
+        "search.xtt",
+        "unknown parameter name; did you mean 'xt'",
+    ),
+    ("search-not-pair", setting("search", value={"xt": 150.0}), "search.xt", "array of 2"),
+    ("search-three", setting("search", value={"xt": [1.0, 2.0, 3.0]}), "search.xt", "array of 2"),
+    (
+        "search-reversed",
+        setting("search", value={"xt": [250.0, 100.0]}),
+        "search.xt",
+        "lo < hi (got [250.0, 100.0])",
+    ),
+    ("search-empty-range", setting("search", value={"yp": [-20, -20]}), "search.yp", "lo < hi"),
+    ("search-nan", setting("search", value={"xt": [math.nan, 1.0]}), "search.xt[0]", "finite"),
+    ("search-string", setting("search", value={"xt": ["a", 1.0]}), "search.xt[0]", "number"),
+    ("landmarks-empty", setting("landmarks", value=[]), "landmarks", "at least 1 landmark"),
+    ("landmarks-not-tables", setting("landmarks", value=[1, 2]), "landmarks", "array of tables"),
+    ("landmarks-duplicate", _dup_tablet, "landmarks[7].tablet_px", "duplicates landmarks[1]"),
+]
+
+
+@pytest.mark.parametrize(
+    ("mutate", "field", "fragment"),
+    [pytest.param(m, f, frag, id=i) for i, m, f, frag in DOC_CASES],
+)
+def test_malformed_document(paper_doc, tmp_path: Path, mutate, field, fragment):
+    doc = copy.deepcopy(paper_doc)
+    mutate(doc)
+    path = tmp_path / "bad-dataset.toml"
+    path.write_text(tomli_w.dumps(doc), encoding="utf-8")
+    with pytest.raises(InputError) as info:
+        load_dataset(path)
+    err = info.value
+    text = str(err)
+    assert "bad-dataset.toml" in text
+    assert field in text
+    assert err.field == field
+    assert fragment in err.message
+    assert text == f"{path}: {field}: {err.message}"
+    assert "\n" not in text
+
+
+def _write(path: Path, data: bytes | None) -> None:
+    if data is not None:
+        path.write_bytes(data)
+
+
+FILE_CASES = [
+    ("missing-file", None, "cannot read file"),
+    ("not-utf8", b'format = "\xff\xfe"\n', "cannot read file"),
+    ("invalid-toml", b"format = \n", "not valid TOML: "),
+    ("duplicate-key", PAPER.read_bytes() + b"\nname = 'again'\n", "not valid TOML: "),
+]
+
+
+@pytest.mark.parametrize(("data", "fragment"), [pytest.param(d, f, id=i) for i, d, f in FILE_CASES])
+def test_unreadable_or_unparsable_file(tmp_path: Path, data, fragment):
+    path = tmp_path / "bad-file.toml"
+    _write(path, data)
+    with pytest.raises(InputError) as info:
+        load_dataset(path)
+    assert info.value.field == ""
+    assert str(info.value).startswith(f"{path}: {fragment}")
+    assert "\n" not in str(info.value)
+
+
+def test_directory_is_unreadable(tmp_path: Path):
+    path = tmp_path / "a-folder.toml"
+    path.mkdir()
+    with pytest.raises(InputError, match="cannot read file") as info:
+        load_dataset(path)
+    assert "a-folder.toml" in str(info.value)
+
+
+@pytest.mark.skipif(not hasattr(os, "geteuid") or os.geteuid() == 0, reason="root reads all")
+def test_permission_denied(tmp_path: Path):
+    path = tmp_path / "secret.toml"
+    path.write_bytes(PAPER.read_bytes())
+    path.chmod(0)
+    try:
+        with pytest.raises(InputError, match="cannot read file"):
+            load_dataset(path)
+    finally:
+        path.chmod(0o600)
+
+
+def test_lenient_where_the_format_allows(paper_doc, tmp_path: Path, paper: Dataset):
+    """Integers for floats, a float ±1 sign, inline landmark tables and a BOM all load."""
+    doc = copy.deepcopy(paper_doc)
+    doc["camera"]["fx"] = 617.7
+    doc["tablet"] = {"ppi": 267, "scale": 2}
+    doc["hand_angle"]["sign"] = -1.0
+    doc["search"] = {}
+    path = tmp_path / "ints.toml"
+    path.write_bytes(b"\xef\xbb\xbf" + tomli_w.dumps(doc).encode("utf-8"))
+    ds = load_dataset(path)
+    assert ds == paper
+    assert type(ds.hand_angle_sign) is int and type(ds.tablet_ppi) is float
+    inline = PAPER.read_text(encoding="utf-8").split("[[landmarks]]")[0] + "landmarks = [\n"
+    for m in paper_doc["landmarks"]:
+        fields = ", ".join(f"{k} = {v!r}" for k, v in m.items())
+        inline += f"  {{ {fields} }},\n"
+    path.write_text(inline + "]\n", encoding="utf-8")
+    assert load_dataset(path) == paper
+
+
+def test_every_model_parameter_is_a_known_search_name():
+    names = known_search_names()
+    for cls in [*model_registry().values(), AffinePair]:
+        assert set(cls.param_names) <= names
+
+
+# -- enough landmarks -----------------------------------------------------------------------------
+
+
+def _first(ds: Dataset, n: int) -> Dataset:
+    return ds.replace(
+        tablet_px=ds.tablet_px[:n], image_px=ds.image_px[:n], depth_mm=ds.depth_mm[:n],
+        hand_xy_mm=ds.hand_xy_mm[:n], hand_angle_deg=ds.hand_angle_deg[:n],
+        touch_error_px=ds.touch_error_px[:n],
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("n_params", "need"), [(1, 3), (8, 3), (10, 3), (12, 3), (13, 4), (16, 4), (17, 5), (40, 10)]
+)
+def test_check_min_landmarks(paper: Dataset, n_params: int, need: int):
+    check_min_landmarks(_first(paper, need), n_params)
+    with pytest.raises(InputError) as info:
+        check_min_landmarks(_first(paper, need - 1), n_params, "the/file.toml")
+    err = info.value
+    assert err.field == "landmarks"
+    assert err.message == (
+        f"needs at least {need} landmarks to fit {n_params} parameters (got {need - 1})"
+    )
+    assert str(err).startswith("the/file.toml: landmarks: ")
+
+
+def test_check_min_landmarks_defaults_to_the_source_path(paper: Dataset, tmp_path: Path):
+    path = tmp_path / "two.toml"
+    save_dataset(_first(paper, 2), path)  # loading accepts any positive number
+    two = load_dataset(path)
+    assert two.n_landmarks == 2
+    with pytest.raises(InputError, match=r"two\.toml: landmarks: needs at least 3"):
+        check_min_landmarks(two, 12)
+    for cls in model_registry().values():
+        check_min_landmarks(paper, len(cls.param_names))
+    check_min_landmarks(paper, len(AffinePair.param_names))
+
+
+def test_check_min_landmarks_rejects_duplicates(paper: Dataset):
+    tablet = paper.tablet_px.copy()
+    tablet[6] = tablet[2]
+    with pytest.raises(InputError, match=r"landmarks\[6\]\.tablet_px: duplicates landmarks\[2\]"):
+        check_min_landmarks(paper.replace(tablet_px=tablet), 12)
+
+
+def test_dataset_rejects_misshapen_arrays(paper: Dataset):
+    with pytest.raises(ValueError, match="depth_mm"):
+        paper.replace(depth_mm=paper.depth_mm[:5])
+    with pytest.raises(ValueError, match="capture_position_mm"):
+        paper.replace(capture_position_mm=np.zeros(2))
+
+
+# -- atomic save ----------------------------------------------------------------------------------
+
+
+def test_save_is_atomic_when_serialisation_fails(paper: Dataset, tmp_path: Path, monkeypatch):
+    target = tmp_path / "d.toml"
+    save_dataset(paper, target)
+    before = target.read_bytes()
+
+    def boom(*args, **kwargs):
+        raise RuntimeError("serialiser broke")
+
+    monkeypatch.setattr(tomli_w, "dumps", boom)
+    with pytest.raises(RuntimeError, match="serialiser broke"):
+        save_dataset(paper.replace(name="other"), target)
+    assert target.read_bytes() == before
+    assert os.listdir(tmp_path) == ["d.toml"]
+
+
+def test_save_is_atomic_when_the_write_fails(paper: Dataset, tmp_path: Path, monkeypatch):
+    target = tmp_path / "d.toml"
+    save_dataset(paper, target)
+    before = target.read_bytes()
+
+    def boom(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(dataset_mod.os, "fsync", boom)
+    with pytest.raises(InputError, match="d.toml: cannot write: .*No space left"):
+        save_dataset(paper.replace(name="other"), target)
+    monkeypatch.undo()
+    assert target.read_bytes() == before
+    assert os.listdir(tmp_path) == ["d.toml"]
+
+
+def test_save_is_atomic_when_the_rename_fails(paper: Dataset, tmp_path: Path, monkeypatch):
+    target = tmp_path / "d.toml"
+    save_dataset(paper, target)
+    before = target.read_bytes()
+
+    def boom(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(dataset_mod.os, "replace", boom)
+    with pytest.raises(KeyboardInterrupt):
+        save_dataset(paper.replace(name="other"), target)
+    monkeypatch.undo()
+    assert target.read_bytes() == before
+    assert os.listdir(tmp_path) == ["d.toml"]
+
+
+def test_save_refuses_an_invalid_dataset(paper: Dataset, tmp_path: Path):
+    target = tmp_path / "d.toml"
+    save_dataset(paper, target)
+    before = target.read_bytes()
+    bad = paper.replace(camera=Camera(-1.0, 617.7, 316.5, 242.3))
+    with pytest.raises(InputError, match=r"d\.toml: camera\.fx: must be > 0 \(got -1\.0\)"):
+        save_dataset(bad, target)
+    with pytest.raises(InputError, match=r"landmarks\[0\]\.depth: must be finite"):
+        save_dataset(paper.replace(depth_mm=np.full(9, np.nan)), target)
+    assert target.read_bytes() == before
+    assert os.listdir(tmp_path) == ["d.toml"]
+
+
+def test_save_to_a_missing_folder(paper: Dataset, tmp_path: Path):
+    with pytest.raises(InputError, match="cannot write"):
+        save_dataset(paper, tmp_path / "nowhere" / "d.toml")
+    assert os.listdir(tmp_path) == []
+
+
+def test_saved_file_has_ordinary_permissions(paper: Dataset, tmp_path: Path):
+    umask = os.umask(0o022)
+    os.umask(umask)
+    target = tmp_path / "d.toml"
+    save_dataset(paper, target)
+    assert stat.S_IMODE(target.stat().st_mode) == 0o666 & ~umask
+    target.chmod(0o640)
+    save_dataset(paper.replace(name="again"), target)
+    assert stat.S_IMODE(target.stat().st_mode) == 0o640
+    assert load_dataset(target).name == "again"
+
+
+# -- the error type -------------------------------------------------------------------------------
+
+
+def test_input_error_format():
+    assert str(InputError("a/b.toml", "camera.fx", "must be > 0")) == (
+        "a/b.toml: camera.fx: must be > 0"
+    )
+    assert str(InputError(None, "camera.fx", "bad")) == "camera.fx: bad"
+    assert str(InputError(Path("x.toml"), "", "bad")) == "x.toml: bad"
+    assert str(InputError(None, "", "bad")) == "bad"
+    assert str(InputError("f", "g", "two\nlines")) == "f: g: two lines"
+    err = InputError(Path("x.toml"), "name", "bad")
+    assert (err.path, err.field, err.message) == (Path("x.toml"), "name", "bad")
+    assert isinstance(err, ValueError)
+    again = pickle.loads(pickle.dumps(err))
+    assert (again.path, again.field, again.message) == (err.path, err.field, err.message)

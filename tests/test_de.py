@@ -1,0 +1,116 @@
+"""The DE and LM optimisers on problems with known answers; they know nothing of hand-eye."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from handeye_jax.optim import differential_evolution, levenberg_marquardt
+from handeye_jax.optim.de import distinct_indices, latin_hypercube
+
+
+class ShiftedSphere(eqx.Module):
+    centre: jax.Array
+
+    def __call__(self, x):
+        return jnp.sum((x - self.centre) ** 2)
+
+    def residuals(self, x):
+        return x - self.centre
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(4, 60), st.integers(0, 2**31 - 1))
+def test_index_draws_are_distinct_and_exclude_the_target(n, seed):
+    r = np.asarray(distinct_indices(jax.random.PRNGKey(seed), n))
+    i = np.arange(n)
+    assert r.min() >= 0 and r.max() < n
+    assert np.all(r[0] != i) and np.all(r[1] != i) and np.all(r[2] != i)
+    assert np.all(r[0] != r[1]) and np.all(r[0] != r[2]) and np.all(r[1] != r[2])
+
+
+def test_index_draws_are_uniform_over_the_allowed_values():
+    n, draws = 7, 4000
+    keys = jax.random.split(jax.random.PRNGKey(0), draws)
+    r = np.asarray(jax.vmap(lambda k: distinct_indices(k, n))(keys))  # (draws, 3, n)
+    for j in range(3):
+        counts = np.bincount(r[:, j, 0], minlength=n)  # member 0's picks
+        assert counts[0] == 0
+        expected = draws / (n - 1)
+        assert np.all(np.abs(counts[1:] - expected) < 5 * np.sqrt(expected))
+
+
+def test_latin_hypercube_fills_every_stratum():
+    lo, hi = jnp.array([-1.0, 10.0]), jnp.array([1.0, 30.0])
+    pop = np.asarray(latin_hypercube(jax.random.PRNGKey(3), 50, lo, hi))
+    for d in range(2):
+        strata = np.floor((pop[:, d] - lo[d]) / (hi[d] - lo[d]) * 50).astype(int)
+        assert sorted(strata) == list(range(50))
+
+
+def test_de_finds_a_sphere_minimum():
+    fn = ShiftedSphere(jnp.array([1.0, -2.0, 0.5, 3.0]))
+    r = differential_evolution(fn, -5 * np.ones(4), 5 * np.ones(4), key=jax.random.PRNGKey(0),
+                               population=60, generations=2000, tol=1e-10)  # fmt: skip
+    np.testing.assert_allclose(r.x, fn.centre, atol=1e-3)
+    assert r.converged and r.generations < 2000
+    assert r.evaluations == 60 * (r.generations + 1)
+    assert len(r.best_history) == r.generations
+    assert np.all(np.diff(r.best_history) <= 0)  # the best never gets worse
+
+
+def test_de_is_bit_for_bit_deterministic_and_chunk_independent():
+    fn = ShiftedSphere(jnp.array([0.3, -0.7, 1.1]))
+    kw = dict(key=jax.random.PRNGKey(42), population=20, early_stop=False)
+    a = differential_evolution(fn, -np.ones(3) * 2, np.ones(3) * 2, generations=150, **kw)
+    b = differential_evolution(fn, -np.ones(3) * 2, np.ones(3) * 2, generations=150, **kw)
+    np.testing.assert_array_equal(a.population, b.population)
+    # A longer run passes through exactly the same first 70 generations (chunks are 64 long).
+    c = differential_evolution(fn, -np.ones(3) * 2, np.ones(3) * 2, generations=70, **kw)
+    np.testing.assert_array_equal(c.best_history, a.best_history[:70])
+    d = differential_evolution(
+        fn, -np.ones(3) * 2, np.ones(3) * 2, generations=150,
+        key=jax.random.PRNGKey(43), population=20, early_stop=False,
+    )  # fmt: skip
+    assert not np.array_equal(d.population, a.population)
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.floats(3.0, 50.0), st.integers(0, 1000))
+def test_trials_never_leave_the_box(outside, seed):
+    """The optimum lies outside the box: DE must end on the bound, never beyond it."""
+    fn = ShiftedSphere(jnp.array([outside, -outside]))
+    r = differential_evolution(fn, [-1.0, -1.0], [1.0, 1.0], key=jax.random.PRNGKey(seed),
+                               population=16, generations=120, early_stop=False)  # fmt: skip
+    assert np.all(r.population >= -1.0) and np.all(r.population <= 1.0)
+    np.testing.assert_allclose(r.x, [1.0, -1.0], atol=1e-2)
+
+
+def test_de_treats_nan_as_worst():
+    class NanLeft(eqx.Module):
+        def __call__(self, x):
+            return jnp.where(x[0] < 0, jnp.nan, jnp.sum((x - 0.5) ** 2))
+
+    r = differential_evolution(NanLeft(), [-1.0, -1.0], [1.0, 1.0], key=jax.random.PRNGKey(1),
+                               population=20, generations=300)  # fmt: skip
+    np.testing.assert_allclose(r.x, [0.5, 0.5], atol=1e-2)
+
+
+def test_de_rejects_too_small_population():
+    import pytest
+
+    with pytest.raises(ValueError, match="at least 4"):
+        differential_evolution(ShiftedSphere(jnp.zeros(2)), [-1, -1], [1, 1],
+                               key=jax.random.PRNGKey(0), population=3, generations=5)  # fmt: skip
+
+
+def test_lm_polish_solves_least_squares_and_respects_bounds():
+    fn = ShiftedSphere(jnp.array([0.2, 3.0, -0.4]))
+    free = levenberg_marquardt(fn.residuals, np.zeros(3))
+    np.testing.assert_allclose(free.x, [0.2, 3.0, -0.4], atol=1e-10)
+    assert free.pinned == ()
+    boxed = levenberg_marquardt(fn.residuals, np.zeros(3), -np.ones(3), np.ones(3))
+    np.testing.assert_allclose(boxed.x, [0.2, 1.0, -0.4], atol=1e-10)
+    assert boxed.pinned == (1,)

@@ -1,0 +1,78 @@
+"""End to end on noise-free data made by the models themselves: the truth is recovered."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from handeye_jax import HTMModel, Settings, calibrate, get_model
+from handeye_jax.observations import Rig
+from handeye_jax.synthetic import snake_grid_px, synthesize_dataset
+
+TRUTH = {
+    "htm": dict(xc=-3.0, yc=35.0, alpha_c=-1.5, beta_c=2.0, gamma_c=4.0, xt=150.0, yt=40.0,
+                alpha_t=2.0, beta_t=-8.0, gamma_t=-3.0, xp=4.0, yp=-25.0),
+    "dh": dict(theta_c1=5.0, a_c1=60.0, alpha_c=8.0, beta_c=-2.0, gamma_c=-10.0, theta_t1=30.0,
+               a_t1=140.0, alpha_t=20.0, beta_t=-4.0, gamma_t=-12.0, xp=-3.0, yp=-22.0),
+}  # fmt: skip
+CONVENTIONS = [(90.0, -1.0), (0.0, 1.0)]
+
+
+def _held_out(rng, n=12):
+    """Targets inside the landmark area, at hand angles the fit never saw."""
+    tab = np.c_[rng.uniform(420, 1020, n), rng.uniform(170, 530, n)]
+    return tab, rng.uniform(0, 180, n)
+
+
+def _true_commands(truth, rig, tab_px, angles):
+    ds = synthesize_dataset(truth, rig, tab_px, angles)
+    return ds, ds.hand_xy_mm
+
+
+@pytest.mark.parametrize("model", ["htm", "dh"])
+@pytest.mark.parametrize("zero,sign", CONVENTIONS)
+def test_noise_free_data_is_recovered(model, zero, sign):
+    cls = get_model(model)
+    with_capture = [320.0, -70.0, 290.0] if model == "htm" else [300.0, -60.0, 300.0]
+    rig = Rig(617.7, 617.7, 316.5, 242.3, with_capture, zero, sign)
+    truth = cls.from_dict(TRUTH[model])
+    ds = synthesize_dataset(truth, rig, snake_grid_px(), 22.5 * np.arange(9))
+    r = calibrate(ds, Settings(model=model, seed=0))
+    assert r.stage1.F < 1e-6, r.stage1
+    assert r.stage2.F < 1e-6, r.stage2
+
+    rng = np.random.default_rng(1)
+    tab, angles = _held_out(rng)
+    held, want = _true_commands(truth, rig, tab, angles)
+    for stage in (1, 2):
+        got = r.predict(held.image_px, held.depth_mm, held.hand_angle_deg, stage=stage)
+        assert np.max(np.linalg.norm(got - want, axis=1)) < 1e-6
+
+
+def test_search_override_moves_the_range_and_is_obeyed():
+    """A truth outside Table 5's xt range is found once [search] widens it."""
+    rig = Rig(617.7, 617.7, 316.5, 242.3, [320.0, -70.0, 290.0], 90.0, -1.0)
+    truth = HTMModel.from_dict(dict(TRUTH["htm"], xt=230.0))
+    base = synthesize_dataset(truth, rig, snake_grid_px(), 22.5 * np.arange(9))
+    narrow = calibrate(base, Settings(seed=2))
+    assert narrow.stage1.F > 1e-3
+    assert any(w.startswith("xt") for w in narrow.warnings)
+
+    wide = calibrate(base.replace(search={"xt": (100.0, 250.0)}), Settings(seed=2))
+    assert wide.stage1.F < 1e-6
+    assert abs(wide.stage1.params["xt"] - 230.0) < 1e-5
+    assert not any(w.startswith("xt") for w in wide.warnings)
+
+
+def test_touch_errors_are_compensated_by_eq20():
+    """Data whose touches miss by known amounts is still fitted exactly (eq. 20)."""
+    rig = Rig(617.7, 617.7, 316.5, 242.3, [320.0, -70.0, 290.0], 90.0, -1.0)
+    truth = HTMModel.from_dict(TRUTH["htm"])
+    touch = np.random.default_rng(5).integers(-4, 5, size=(9, 2)).astype(float)
+    ds = synthesize_dataset(truth, rig, snake_grid_px(), 22.5 * np.arange(9), touch_error_px=touch)
+    r = calibrate(ds, Settings(seed=4))
+    assert r.stage1.F < 1e-6
+    for k, v in TRUTH["htm"].items():
+        if k not in ("alpha_t", "beta_t"):  # the sign twin may flip these two
+            assert abs(r.stage1.params[k] - v) < 1e-3, k
+    assert abs(abs(r.stage1.params["alpha_t"]) - 2.0) < 1e-3
+    assert jnp.isfinite(r.stage2.F)
