@@ -89,7 +89,6 @@ def _optimise(
         accepted = bool(np.isfinite(f_lm) and f_lm < de.f)
         polish.update(
             accepted=accepted, F_after=f_lm, steps=lm.steps, solver_converged=lm.solver_ok,
-            pinned=[cls.param_names[i] for i in lm.pinned],
         )  # fmt: skip
         if accepted:
             x = lm.x

@@ -47,9 +47,6 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
-import os
-import stat
-import tempfile
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -60,6 +57,8 @@ import numpy as np
 import tomli_w
 
 from . import geometry as geo
+from ._atomic import write_text_atomic
+from ._validate import _describe, _join, _Reader
 from ._x64 import in_float64
 from .errors import InputError
 from .observations import Observations, Rig, centre_landmark
@@ -244,64 +243,6 @@ def known_search_names() -> frozenset[str]:
 # -- reading with validation ----------------------------------------------------------------
 
 
-def _describe(x: Any) -> str:
-    """A short description of a TOML value for error messages."""
-    if isinstance(x, bool):
-        return f"boolean {str(x).lower()}"
-    if isinstance(x, int | float):
-        return f"{'integer' if isinstance(x, int) else 'float'} {x}"
-    if isinstance(x, str):
-        text = repr(x)
-        return f"string {text if len(text) <= 40 else text[:37] + '...'}"
-    if isinstance(x, list):
-        return f"an array of {len(x)}"
-    if isinstance(x, dict):
-        return "a table"
-    return f"a {type(x).__name__}"
-
-
-class _Reader:
-    """Pulls typed fields out of a parsed TOML document, naming the field on failure."""
-
-    def __init__(self, path: Path | None):
-        self.path = path
-
-    def fail(self, where: str, message: str):
-        raise InputError(self.path, where, message)
-
-    def table(self, value: Any, where: str, keys: tuple[str, ...], optional: tuple[str, ...] = ()):
-        """Check that ``value`` is a table holding exactly ``keys`` (``optional`` may be absent)."""
-        if not isinstance(value, dict):
-            self.fail(where, f"must be a table (got {_describe(value)})")
-        missing = [k for k in keys if k not in value and k not in optional]
-        for k in value:
-            if k not in keys:
-                hint = difflib.get_close_matches(k, missing or keys, n=1)
-                expected = f"did you mean {hint[0]!r}?" if hint else f"expected {', '.join(keys)}"
-                self.fail(_join(where, k), f"unknown key; {expected}")
-        if missing:
-            self.fail(_join(where, missing[0]), "missing")
-        return value
-
-    def number(self, x: Any, where: str, positive: bool = False) -> float:
-        if isinstance(x, bool) or not isinstance(x, int | float):
-            self.fail(where, f"must be a number (got {_describe(x)})")
-        if not math.isfinite(x):
-            self.fail(where, f"must be finite (got {x})")
-        if positive and x <= 0:
-            self.fail(where, f"must be > 0 (got {x})")
-        return float(x)
-
-    def vector(self, x: Any, where: str, n: int) -> list[float]:
-        if not isinstance(x, list) or len(x) != n:
-            self.fail(where, f"must be an array of {n} numbers (got {_describe(x)})")
-        return [self.number(v, f"{where}[{i}]") for i, v in enumerate(x)]
-
-
-def _join(where: str, key: str) -> str:
-    return f"{where}.{key}" if where else key
-
-
 def _parse(doc: dict[str, Any], path: Path | None) -> Dataset:
     r = _Reader(path)
     if "format" not in doc:
@@ -468,7 +409,7 @@ def _to_document(ds: Dataset) -> dict[str, Any]:
 def _one_line_arrays(text: str) -> str:
     """Join tomli_w's one-item-per-line number arrays into ``key = [a, b]`` lines."""
     out: list[str] = []
-    lines = iter(text.splitlines())
+    lines = iter(text.split("\n"))  # not splitlines(): strings may hold U+0085, U+2028...
     for line in lines:
         if line.endswith(" = ["):
             items = []
@@ -478,18 +419,18 @@ def _one_line_arrays(text: str) -> str:
                 items.append(item.strip().rstrip(","))
             line = f"{line[:-1]}[{', '.join(items)}]"
         out.append(line)
-    return "\n".join(out) + "\n"
+    return "\n".join(out)
 
 
 def _commented(text: str) -> str:
     """Put a unit comment after the first header of each table."""
     out, done = [], set()
-    for line in text.splitlines():
+    for line in text.split("\n"):
         if line in _TABLE_COMMENTS and line not in done:
             done.add(line)
             line = f"{line}  {_TABLE_COMMENTS[line]}"
         out.append(line)
-    return _HEADER + "\n".join(out) + "\n"
+    return _HEADER + "\n".join(out)
 
 
 def dataset_to_toml(ds: Dataset) -> str:
@@ -513,50 +454,6 @@ def save_dataset(ds: Dataset, path: str | Path) -> None:
     text = dataset_to_toml(ds)
     _parse(tomllib.loads(text), path)
     try:
-        _write_atomic(path, text)
+        write_text_atomic(path, text)
     except OSError as e:
         raise InputError(path, "", f"cannot write: {e}") from None
-
-
-def _write_atomic(path: Path, text: str) -> None:
-    """Temp file in the same folder, fsync, ``os.replace``; the temp file never survives."""
-    folder = path.parent
-    try:
-        mode = stat.S_IMODE(os.stat(path).st_mode)
-    except FileNotFoundError:
-        mode = 0o666 & ~_umask()
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, mode)  # mkstemp makes 0600; give the file the usual permissions
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-    try:  # make the rename itself durable; not possible everywhere
-        dir_fd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(dir_fd)
-    except OSError:
-        pass
-    finally:
-        os.close(dir_fd)
-
-
-_UMASK: list[int] = []
-
-
-def _umask() -> int:
-    if not _UMASK:
-        current = os.umask(0o022)
-        os.umask(current)
-        _UMASK.append(current)
-    return _UMASK[0]

@@ -7,7 +7,6 @@ convention) it predicts hand commands without the dataset.
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -17,6 +16,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._atomic import write_text_atomic
+from ._validate import _describe, _Reader
 from ._x64 import in_float64
 from .errors import InputError
 from .models import AbstractCorrection, AbstractModel, AffinePair, get_model, model_registry
@@ -163,50 +163,6 @@ def rig_from_dict(d: dict[str, Any]) -> Rig:
 # -- loading with validation ---------------------------------------------------------------
 
 
-class _Reader:
-    """Pulls typed fields out of a parsed JSON document, naming the field on failure."""
-
-    def __init__(self, path: Path):
-        self.path = path
-
-    def fail(self, where: str, message: str):
-        raise InputError(self.path, where, message)
-
-    def get(self, obj: Any, key: str, where: str) -> Any:
-        if not isinstance(obj, dict):
-            self.fail(where, "must be an object")
-        if key not in obj:
-            self.fail(f"{where}.{key}" if where else key, "missing")
-        return obj[key]
-
-    def number(self, obj: Any, key: str, where: str, positive: bool = False) -> float:
-        x = self.get(obj, key, where)
-        name = f"{where}.{key}" if where else key
-        if isinstance(x, bool) or not isinstance(x, int | float):
-            self.fail(name, f"must be a number (got {x!r})")
-        if not math.isfinite(x):
-            self.fail(name, f"must be finite (got {x})")
-        if positive and x <= 0:
-            self.fail(name, f"must be > 0 (got {x})")
-        return float(x)
-
-    def vector(self, obj: Any, key: str, where: str, n: int) -> list[float]:
-        x = self.get(obj, key, where)
-        name = f"{where}.{key}" if where else key
-        if not isinstance(x, list) or len(x) != n:
-            self.fail(name, f"must be a list of {n} numbers (got {x!r})")
-        return [self.number({"v": v}, "v", name) for v in x]
-
-    def params(self, obj: Any, where: str, names: tuple[str, ...]) -> dict[str, float]:
-        p = self.get(obj, "params", where)
-        if not isinstance(p, dict):
-            self.fail(f"{where}.params", "must be an object")
-        unknown = sorted(set(p) - set(names))
-        if unknown:
-            self.fail(f"{where}.params.{unknown[0]}", "unknown parameter")
-        return {n: self.number(p, n, f"{where}.params") for n in names}
-
-
 def load_result(path: str | Path) -> CalibrationResult:
     """Read and validate a ``handeye-jax.result/1`` file; raises :class:`InputError`."""
     path = Path(path)
@@ -221,40 +177,47 @@ def load_result(path: str | Path) -> CalibrationResult:
         raise InputError(path, "", f"not valid JSON: {e}") from None
     if not isinstance(doc, dict):
         r.fail("", "must be a JSON object")
-    if r.get(doc, "format", "") != FORMAT:
-        r.fail("format", f"expected {FORMAT!r}, got {doc.get('format')!r}")
-    model = r.get(doc, "model", "")
+    if doc.get("format") != FORMAT:
+        r.fail("format", f"expected {FORMAT!r} (got {_describe(doc.get('format'))})")
+    model = doc.get("model")
     if model not in model_registry():
-        r.fail("model", f"unknown model {model!r}; known: {', '.join(sorted(model_registry()))}")
-    rig = r.get(doc, "rig", "")
-    cam = r.get(rig, "camera_px", "rig")
+        known = ", ".join(sorted(model_registry()))
+        r.fail("model", f"unknown model {_describe(model)}; known: {known}")
+    rig = r.table(doc.get("rig"), "rig", ("camera_px", "capture_hand_position_mm", "hand_angle"))
+    cam = r.table(rig["camera_px"], "rig.camera_px", ("fx", "fy", "cx", "cy"))
     for k in ("fx", "fy"):
-        r.number(cam, k, "rig.camera_px", positive=True)
+        r.number(cam[k], f"rig.camera_px.{k}", positive=True)
     for k in ("cx", "cy"):
-        r.number(cam, k, "rig.camera_px")
-    r.vector(rig, "capture_hand_position_mm", "rig", 3)
-    angle = r.get(rig, "hand_angle", "rig")
-    r.number(angle, "zero_deg", "rig.hand_angle")
-    if r.number(angle, "sign", "rig.hand_angle") not in (1.0, -1.0):
+        r.number(cam[k], f"rig.camera_px.{k}")
+    r.vector(rig["capture_hand_position_mm"], "rig.capture_hand_position_mm", 3)
+    angle = r.table(rig["hand_angle"], "rig.hand_angle", ("zero_deg", "sign"))
+    r.number(angle["zero_deg"], "rig.hand_angle.zero_deg")
+    if r.number(angle["sign"], "rig.hand_angle.sign") not in (1.0, -1.0):
         r.fail("rig.hand_angle.sign", f"must be 1 or -1 (got {angle['sign']})")
-    centres = r.get(doc, "centres_mm", "")
+    centres = doc.get("centres_mm")
     if not isinstance(centres, list) or len(centres) != 2:
-        r.fail("centres_mm", "must be a list of two [x, y] points")
-    for i in range(2):
-        r.vector({"c": centres[i]}, "c", f"centres_mm[{i}]", 2)
+        r.fail("centres_mm", f"must be a list of two [x, y] points (got {_describe(centres)})")
+    centres = [r.vector(c, f"centres_mm[{i}]", 2) for i, c in enumerate(centres)]
 
     def stage(key: str, names: tuple[str, ...]) -> StageResult:
-        s = r.get(doc, key, "")
+        s = doc.get(key)
+        if not isinstance(s, dict):
+            r.fail(key, f"must be an object (got {_describe(s)})")
+        F, f1, f2 = (r.number(s.get(k), f"{key}.{k}") for k in ("F", "f1", "f2"))
+        p = r.table(s.get("params"), f"{key}.params", names)
+        params = {n: r.number(p[n], f"{key}.params.{n}") for n in names}
         return StageResult(
-            F=r.number(s, "F", key), f1=r.number(s, "f1", key), f2=r.number(s, "f2", key),
-            params=r.params(s, key, names),
+            F=F, f1=f1, f2=f2, params=params,
             residuals_mm=s.get("residuals_mm", []), de=s.get("de", {}),
             polish=s.get("polish", {}), convergence=s.get("convergence", {}),
         )  # fmt: skip
 
+    seed = doc.get("seed")
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        r.fail("seed", f"must be an integer (got {_describe(seed)})")
     return CalibrationResult(
         model=model,
-        seed=int(r.number(doc, "seed", "")),
+        seed=seed,
         settings=doc.get("settings", {}),
         dataset=str(doc.get("dataset", "")),
         rig=rig,

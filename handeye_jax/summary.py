@@ -20,8 +20,6 @@ def _stage_lines(title: str, s: StageResult, names, units) -> list[str]:
         lm = f"{verdict}, {pol.get('steps', 0)} steps, F {pol['F_before']:.6f} -> " + (
             f"{pol['F_after']:.6f} mm"
         )
-        if pol.get("pinned"):
-            lm += f"; held on a bound: {', '.join(pol['pinned'])}"
     lines.append(
         f"  DE: {de['generations']} generations, {de['evaluations']:,} evaluations, "
         f"F = {de['F']:.6f} mm, {'converged' if de['converged'] else 'not converged'}"

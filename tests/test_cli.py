@@ -56,6 +56,7 @@ def test_predict_adds_hand_commands(result_file, tmp_path, capsys):
     np.testing.assert_allclose(xy, want, atol=1e-6)
     # The fitted hand positions of the paper are within a few mm of landmark 4 and 0's.
     assert np.linalg.norm(xy[0] - [327, -17]) < 3 and np.linalg.norm(xy[1] - [289, 1]) < 3
+    capsys.readouterr()
     assert main(["predict", str(result_file), str(pts), "--stage", "1"]) == 0
     stage1 = capsys.readouterr().out.splitlines()
     assert stage1[0].endswith("hand_x,hand_y") and len(stage1) == 3
@@ -164,3 +165,13 @@ def test_console_script_runs_without_traceback(tmp_path):
                        capture_output=True, text=True, env=env)  # fmt: skip
     assert p.returncode == 2
     assert "Traceback" not in p.stderr and "tablet.scale" in p.stderr
+
+
+def test_too_few_landmarks(tmp_path, capsys):
+    text = PAPER.read_text()
+    head, *landmarks = text.split("[[landmarks]]")
+    bad = tmp_path / "two.toml"
+    bad.write_text(head + "[[landmarks]]" + "[[landmarks]]".join(landmarks[:2]))
+    assert main(["calibrate", str(bad), *FAST]) == 2
+    err = capsys.readouterr().err
+    assert "landmarks" in err and "at least" in err and len(err.strip().splitlines()) == 1

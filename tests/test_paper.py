@@ -11,8 +11,20 @@ from handeye_jax.objective import Stage1Objective, fitness
 PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
 
 # Table 7, seed 1, with the xt/yt and xp/yp rows un-swapped (paper notes, item 2).
-TABLE7 = dict(xc=-2.09, yc=33.99, alpha_c=-0.46, beta_c=0.50, gamma_c=0.72, xt=193.33,
-              yt=31.62, alpha_t=1.51, beta_t=-11.93, gamma_t=-1.26, xp=-0.46, yp=-22.27)  # fmt: skip
+TABLE7 = dict(
+    xc=-2.09,
+    yc=33.99,
+    alpha_c=-0.46,
+    beta_c=0.50,
+    gamma_c=0.72,
+    xt=193.33,
+    yt=31.62,
+    alpha_t=1.51,
+    beta_t=-11.93,
+    gamma_t=-1.26,
+    xp=-0.46,
+    yp=-22.27,
+)
 # Table 8, seed 1.
 TABLE8 = dict(theta_c1=11.79, a_c1=91.02, alpha_c=10.25, beta_c=-0.51, gamma_c=-13.07,
               theta_t1=20.18, a_t1=94.79, alpha_t=35.09, beta_t=-5.33, gamma_t=-26.08,

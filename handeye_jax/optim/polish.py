@@ -1,8 +1,9 @@
 """Box-constrained Levenberg–Marquardt polish with optimistix. Knows only residual functions.
 
-optimistix's LM is unconstrained. Bounds are kept by an active set: when LM ends outside the
-box, the parameters that left it are pinned to the bound they crossed and LM runs again on
-the others, until the end point is inside the box.
+optimistix's LM is unconstrained. Bounds are kept as MINUIT keeps them: LM works on ``z`` with
+``x = lo + (hi − lo)·(sin z + 1)/2``, which maps every ``z`` into the box and is smooth, so
+the residuals and their minimiser are unchanged inside the box. Parameters without finite
+bounds are polished as they are.
 """
 
 from __future__ import annotations
@@ -14,37 +15,43 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
-from jaxtyping import Array, ArrayLike, Bool, Float
+from jaxtyping import Array, ArrayLike, Float
 
 
 @dataclass(frozen=True)
 class PolishResult:
-    """``x``: where LM stopped, inside the box; ``steps``: LM steps over all rounds;
-    ``solver_ok``: optimistix reported convergence in the last round; ``pinned``: indices of
-    parameters held on a bound."""
+    """``x``: where LM stopped (inside the box); ``steps``: LM steps taken; ``solver_ok``:
+    optimistix reported convergence (a stop at ``max_steps`` is not a failure of the point)."""
 
     x: np.ndarray
     steps: int
     solver_ok: bool
-    pinned: tuple[int, ...]
+
+
+class _Box(eqx.Module):
+    lower: Float[Array, " d"]
+    upper: Float[Array, " d"]
+
+    @property
+    def bounded(self):
+        return jnp.isfinite(self.lower) & jnp.isfinite(self.upper)
+
+    def to_x(self, z):
+        inside = self.lower + (self.upper - self.lower) * (jnp.sin(z) + 1.0) / 2.0
+        return jnp.where(self.bounded, inside, z)
+
+    def to_z(self, x):
+        u = 2.0 * (x - self.lower) / (self.upper - self.lower) - 1.0
+        return jnp.where(self.bounded, jnp.arcsin(jnp.clip(u, -1.0, 1.0)), x)
 
 
 @eqx.filter_jit
-def _lm(
-    residuals: Callable,
-    x0: Float[Array, " d"],
-    free: Bool[Array, " d"],
-    rtol: float,
-    atol: float,
-    max_steps: int,
-):
-    def fn(y, _):
-        return residuals(jnp.where(free, y, x0))
-
+def _lm(residuals: Callable, x0, box: _Box, rtol: float, atol: float, max_steps: int):
     solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
-    sol = optx.least_squares(fn, solver, x0, max_steps=max_steps, throw=False)
-    x = jnp.where(free, sol.value, x0)
-    return x, sol.stats["num_steps"], sol.result == optx.RESULTS.successful
+    sol = optx.least_squares(
+        lambda z, _: residuals(box.to_x(z)), solver, box.to_z(x0), max_steps=max_steps, throw=False
+    )
+    return box.to_x(sol.value), sol.stats["num_steps"], sol.result == optx.RESULTS.successful
 
 
 def levenberg_marquardt(
@@ -55,27 +62,20 @@ def levenberg_marquardt(
     *,
     rtol: float = 1e-12,
     atol: float = 1e-12,
-    max_steps: int = 500,
+    max_steps: int = 1000,
 ) -> PolishResult:
-    """Minimise ``sum(residuals(x)**2)`` from ``x0`` inside ``[lower, upper]`` (optional)."""
-    x = jnp.asarray(x0, dtype=float)
-    d = x.shape[0]
+    """Minimise ``sum(residuals(x)**2)`` from ``x0``, inside ``[lower, upper]`` if given.
+
+    Args:
+        residuals: residual vector as a function of the parameters.
+        x0: start point (inside the box).
+        lower, upper: the box; ``None`` or infinite entries mean unbounded.
+        rtol, atol: optimistix's convergence tolerances.
+        max_steps: most LM steps.
+    """
+    x0 = jnp.asarray(x0, dtype=float)
+    d = x0.shape[0]
     lower = jnp.full(d, -jnp.inf) if lower is None else jnp.asarray(lower, dtype=float)
     upper = jnp.full(d, jnp.inf) if upper is None else jnp.asarray(upper, dtype=float)
-    free = np.ones(d, dtype=bool)
-    total_steps, ok = 0, False
-    for _ in range(d + 1):
-        x_new, steps, ok = _lm(residuals, x, jnp.asarray(free), rtol, atol, max_steps)
-        total_steps += int(steps)
-        outside = np.asarray((x_new < lower) | (x_new > upper))
-        if not outside.any():
-            x = x_new
-            break
-        free &= ~outside
-        x = jnp.where(jnp.asarray(outside), jnp.clip(x_new, lower, upper), x)
-    return PolishResult(
-        x=np.asarray(x),
-        steps=total_steps,
-        solver_ok=bool(ok),
-        pinned=tuple(int(i) for i in np.flatnonzero(~free)),
-    )
+    x, steps, ok = _lm(residuals, x0, _Box(lower, upper), rtol, atol, max_steps)
+    return PolishResult(x=np.asarray(x), steps=int(steps), solver_ok=bool(ok))

@@ -1,0 +1,68 @@
+"""Field-by-field reading of parsed documents (TOML, JSON) with one-line errors."""
+
+from __future__ import annotations
+
+import difflib
+import math
+from pathlib import Path
+from typing import Any
+
+from .errors import InputError
+
+
+def _describe(x: Any) -> str:
+    """A short description of a TOML value for error messages."""
+    if isinstance(x, bool):
+        return f"boolean {str(x).lower()}"
+    if isinstance(x, int | float):
+        return f"{'integer' if isinstance(x, int) else 'float'} {x}"
+    if isinstance(x, str):
+        text = repr(x)
+        return f"string {text if len(text) <= 40 else text[:37] + '...'}"
+    if isinstance(x, list):
+        return f"an array of {len(x)}"
+    if isinstance(x, dict):
+        return "a table"
+    return f"a {type(x).__name__}"
+
+
+class _Reader:
+    """Pulls typed fields out of a parsed TOML document, naming the field on failure."""
+
+    def __init__(self, path: Path | None):
+        self.path = path
+
+    def fail(self, where: str, message: str):
+        raise InputError(self.path, where, message)
+
+    def table(self, value: Any, where: str, keys: tuple[str, ...], optional: tuple[str, ...] = ()):
+        """Check that ``value`` is a table holding exactly ``keys`` (``optional`` may be absent)."""
+        if not isinstance(value, dict):
+            self.fail(where, f"must be a table (got {_describe(value)})")
+        missing = [k for k in keys if k not in value and k not in optional]
+        for k in value:
+            if k not in keys:
+                hint = difflib.get_close_matches(k, missing or keys, n=1)
+                expected = f"did you mean {hint[0]!r}?" if hint else f"expected {', '.join(keys)}"
+                self.fail(_join(where, k), f"unknown key; {expected}")
+        if missing:
+            self.fail(_join(where, missing[0]), "missing")
+        return value
+
+    def number(self, x: Any, where: str, positive: bool = False) -> float:
+        if isinstance(x, bool) or not isinstance(x, int | float):
+            self.fail(where, f"must be a number (got {_describe(x)})")
+        if not math.isfinite(x):
+            self.fail(where, f"must be finite (got {x})")
+        if positive and x <= 0:
+            self.fail(where, f"must be > 0 (got {x})")
+        return float(x)
+
+    def vector(self, x: Any, where: str, n: int) -> list[float]:
+        if not isinstance(x, list) or len(x) != n:
+            self.fail(where, f"must be an array of {n} numbers (got {_describe(x)})")
+        return [self.number(v, f"{where}[{i}]") for i, v in enumerate(x)]
+
+
+def _join(where: str, key: str) -> str:
+    return f"{where}.{key}" if where else key
