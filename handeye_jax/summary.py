@@ -10,7 +10,7 @@ def _unit(u: str) -> str:
     return "" if u == "1" else f" {u}"
 
 
-def _stage_lines(title: str, s: StageResult, names, units) -> list[str]:
+def _stage_lines(title: str, s: StageResult, names, units, early_stop: bool) -> list[str]:
     lines = [f"{title}: F = {s.F:.6f} mm  (f1 = {s.f1:.6f} mm, f2 = {s.f2:.6f} mm)"]
     pol = s.polish
     de = s.de
@@ -20,9 +20,15 @@ def _stage_lines(title: str, s: StageResult, names, units) -> list[str]:
         lm = f"{verdict}, {pol.get('steps', 0)} steps, F {pol['F_before']:.6f} -> " + (
             f"{pol['F_after']:.6f} mm"
         )
+    if de["converged"]:
+        stop = "stopped: population converged"
+    elif early_stop:
+        stop = "stopped: generation limit reached before the population converged"
+    else:
+        stop = "all generations run (early stop off)"
     lines.append(
         f"  DE: {de['generations']} generations, {de['evaluations']:,} evaluations, "
-        f"F = {de['F']:.6f} mm, {'converged' if de['converged'] else 'not converged'}"
+        f"F = {de['F']:.6f} mm; {stop}"
     )
     lines.append(f"  LM polish: {lm}")
     lines.append("  parameters:")
@@ -45,7 +51,10 @@ def format_summary(result: CalibrationResult) -> str:
         + ("" if result.settings.get("early_stop", True) else " (no early stop)"),
         "",
     ]
-    lines += _stage_lines("stage 1", result.stage1, model_cls.param_names, model_cls.param_units)
+    early_stop = bool(result.settings.get("early_stop", True))
+    lines += _stage_lines(
+        "stage 1", result.stage1, model_cls.param_names, model_cls.param_units, early_stop
+    )
     twin = result.sign_twin
     if twin:
         found = ", ".join(f"{k} = {v:+.4f}" for k, v in twin["found"].items())
@@ -54,7 +63,9 @@ def format_summary(result: CalibrationResult) -> str:
             f"F = {twin['F_flipped']:.6f} mm"
         )
     lines.append("")
-    lines += _stage_lines("stage 2", result.stage2, AffinePair.param_names, AffinePair.param_units)
+    lines += _stage_lines(
+        "stage 2", result.stage2, AffinePair.param_names, AffinePair.param_units, early_stop
+    )
     c1, c2 = result.centres_mm
     lines.append(
         f"  centres of rotation (landmark {result.centre_index}): A1 ({c1[0]:.3f}, {c1[1]:.3f}) mm,"
