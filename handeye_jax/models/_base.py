@@ -118,7 +118,7 @@ class AbstractModel(AbstractParametric):
         """Tablet-plane displacements to the base frame (rotation only), as in eq. (20)."""
         R_base_tablet, _ = self.tablet_pose()
         v = jnp.concatenate([v_tablet_mm, jnp.zeros_like(v_tablet_mm[:, :1])], axis=-1)
-        return v @ R_base_tablet.T
+        return geo.rotate_vectors(R_base_tablet, v)
 
     def pen_offset(self, phi_deg: Float[Array, " n"]) -> Float[Array, "n 3"]:
         """The pen offset ``x'`` in the base frame for pen angles φ (eqs. 6–7), mm."""

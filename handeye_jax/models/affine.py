@@ -23,7 +23,7 @@ def affine_about(
     """Eq. (24): scale, then rotate about ``centre_mm``, then shift: ``T(X,Y)·T(c)·R·S·T(−c)``."""
     R = geo.rot_z(theta_deg)[:2, :2]
     scaled = (xy_mm - centre_mm) * jnp.stack([scale_x, scale_y])
-    return scaled @ R.T + centre_mm + jnp.stack([shift_x_mm, shift_y_mm])
+    return geo.rotate_vectors(R, scaled) + centre_mm + jnp.stack([shift_x_mm, shift_y_mm])
 
 
 class AffinePair(AbstractCorrection):

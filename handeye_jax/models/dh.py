@@ -13,8 +13,7 @@ from ._base import AbstractModel
 
 def _tablet_dh_frame(theta_deg: Float[Array, ""]) -> Float[Array, "3 3"]:
     """The rotation block of eq. (16): a reflection-composed DH frame about z."""
-    a = jnp.deg2rad(theta_deg)
-    c, s = jnp.cos(a), jnp.sin(a)
+    s, c = geo.sincos_deg(theta_deg)
     zero, one = jnp.zeros_like(c), jnp.ones_like(c)
     return jnp.stack(
         [jnp.stack([c, -s, zero]), jnp.stack([-s, -c, zero]), jnp.stack([zero, zero, -one])]
@@ -64,21 +63,21 @@ class DHModel(AbstractModel):
     }  # fmt: skip
 
     def camera_mount(self):
-        R = (
-            geo.rot_z(90.0 + self.theta_c1)
-            @ geo.rot_z(90.0 + self.gamma_c)
-            @ geo.rot_y(self.beta_c)
-            @ geo.rot_x(self.alpha_c)
+        R = geo.compose(
+            geo.rot_z(90.0 + self.theta_c1),
+            geo.rot_z(90.0 + self.gamma_c),
+            geo.rot_y(self.beta_c),
+            geo.rot_x(self.alpha_c),
         )
         zero = jnp.zeros_like(self.a_c1)
         return R, jnp.stack([self.a_c1, zero, zero])
 
     def tablet_pose(self):
-        R = (
-            _tablet_dh_frame(self.theta_t1)
-            @ geo.rot_z(self.gamma_t)
-            @ geo.rot_y(self.beta_t)
-            @ geo.rot_x(self.alpha_t)
+        R = geo.compose(
+            _tablet_dh_frame(self.theta_t1),
+            geo.rot_z(self.gamma_t),
+            geo.rot_y(self.beta_t),
+            geo.rot_x(self.alpha_t),
         )
         zero = jnp.zeros_like(self.a_t1)
         return R, jnp.stack([self.a_t1, zero, zero])
