@@ -100,6 +100,7 @@ def _optimise(
     convergence = {
         "best_F": [float(v) for v in de.best_history],
         "median_F": [float(v) for v in de.median_history],
+        "median_generation": [int(g) for g in de.median_generations],
     }
     return x, de_info, polish, convergence, {"de": t1 - t0, "polish": t2 - t1}
 

@@ -89,6 +89,26 @@ def rot_z(angle_deg: Float[ArrayLike, ""]) -> Float[Array, "3 3"]:
     )
 
 
+def rot_zyx(
+    gamma_deg: Float[ArrayLike, ""], beta_deg: Float[ArrayLike, ""], alpha_deg: Float[ArrayLike, ""]
+) -> Float[Array, "3 3"]:
+    """``Rz(γ)·Ry(β)·Rx(α)`` in closed form (angles in degrees).
+
+    Equal to ``compose(rot_z(γ), rot_y(β), rot_x(α))``; written out because XLA does not fold
+    the products with the zeros and ones of the three factors.
+    """
+    sg, cg = sincos_deg(gamma_deg)
+    sb, cb = sincos_deg(beta_deg)
+    sa, ca = sincos_deg(alpha_deg)
+    return jnp.stack(
+        [
+            jnp.stack([cg * cb, cg * sb * sa - sg * ca, cg * sb * ca + sg * sa]),
+            jnp.stack([sg * cb, sg * sb * sa + cg * ca, sg * sb * ca - cg * sa]),
+            jnp.stack([-sb, cb * sa, cb * ca]),
+        ]
+    )
+
+
 def matmul3(A: Float[Array, "3 k"], B: Float[Array, "k m"]) -> Float[Array, "3 m"]:
     """``A @ B`` for small matrices, as explicit elementwise sums.
 
@@ -114,14 +134,17 @@ def htm(R: Float[Array, "3 3"], t: Float[Array, "3"]) -> Float[Array, "4 4"]:
 
 
 def transform_points(
-    R_a_b: Float[Array, "3 3"], t_a_b: Float[Array, "3"], p_b: Float[Array, "n 3"]
+    R_a_b: Float[Array, "3 k"], t_a_b: Float[Array, "3"], p_b: Float[Array, "n k"]
 ) -> Float[Array, "n 3"]:
     """Map points ``p_b`` (rows, expressed in frame b) into frame a: ``R_a_b p + t_a_b``."""
     return rotate_vectors(R_a_b, p_b) + t_a_b
 
 
-def rotate_vectors(R_a_b: Float[Array, "d d"], v_b: Float[Array, "n d"]) -> Float[Array, "n d"]:
-    """Rotate direction vectors (rows) from frame b into frame a: ``R_a_b v`` (d = 2 or 3)."""
+def rotate_vectors(R_a_b: Float[Array, "m k"], v_b: Float[Array, "n k"]) -> Float[Array, "n m"]:
+    """Rotate direction vectors (rows) from frame b into frame a: ``R_a_b v``.
+
+    ``R_a_b`` may be a block of a rotation, e.g. its first two columns for vectors in a plane.
+    """
     return sum(v_b[:, k, None] * R_a_b[None, :, k] for k in range(R_a_b.shape[1]))
 
 

@@ -8,7 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from handeye_jax.optim import differential_evolution, levenberg_marquardt
-from handeye_jax.optim.de import distinct_indices, latin_hypercube
+from handeye_jax.optim._rng import uniforms
+from handeye_jax.optim.de import CHUNK_GENERATIONS, distinct_indices, latin_hypercube
 
 
 class ShiftedSphere(eqx.Module):
@@ -24,7 +25,9 @@ class ShiftedSphere(eqx.Module):
 @settings(max_examples=30, deadline=None)
 @given(st.integers(4, 60), st.integers(0, 2**31 - 1))
 def test_index_draws_are_distinct_and_exclude_the_target(n, seed):
-    r = np.asarray(distinct_indices(jax.random.PRNGKey(seed), n))
+    u = jax.random.uniform(jax.random.PRNGKey(seed), (3, n), dtype=jnp.float64)
+    u = u.at[:, 0].set(0.0).at[:, -1].set(1.0 - 2.0**-53)  # the extremes of [0, 1)
+    r = np.asarray(distinct_indices(u))
     i = np.arange(n)
     assert r.min() >= 0 and r.max() < n
     assert np.all(r[0] != i) and np.all(r[1] != i) and np.all(r[2] != i)
@@ -33,8 +36,8 @@ def test_index_draws_are_distinct_and_exclude_the_target(n, seed):
 
 def test_index_draws_are_uniform_over_the_allowed_values():
     n, draws = 7, 4000
-    keys = jax.random.split(jax.random.PRNGKey(0), draws)
-    r = np.asarray(jax.vmap(lambda k: distinct_indices(k, n))(keys))  # (draws, 3, n)
+    u = uniforms(jnp.uint64(7), 0, (draws, 3 * n)).reshape(draws, 3, n)
+    r = np.asarray(jax.vmap(distinct_indices)(u))  # (draws, 3, n)
     for j in range(3):
         counts = np.bincount(r[:, j, 0], minlength=n)  # member 0's picks
         assert counts[0] == 0
@@ -58,6 +61,9 @@ def test_de_finds_a_sphere_minimum():
     assert r.converged and r.generations < 2000
     assert r.evaluations == 60 * (r.generations + 1)
     assert len(r.best_history) == r.generations
+    every = list(range(CHUNK_GENERATIONS, r.generations, CHUNK_GENERATIONS))
+    assert list(r.median_generations) == [*every, r.generations]
+    assert np.all(r.median_history >= r.best_history[r.median_generations - 1])
     assert np.all(np.diff(r.best_history) <= 0)  # the best never gets worse
 
 
@@ -113,3 +119,17 @@ def test_lm_polish_solves_least_squares_and_respects_bounds():
     boxed = levenberg_marquardt(fn.residuals, np.zeros(3), -np.ones(3), np.ones(3))
     assert np.all(boxed.x >= -1) and np.all(boxed.x <= 1)
     np.testing.assert_allclose(boxed.x, [0.2, 1.0, -0.4], atol=1e-6)
+
+
+def test_uniforms_are_uniform_independent_and_stream_separated():
+    u = np.asarray(uniforms(jnp.uint64(123), 5, (20000, 8)))
+    assert u.min() >= 0.0 and u.max() < 1.0
+    counts, _ = np.histogram(u, bins=20, range=(0, 1))
+    expected = u.size / 20
+    assert np.all(np.abs(counts - expected) < 5 * np.sqrt(expected))
+    c = np.corrcoef(u[:, 0], u[:, 1])[0, 1]
+    assert abs(c) < 0.03
+    v = np.asarray(uniforms(jnp.uint64(123), 6, (20000, 8)))
+    assert abs(np.corrcoef(u.ravel(), v.ravel())[0, 1]) < 0.01
+    assert not np.any(u == v)
+    np.testing.assert_array_equal(u, np.asarray(uniforms(jnp.uint64(123), 5, (20000, 8))))

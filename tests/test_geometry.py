@@ -164,3 +164,28 @@ def test_models_are_pytrees_that_jit_grad_and_vmap():
     batch = jax.vmap(cls.from_vector)(jnp.stack([m.to_vector()] * 3))
     out = jax.vmap(x_of)(batch)
     np.testing.assert_allclose(out, jax.jit(x_of)(m), atol=1e-12)
+
+
+@FAST
+@given(angles, angles, angles)
+def test_closed_form_zyx_equals_the_product(g, b, a):
+    want = geo.compose(geo.rot_z(g), geo.rot_y(b), geo.rot_x(a))
+    np.testing.assert_allclose(geo.rot_zyx(g, b, a), want, atol=1e-15)
+    np.testing.assert_allclose(want, np.asarray(geo.rot_z(g)) @ geo.rot_y(b) @ geo.rot_x(a),
+                               atol=1e-15)  # fmt: skip
+
+
+@FAST
+@given(st.floats(-1e4, 1e4, allow_nan=False))
+def test_polynomial_sincos_matches_libm(a):
+    s, c = geo.sincos_deg(a)
+    exact = np.deg2rad(np.longdouble(a))
+    assert abs(float(s) - float(np.sin(exact))) < 4e-16
+    assert abs(float(c) - float(np.cos(exact))) < 4e-16
+
+
+def test_sincos_is_exact_at_right_angles():
+    s, c = geo.sincos_deg(jnp.arange(-720.0, 721.0, 90.0))
+    q = (np.arange(-720, 721, 90) // 90) % 4
+    np.testing.assert_array_equal(s, np.array([0.0, 1.0, 0.0, -1.0])[q])
+    np.testing.assert_array_equal(c, np.array([1.0, 0.0, -1.0, 0.0])[q])

@@ -63,21 +63,16 @@ class DHModel(AbstractModel):
     }  # fmt: skip
 
     def camera_mount(self):
-        R = geo.compose(
+        R = geo.matmul3(
             geo.rot_z(90.0 + self.theta_c1),
-            geo.rot_z(90.0 + self.gamma_c),
-            geo.rot_y(self.beta_c),
-            geo.rot_x(self.alpha_c),
+            geo.rot_zyx(90.0 + self.gamma_c, self.beta_c, self.alpha_c),
         )
         zero = jnp.zeros_like(self.a_c1)
         return R, jnp.stack([self.a_c1, zero, zero])
 
     def tablet_pose(self):
-        R = geo.compose(
-            _tablet_dh_frame(self.theta_t1),
-            geo.rot_z(self.gamma_t),
-            geo.rot_y(self.beta_t),
-            geo.rot_x(self.alpha_t),
+        R = geo.matmul3(
+            _tablet_dh_frame(self.theta_t1), geo.rot_zyx(self.gamma_t, self.beta_t, self.alpha_t)
         )
         zero = jnp.zeros_like(self.a_t1)
         return R, jnp.stack([self.a_t1, zero, zero])

@@ -54,17 +54,11 @@ class HTMModel(AbstractModel):
     }  # fmt: skip
 
     def camera_mount(self):
-        R = geo.compose(
-            geo.rot_z(self.gamma_c),
-            geo.rot_y(self.beta_c + 180.0),
-            geo.rot_x(self.alpha_c + 180.0),
-        )
+        R = geo.rot_zyx(self.gamma_c, self.beta_c + 180.0, self.alpha_c + 180.0)
         return R, jnp.stack([self.xc, self.yc, jnp.zeros_like(self.xc)])
 
     def tablet_pose(self):
-        R = geo.compose(
-            geo.rot_z(self.gamma_t), geo.rot_y(self.beta_t), geo.rot_x(self.alpha_t + 180.0)
-        )
+        R = geo.rot_zyx(self.gamma_t, self.beta_t, self.alpha_t + 180.0)
         return R, jnp.stack([self.xt, self.yt, jnp.zeros_like(self.xt)])
 
     def t_hand_pen(self):
