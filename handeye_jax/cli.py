@@ -145,10 +145,34 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _enable_compilation_cache() -> None:
+    """Keep XLA's compiled programs between runs, so only the first run pays for compiling.
+
+    The command line owns its process, so it may set this global JAX option; the library does
+    not. ``HANDEYE_JAX_CACHE_DIR`` moves the cache; ``HANDEYE_JAX_CACHE_DIR=off`` turns it off.
+    """
+    where = os.environ.get("HANDEYE_JAX_CACHE_DIR")
+    if where == "off":
+        return
+    if where is None:
+        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+        where = os.path.join(base, "handeye-jax", "xla")
+    try:
+        os.makedirs(where, exist_ok=True)
+    except OSError:
+        return  # an unwritable cache only costs time
+    import jax
+
+    jax.config.update("jax_compilation_cache_dir", where)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        _enable_compilation_cache()
         return args.func(args)
     except InputError as e:
         print(f"{PROG}: error: {e}", file=sys.stderr)

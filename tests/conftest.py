@@ -1,5 +1,13 @@
+import os
+from pathlib import Path
+
 import jax
 import pytest
+
+# In-process CLI calls enable XLA's persistent cache; keep it out of the user's home.
+os.environ.setdefault(
+    "HANDEYE_JAX_CACHE_DIR", str(Path(__file__).resolve().parents[1] / ".pytest_cache" / "xla")
+)
 
 
 @pytest.fixture(autouse=True)

@@ -175,3 +175,17 @@ def test_too_few_landmarks(tmp_path, capsys):
     assert main(["calibrate", str(bad), *FAST]) == 2
     err = capsys.readouterr().err
     assert "landmarks" in err and "at least" in err and len(err.strip().splitlines()) == 1
+
+
+def test_compilation_cache_goes_where_asked_and_can_be_turned_off(tmp_path):
+    cache = tmp_path / "xla-cache"
+    base = [sys.executable, "-m", "handeye_jax.cli", "calibrate", str(PAPER), *FAST]
+    env = dict(os.environ, HANDEYE_JAX_CACHE_DIR=str(cache))
+    p = subprocess.run(base, capture_output=True, text=True, env=env)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert cache.is_dir() and any(cache.iterdir())
+    home = tmp_path / "home"
+    env = dict(os.environ, HANDEYE_JAX_CACHE_DIR="off", HOME=str(home), XDG_CACHE_HOME="")
+    p = subprocess.run(base, capture_output=True, text=True, env=env)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert not (home / ".cache" / "handeye-jax").exists()
