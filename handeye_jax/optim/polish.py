@@ -36,12 +36,18 @@ class _Box(eqx.Module):
     def bounded(self):
         return jnp.isfinite(self.lower) & jnp.isfinite(self.upper)
 
+    def _finite(self):
+        # Dummy finite bounds where unbounded, so the unused branch never makes NaN gradients.
+        b = self.bounded
+        return jnp.where(b, self.lower, 0.0), jnp.where(b, self.upper, 1.0)
+
     def to_x(self, z):
-        inside = self.lower + (self.upper - self.lower) * (jnp.sin(z) + 1.0) / 2.0
-        return jnp.where(self.bounded, inside, z)
+        lo, hi = self._finite()
+        return jnp.where(self.bounded, lo + (hi - lo) * (jnp.sin(z) + 1.0) / 2.0, z)
 
     def to_z(self, x):
-        u = 2.0 * (x - self.lower) / (self.upper - self.lower) - 1.0
+        lo, hi = self._finite()
+        u = 2.0 * (x - lo) / (hi - lo) - 1.0
         return jnp.where(self.bounded, jnp.arcsin(jnp.clip(u, -1.0, 1.0)), x)
 
 
