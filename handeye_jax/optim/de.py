@@ -218,12 +218,12 @@ def differential_evolution(
     lower = jnp.asarray(lower, dtype=float)
     upper = jnp.asarray(upper, dtype=float)
     state = _init(fn, key, lower, upper, population)
+    # Arrays, not Python numbers, so that new settings reuse the compiled program.
+    dynamic = [jnp.asarray(v) for v in (generations, crossover, mutation, tol, atol, early_stop)]
     best, median = [], []
     with progress_bar(total=generations, desc=desc, enabled=progress, unit="gen") as bar:
         while True:
-            state, (b, active) = _chunk(
-                fn, state, lower, upper, generations, crossover, mutation, tol, atol, early_stop
-            )
+            state, (b, active) = _chunk(fn, state, lower, upper, *dynamic)
             active = np.asarray(active)
             best.append(np.asarray(b)[active])
             median.append((int(state.generation), float(np.median(np.asarray(state.fitness)))))

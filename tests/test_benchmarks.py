@@ -1,0 +1,35 @@
+"""Every benchmark runs at a tiny size, so none can rot. No timing is asserted."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def _run(script, *args):
+    p = subprocess.run([sys.executable, str(BENCH / script), *args], capture_output=True,
+                       text=True, timeout=600)  # fmt: skip
+    assert p.returncode == 0, p.stderr[-3000:]
+    return p.stdout
+
+
+def test_de_throughput_runs_all_three_des():
+    out = _run("de_throughput.py", "--quick")
+    for name in ("handeye-jax", "scipy", "evosax", "objective alone", "full budget", "memory"):
+        assert name in out
+
+
+def test_scaling_runs_and_plots(tmp_path):
+    out = _run("scaling.py", "--quick", "--out-dir", str(tmp_path))
+    assert "| 50 |" in out and "| 16 |" in out
+    png = (tmp_path / "scaling.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+
+
+@pytest.mark.parametrize("seeds", [["--seeds", "1"]])
+def test_reproduce_paper_runs(seeds):
+    out = _run("reproduce_paper.py", *seeds, "--population", "60", "--generations", "80")
+    assert out.count("| seed 1 |") == 3
