@@ -33,3 +33,8 @@ def test_scaling_runs_and_plots(tmp_path):
 def test_reproduce_paper_runs(seeds):
     out = _run("reproduce_paper.py", *seeds, "--population", "60", "--generations", "80")
     assert out.count("| seed 1 |") == 3
+
+
+def test_first_call_reports_cold_and_warm():
+    out = _run("first_call.py", "--quick")
+    assert "| cold |" in out and "| warm |" in out

@@ -189,3 +189,15 @@ def test_sincos_is_exact_at_right_angles():
     q = (np.arange(-720, 721, 90) // 90) % 4
     np.testing.assert_array_equal(s, np.array([0.0, 1.0, 0.0, -1.0])[q])
     np.testing.assert_array_equal(c, np.array([1.0, 0.0, -1.0, 0.0])[q])
+
+
+@FAST
+@given(st.floats(-720, 720))
+def test_sincos_derivatives_are_exact(a):
+    ds = jax.grad(lambda x: geo.sincos_deg(x)[0])(a)
+    dc = jax.grad(lambda x: geo.sincos_deg(x)[1])(a)
+    k = np.pi / 180
+    assert abs(float(ds) - k * np.cos(np.deg2rad(a))) < 1e-16
+    assert abs(float(dc) + k * np.sin(np.deg2rad(a))) < 1e-16
+    fwd = jax.jacfwd(lambda x: jnp.stack(geo.sincos_deg(x)))(a)
+    np.testing.assert_allclose(fwd, [ds, dc], atol=1e-18)
