@@ -37,17 +37,8 @@ from handeye_jax import HTMModel, load_dataset
 from handeye_jax.objective import Stage1Objective
 from handeye_jax.optim import de, differential_evolution
 
-PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
-
-
-def _median_ms(fn, reps: int) -> float:
-    jax.block_until_ready(fn())
-    times = []
-    for _ in range(reps):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times)) * 1e3
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import PAPER, de_generation_ms, median_ms  # noqa: E402
 
 
 @eqx.filter_jit
@@ -60,19 +51,12 @@ def _objective_scan(objective, pop, steps: int):
     return jax.lax.scan(step, pop, None, length=steps)
 
 
-def ours(objective, lower, upper, n: int, reps: int) -> tuple[float, float]:
-    """(ms per DE generation, ms per objective evaluation of the population)."""
-    lo, hi = jnp.asarray(lower), jnp.asarray(upper)
-    state = de._init(objective, jax.random.PRNGKey(0), lo, hi, n)
+def ours(objective, n: int, reps: int) -> tuple[float, float]:
+    """(ms per DE generation, ms per objective evaluation of the same population)."""
+    gen_ms, state = de_generation_ms(objective, n, reps)
     k = de.CHUNK_GENERATIONS
-    gen = _median_ms(
-        lambda: de._chunk(
-            objective, state, lo, hi, *map(jnp.asarray, (10**9, 0.9, 0.5, 0.0, 0.0, False))
-        ),
-        reps,
-    )
-    obj = _median_ms(lambda: _objective_scan(objective, state.population, k), reps)
-    return gen / k, obj / k
+    obj_ms = median_ms(lambda: _objective_scan(objective, state.population, k), reps) / k
+    return gen_ms, obj_ms
 
 
 def scipy_de(objective, lower, upper, n: int, generations: int) -> float:
@@ -186,7 +170,7 @@ def main(argv=None) -> None:
               f"{os.cpu_count()} cores, jax {jax.__version__}; float64")  # fmt: skip
         print(f"problem: paper stage 1 (HTM), N = {n:,}, D = {d}\n")
 
-        gen_ms, obj_ms = ours(objective, lower, upper, n, args.reps)
+        gen_ms, obj_ms = ours(objective, n, args.reps)
         scipy_ms = scipy_de(objective, lower, upper, n, args.slow_generations)
         evosax_ms = evosax_de(objective, lower, upper, n, args.slow_generations)
         print("| DE | ms per generation | × ours | generations timed |")

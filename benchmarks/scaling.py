@@ -19,34 +19,17 @@ import time
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from handeye_jax import HTMModel, Rig, load_dataset
 from handeye_jax.objective import Stage1Objective
-from handeye_jax.optim import de
 from handeye_jax.synthetic import snake_grid_px, synthesize_dataset
 
-PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import PAPER, de_generation_ms  # noqa: E402
+
 TRUTH = dict(xc=-2.0, yc=34.0, alpha_c=-0.5, beta_c=0.5, gamma_c=0.7, xt=193.3, yt=31.6,
              alpha_t=1.5, beta_t=-11.9, gamma_t=-1.3, xp=-0.5, yp=-22.3)  # fmt: skip
-
-
-def ms_per_generation(objective, n: int, reps: int) -> float:
-    lower, upper = (jnp.asarray(b) for b in HTMModel.search_bounds())
-    state = de._init(objective, jax.random.PRNGKey(0), lower, upper, n)
-    settings = [jnp.asarray(v) for v in (10**9, 0.9, 0.5, 0.0, 0.0, False)]
-
-    def run():
-        return de._chunk(objective, state, lower, upper, *settings)
-
-    jax.block_until_ready(run())
-    times = []
-    for _ in range(reps):
-        t0 = time.perf_counter()
-        jax.block_until_ready(run())
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times)) / de.CHUNK_GENERATIONS * 1e3
 
 
 def landmark_objective(k: int) -> Stage1Objective:
@@ -112,7 +95,7 @@ def main(argv=None) -> None:
         print("\n| population N | ms / generation | ns / member |\n|---|---|---|")
         pop_ms = []
         for n in args.populations:
-            ms = ms_per_generation(paper, n, args.reps)
+            ms = de_generation_ms(paper, n, args.reps)[0]
             pop_ms.append(ms)
             print(f"| {n:,} | {ms:.3f} | {1e6 * ms / n:.0f} |", flush=True)
         n = args.landmark_population
@@ -120,7 +103,7 @@ def main(argv=None) -> None:
         print("|---|---|---|")
         landmarks, lm_ms = [], []
         for k in args.grid:
-            ms = ms_per_generation(landmark_objective(k), n, args.reps)
+            ms = de_generation_ms(landmark_objective(k), n, args.reps)[0]
             landmarks.append(k * k)
             lm_ms.append(ms)
             print(f"| {k * k} | {ms:.3f} | {1e6 * ms / n / (k * k):.1f} |", flush=True)

@@ -1,0 +1,35 @@
+"""What the benchmarks share: the paper data and timing of compiled JAX calls."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from handeye_jax import HTMModel
+from handeye_jax.optim import de
+
+PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
+
+
+def median_ms(fn, reps: int) -> float:
+    """Median wall time of ``fn()`` in ms over ``reps`` calls, after one call to compile."""
+    jax.block_until_ready(fn())
+    times = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times)) * 1e3
+
+
+def de_generation_ms(objective, n: int, reps: int, key: int = 0) -> tuple[float, de.DEState]:
+    """ms per DE generation at population ``n`` (HTM box), timed over chunks of generations."""
+    lower, upper = (jnp.asarray(b) for b in HTMModel.search_bounds())
+    state = de._init(objective, jax.random.PRNGKey(key), lower, upper, n)
+    settings = [jnp.asarray(v) for v in (10**9, 0.9, 0.5, 0.0, 0.0, False)]
+    ms = median_ms(lambda: de._chunk(objective, state, lower, upper, *settings), reps)
+    return ms / de.CHUNK_GENERATIONS, state
