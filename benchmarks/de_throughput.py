@@ -122,7 +122,7 @@ def full_budget(objective, lower, upper, n: int, generations: int) -> float:
 
 MEMORY_PROBE = textwrap.dedent(
     """
-    import resource, sys, jax
+    import sys, jax
     from handeye_jax import HTMModel, load_dataset
     from handeye_jax.objective import Stage1Objective
     from handeye_jax.optim import differential_evolution
@@ -131,7 +131,10 @@ MEMORY_PROBE = textwrap.dedent(
         lo, hi = HTMModel.search_bounds()
         differential_evolution(obj, lo, hi, key=jax.random.PRNGKey(0), population=int(sys.argv[2]),
                                generations=int(sys.argv[3]), early_stop=False)
-    print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+    # VmHWM belongs to this process's own address space; ru_maxrss would carry the parent's
+    # high-water mark across fork and exec.
+    status = open("/proc/self/status").read().split("VmHWM:")[1]
+    print(int(status.split()[0]))
     """
 )
 
@@ -142,7 +145,7 @@ def peak_memory_mib(n: int, generations: int) -> float:
         [sys.executable, "-c", MEMORY_PROBE, str(PAPER), str(n), str(generations)],
         capture_output=True, text=True, check=True,
     )  # fmt: skip
-    return int(p.stdout.strip().splitlines()[-1]) / 1024  # ru_maxrss is in KiB on Linux
+    return int(p.stdout.strip().splitlines()[-1]) / 1024  # VmHWM is in KiB
 
 
 def main(argv=None) -> None:

@@ -10,6 +10,7 @@ import time
 from dataclasses import asdict, dataclass
 from typing import Any
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -62,6 +63,27 @@ class Settings:
     polish: bool = True
 
 
+@eqx.filter_jit
+def _value(objective: AbstractObjective, x):
+    return objective(x)
+
+
+@eqx.filter_jit
+def _report(objective: AbstractObjective, x):
+    errors = objective.errors(x)
+    return errors, fitness(errors), norms(errors)
+
+
+@eqx.filter_jit
+def _points(model_cls, x, obs):
+    return chain_points(model_cls.from_vector(x), obs)
+
+
+@eqx.filter_jit
+def _centres(x, points, centre_index: int):
+    return stage2_errors(AffinePair.from_vector(x), points, centre_index)[1]
+
+
 def _optimise(
     objective: AbstractObjective,
     cls: type[AbstractParametric],
@@ -85,7 +107,7 @@ def _optimise(
     polish: dict[str, Any] = {"ran": settings.polish, "accepted": False, "F_before": de.f}
     if settings.polish:
         lm = levenberg_marquardt(objective.residuals, de.x, lower, upper)
-        f_lm = float(objective(jnp.asarray(lm.x)))
+        f_lm = float(_value(objective, jnp.asarray(lm.x)))
         accepted = bool(np.isfinite(f_lm) and f_lm < de.f)
         polish.update(
             accepted=accepted, F_after=f_lm, steps=lm.steps, solver_converged=lm.solver_ok,
@@ -106,9 +128,9 @@ def _optimise(
 
 
 def _stage_result(objective, x, cls, de_info, polish, convergence) -> StageResult:
-    errors = objective.errors(jnp.asarray(x))
-    F, f1, f2 = (float(v) for v in fitness(errors))
-    n1, n2 = (np.asarray(v) for v in norms(errors))
+    errors, (F, f1, f2), (n1, n2) = _report(objective, jnp.asarray(x))
+    F, f1, f2 = float(F), float(f1), float(f2)
+    n1, n2 = np.asarray(n1), np.asarray(n2)
     e1, e2 = np.asarray(errors.image_vs_tablet), np.asarray(errors.hand)
     residuals = [
         {
@@ -157,8 +179,8 @@ def _sign_twin(objective, cls, x) -> dict[str, Any]:
     return {
         "params": list(names),
         "found": {n: float(x[i]) for n, i in zip(names, idx, strict=True)},
-        "F_found": float(objective(jnp.asarray(x))),
-        "F_flipped": float(objective(jnp.asarray(flipped))),
+        "F_found": float(_value(objective, jnp.asarray(x))),
+        "F_flipped": float(_value(objective, jnp.asarray(flipped))),
         "note": "flipping the signs of " + " and ".join(names) + " together mirrors the "
         "tablet through its own plane and gives the same F",
     }
@@ -188,13 +210,13 @@ def calibrate(
     )
     stage1 = _stage_result(obj1, x1, model_cls, de1, pol1, conv1)
 
-    points = chain_points(model_cls.from_vector(jnp.asarray(x1)), obs)
+    points = _points(model_cls, jnp.asarray(x1), obs)
     obj2 = Stage2Objective(AffinePair, points, obs.centre_index)
     x2, de2, pol2, conv2, t2 = _optimise(
         obj2, AffinePair, dataset.search, key2, settings, progress, "stage 2 DE"
     )
     stage2 = _stage_result(obj2, x2, AffinePair, de2, pol2, conv2)
-    _, centres = stage2_errors(AffinePair.from_vector(jnp.asarray(x2)), points, obs.centre_index)
+    centres = _centres(jnp.asarray(x2), points, obs.centre_index)
 
     warnings = bound_warnings(stage1.params, model_cls, dataset.search) + bound_warnings(
         stage2.params, AffinePair, dataset.search
