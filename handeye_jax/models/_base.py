@@ -111,14 +111,13 @@ class AbstractModel(AbstractParametric):
     def tablet_to_base(self, tablet_mm: Float[Array, "n 2"]) -> Float[Array, "n 3"]:
         """Tablet points (mm, on the display plane) to the base frame, ``x_bt`` of eq. (10)."""
         R_base_tablet, t_base_tablet = self.tablet_pose()
-        p_tablet = jnp.concatenate([tablet_mm, jnp.zeros_like(tablet_mm[:, :1])], axis=-1)
-        return geo.transform_points(R_base_tablet, t_base_tablet, p_tablet)
+        # The points lie on the display plane (z = 0): only R's first two columns act.
+        return geo.transform_points(R_base_tablet[:, :2], t_base_tablet, tablet_mm)
 
     def tablet_vector_to_base(self, v_tablet_mm: Float[Array, "n 2"]) -> Float[Array, "n 3"]:
         """Tablet-plane displacements to the base frame (rotation only), as in eq. (20)."""
         R_base_tablet, _ = self.tablet_pose()
-        v = jnp.concatenate([v_tablet_mm, jnp.zeros_like(v_tablet_mm[:, :1])], axis=-1)
-        return geo.rotate_vectors(R_base_tablet, v)
+        return geo.rotate_vectors(R_base_tablet[:, :2], v_tablet_mm)
 
     def pen_offset(self, phi_deg: Float[Array, " n"]) -> Float[Array, "n 3"]:
         """The pen offset ``x'`` in the base frame for pen angles φ (eqs. 6–7), mm."""
