@@ -199,8 +199,8 @@ def calibrate(
     """
     t_start = time.perf_counter()
     model_cls = get_model(settings.model)
-    check_min_landmarks(dataset, len(model_cls.param_names), dataset.source)
-    check_min_landmarks(dataset, len(AffinePair.param_names), dataset.source)
+    n_params = max(len(model_cls.param_names), len(AffinePair.param_names))
+    check_min_landmarks(dataset, n_params, dataset.source)
     obs = dataset.observations()
     key1, key2 = jax.random.split(jax.random.PRNGKey(settings.seed))
 

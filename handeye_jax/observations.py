@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from . import geometry as geo
@@ -95,10 +96,6 @@ class Observations(eqx.Module):
     def n_landmarks(self) -> int:
         return self.image_px.shape[0]
 
-    def p_camera(self) -> Float[Array, "n 3"]:
-        """The landmarks back-projected into the camera frame, mm."""
-        return self.rig.p_camera(self.image_px, self.depth_mm)
-
     def phi_deg(self) -> Float[Array, " n"]:
         """The pen-offset angle φ of each touch, degrees."""
         return self.rig.phi_deg(self.hand_angle_deg)
@@ -109,7 +106,5 @@ def centre_landmark(tablet_xy: Float[ArrayLike, "n 2"]) -> int:
 
     For the paper's 3×3 snake grid this is m = 4, the paper's centre of rotation (eq. 24).
     """
-    import numpy as np
-
     xy = np.asarray(tablet_xy, dtype=float)
     return int(np.argmin(np.linalg.norm(xy - xy.mean(axis=0), axis=1)))

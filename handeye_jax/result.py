@@ -68,19 +68,20 @@ class CalibrationResult:
     format: str = FORMAT
 
     # -- use -----------------------------------------------------------------------------
+    @in_float64
     def fitted_model(self) -> AbstractModel:
         """The stage-1 model as a JAX pytree (float64 leaves)."""
-        with _x64():
-            return get_model(self.model).from_dict(self.stage1.params)
+        return get_model(self.model).from_dict(self.stage1.params)
 
+    @in_float64
     def fitted_correction(self) -> AbstractCorrection:
         """The stage-2 correction as a JAX pytree."""
-        with _x64():
-            return AffinePair.from_dict(self.stage2.params)
+        return AffinePair.from_dict(self.stage2.params)
 
+    @in_float64
     def fitted_rig(self) -> Rig:
-        with _x64():
-            return rig_from_dict(self.rig)
+        """The rig the result was fitted on (intrinsics, capture pose, angle convention)."""
+        return rig_from_dict(self.rig)
 
     @in_float64
     def predict(
@@ -133,12 +134,6 @@ class CalibrationResult:
     def save(self, path: str | Path) -> None:
         """Write the result atomically: the file is complete or not written at all."""
         write_text_atomic(path, self.to_json())
-
-
-def _x64():
-    import jax
-
-    return jax.enable_x64(True)
 
 
 def rig_to_dict(rig: Rig) -> dict[str, Any]:
