@@ -29,6 +29,7 @@ nothing about what ``fn`` computes. Choices, each documented where a user could 
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -40,7 +41,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray, UInt
 
 from .._x64 import in_float64
 from ..progress import progress_bar
-from . import _rng
+from . import _rng, _xla
 
 #: Generations run per jitted call; the progress bar advances once per chunk.
 CHUNK_GENERATIONS = 64
@@ -171,8 +172,19 @@ def _init(fn, key, lower, upper, n):
     )
 
 
-@eqx.filter_jit
 def _chunk(fn, state, lower, upper, max_generations, crossover, mutation, tol, atol, stop):
+    """``CHUNK_GENERATIONS`` generations in one compiled ``lax.scan``."""
+    return _compiled_chunk()(
+        fn, state, lower, upper, max_generations, crossover, mutation, tol, atol, stop
+    )
+
+
+@functools.cache
+def _compiled_chunk():
+    return eqx.filter_jit(_chunk_scan, compiler_options=_xla.loop_compiler_options())
+
+
+def _chunk_scan(fn, state, lower, upper, max_generations, crossover, mutation, tol, atol, stop):
     def step(state, _):
         active = (~state.converged) & (state.generation < max_generations)
         new = _generation(fn, state, lower, upper, crossover, mutation)
