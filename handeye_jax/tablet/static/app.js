@@ -74,7 +74,8 @@ function draw() {
     ctx.arc(cx, cy, (current ? 22 : 12) * dpr, 0, 2 * Math.PI);
     ctx.stroke();
     ctx.fillStyle = current ? "#2a6fdb" : "#9a9a9a";
-    ctx.fillText(String(m), cx + 14 * dpr, cy - 14 * dpr);
+    const off = (current ? 18 : 10) * dpr;
+    ctx.fillText(String(m), cx + off, cy - off);
     const t = run && run.touches[m];
     if (t) {
       ctx.strokeStyle = "#e0301e"; // where the pen landed
@@ -119,8 +120,9 @@ function showWarnings() {
   if (s && Math.abs(dpr - s.tablet.scale) > 0.005) {
     notes.push(
       `Display scale mismatch: this screen's devicePixelRatio is ${dpr} but the tablet's ` +
-      `scale is ${s.tablet.scale}. The landmarks are not where the dataset puts them and ` +
-      `every mm figure is wrong. Set the display scale to ${s.tablet.scale * 100}% and the ` +
+      `scale is ${s.tablet.scale}: one px here is not the dataset's ${fmt(s.tablet.mm_per_px, 4)} mm, ` +
+      `so the landmarks are drawn at other physical places and every mm figure is wrong. ` +
+      `Set the display scale to ${s.tablet.scale * 100}% and the ` +
       `browser zoom to 100%, or correct [tablet] scale in the dataset.`);
   }
   if (!s) notes.push("No contact with the server yet: nothing to draw.");
