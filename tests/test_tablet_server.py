@@ -210,3 +210,47 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
         port = busy.getsockname()[1]
         assert main(["tablet", "--dataset", str(PAPER), "--port", str(port)]) == 2
     _one_error_line(capsys, "--port", str(port), "in use")
+
+
+def paper_result(path, dataset_name="paper2023"):
+    """A result file holding the paper's printed seed-1 HTM values (Tables 7 and 10)."""
+    from test_paper import TABLE7
+
+    from handeye_jax.result import CalibrationResult, StageResult, rig_to_dict
+
+    table10 = dict(X1=-0.10, Y1=0.0, theta1=0.03, Sx1=1.00, Sy1=1.02,
+                   X2=0.06, Y2=-0.11, theta2=0.0, Sx2=1.02, Sy2=0.99)  # fmt: skip
+
+    def stage(F, f1, f2, params):
+        return StageResult(F=F, f1=f1, f2=f2, params=params, residuals_mm=[], de={}, polish={})
+
+    CalibrationResult(
+        model="htm", seed=1, settings={}, dataset=dataset_name,
+        rig=rig_to_dict(load_dataset(PAPER).rig()),
+        stage1=stage(1.68, 0.64, 1.04, TABLE7), stage2=stage(1.00, 0.19, 0.82, table10),
+        centre_index=4, centres_mm=[[0.0, 0.0], [0.0, 0.0]], timings_s={}, sign_twin={},
+        warnings=[],
+    ).save(path)  # fmt: skip
+    return path
+
+
+def test_the_result_being_evaluated_is_named_and_checked(tmp_path):
+    trials = tmp_path / "trials.json"
+    same = make_server(
+        PAPER, port=0, quiet=True, result=paper_result(tmp_path / "r.json"), trials_path=trials
+    )
+    other = make_server(
+        PAPER, port=0, quiet=True, result=paper_result(tmp_path / "o.json", "another rig")
+    )
+    try:
+        info = same.app.session()["result"]
+        assert info["model"] == "htm" and info["seed"] == 1 and "note" not in info
+        assert "another rig" in other.app.session()["result"]["note"]
+        touch = {"m": 0, "target_px": [10, 20], "touch_px": [11, 20], "pointer_type": "touch"}
+        body = {"run_id": "r", "label": "stage 2", "targets": "grid", "touches": [touch]}
+        assert same.app.post_evaluation(body)["mean_px"] == 1.0
+        saved = json.loads(trials.read_text())["trials"][0]
+        assert saved["result"]["path"].endswith("r.json") and saved["result"]["model"] == "htm"
+    finally:
+        same.server_close()
+        other.server_close()

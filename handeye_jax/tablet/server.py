@@ -338,6 +338,12 @@ def make_server(
     trials_path = Path(trials_path)
     if not trials_path.parent.is_dir():
         raise InputError(trials_path, "", f"folder {str(trials_path.parent)!r} does not exist")
+    info = _result_info(result) if result is not None else None
+    if info is not None and ds is not None and info["dataset"] != ds.name:
+        info["note"] = (
+            f"the result was fitted on dataset {info['dataset']!r}, not on {ds.name!r}: "
+            "its landmarks are not these"
+        )
     app = TabletApp(
         dataset_path=ds_path,
         ppi=float(ppi),
@@ -345,7 +351,7 @@ def make_server(
         trials_path=trials_path,
         targets_path=Path(targets) if targets is not None else None,
         targets_px=load_targets(targets) if targets is not None else None,
-        result=_result_info(result) if result is not None else None,
+        result=info,
         trials_doc=trials.load_trials(trials_path, float(ppi), float(scale)),
     )
     if not 0 <= port <= 65535:

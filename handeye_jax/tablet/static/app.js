@@ -126,6 +126,7 @@ function showWarnings() {
       `browser zoom to 100%, or correct [tablet] scale in the dataset.`);
   }
   if (!s) notes.push("No contact with the server yet: nothing to draw.");
+  if (s && s.result && s.result.note) notes.push(`Result: ${s.result.note}.`);
   const box = $("warning");
   box.hidden = notes.length === 0;
   box.textContent = notes.join(" ");
