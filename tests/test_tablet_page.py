@@ -134,7 +134,7 @@ def test_calibration_records_pen_touches_and_writes_the_dataset(page, tablet):
     assert float(row[4]) == pytest.approx(e * ds.mm_per_tablet_px, abs=0.01)
     assert ds_path.read_bytes() == original  # nothing is written before the operator sends
     page.click("#send")
-    assert "written to" in wait_saved(page)
+    assert "9 pen;" in wait_saved(page) and "written to" in page.inner_text("#status")
     saved = load_dataset(ds_path)
     assert np.abs(saved.touch_error_px - d).max() <= 0.5
     assert saved == ds.replace(touch_error_px=saved.touch_error_px)
@@ -197,6 +197,7 @@ def test_evaluation_trials_report_mean_and_max_in_px_and_mm(page, tablet):
     for trial, seed in ((1, 9), (2, 10)):
         if trial == 2:
             page.click("#start-evaluation")
+            page.wait_for_selector("#run:not([hidden])")  # the grid comes from the server
         d = offsets(len(targets), seed)
         for t, dt in zip(targets, d, strict=True):
             pen(page, t + dt)

@@ -123,6 +123,9 @@ class TabletApp:
             "backup": str(backup_path(self.dataset_path)) if written else None,
             "mean_px": float(dist.mean()),
             "mean_mm": float(dist.mean() * mm),
+            "pointer_types": {
+                k: post.pointer_types.count(k) for k in sorted(set(post.pointer_types))
+            },
         }
 
     def post_evaluation(self, doc: Any) -> dict[str, Any]:

@@ -26,8 +26,13 @@ function load(key, fallback) {
 }
 
 function store(key, value) {
-  if (value === null) localStorage.removeItem(STORE + key);
-  else localStorage.setItem(STORE + key, JSON.stringify(value));
+  try {
+    if (value === null) localStorage.removeItem(STORE + key);
+    else localStorage.setItem(STORE + key, JSON.stringify(value));
+    app.storageFailed = false;
+  } catch (e) {
+    app.storageFailed = true; // private mode or full: the page works, but a reload would lose
+  }
 }
 
 function newId() {
@@ -96,15 +101,17 @@ function draw() {
 }
 
 function placePanel(targets) {
-  // Put the panel in the corner where it covers no target (or the fewest).
+  // Put the panel in the corner where it covers no target (or the fewest), ring included.
   const panel = $("panel");
-  const w = panel.offsetWidth + 40, h = panel.offsetHeight + 40;
+  const gap = 8, ring = 24;
+  const w = panel.offsetWidth, h = panel.offsetHeight;
   const W = window.innerWidth, H = window.innerHeight;
   const corners = [["bottom", "right"], ["bottom", "left"], ["top", "right"], ["top", "left"]];
   let best = corners[0], fewest = Infinity;
   for (const [v, s] of corners) {
-    const x0 = s === "left" ? 0 : W - w, y0 = v === "top" ? 0 : H - h;
-    const n = targets.filter(([x, y]) => x >= x0 && x <= x0 + w && y >= y0 && y <= y0 + h).length;
+    const x0 = s === "left" ? gap : W - gap - w, y0 = v === "top" ? gap : H - gap - h;
+    const n = targets.filter(([x, y]) =>
+      x > x0 - ring && x < x0 + w + ring && y > y0 - ring && y < y0 + h + ring).length;
     if (n < fewest) { fewest = n; best = [v, s]; }
   }
   panel.classList.remove("top", "bottom", "left", "right");
@@ -126,6 +133,14 @@ function showWarnings() {
       `browser zoom to 100%, or correct [tablet] scale in the dataset.`);
   }
   if (!s) notes.push("No contact with the server yet: nothing to draw.");
+  if (app.storageFailed) notes.push("This browser refuses to store progress: a reload loses it.");
+  const W = window.innerWidth, H = window.innerHeight;
+  const off = targetsOnScreen().findIndex(([x, y]) => x < 0 || y < 0 || x >= W || y >= H);
+  if (off >= 0) {
+    const [x, y] = targetsOnScreen()[off];
+    notes.push(`Point ${off} at (${x}, ${y}) px lies outside this ${W} × ${H} px page: ` +
+      "use full screen, or draw the landmarks inside the page.");
+  }
   if (s && s.result && s.result.note) notes.push(`Result: ${s.result.note}.`);
   const box = $("warning");
   box.hidden = notes.length === 0;
@@ -230,7 +245,7 @@ function showOutbox(message, kind) {
 function showSummary(summary) {
   if (summary) app.summary = summary;
   const blocks = app.summary || [];
-  $("results").hidden = blocks.length === 0;
+  $("results").hidden = blocks.length === 0 || !!app.run; // a short panel during a run
   const table = $("summary");
   table.replaceChildren();
   for (const b of blocks) {
@@ -372,7 +387,8 @@ async function flush() {
       app.outbox = app.outbox.filter((o) => o.id !== item.id);
       store("outbox", app.outbox);
       if (item.url.endsWith("calibration")) {
-        showOutbox(`saved: touch_error_px (mean ${fmt(doc.mean_px)} px = ${fmt(doc.mean_mm)} mm) ` +
+        const types = Object.entries(doc.pointer_types).map(([k, v]) => `${v} ${k}`).join(", ");
+        showOutbox(`saved: touch_error_px (${types}; mean ${fmt(doc.mean_px)} px = ${fmt(doc.mean_mm)} mm) ` +
           `written to ${doc.saved}` + (doc.backup ? `; previous file kept as ${doc.backup}` : ""), "ok");
         refreshSession();
       } else {
