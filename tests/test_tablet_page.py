@@ -47,7 +47,7 @@ def tablet(tmp_path):
     ds = tmp_path / "rig.toml"
     shutil.copy(PAPER, ds)
     server = make_server(ds, port=0, quiet=True)
-    threading.Thread(target=server.serve_forever, daemon=True).start()
+    threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True).start()
     yield server, ds, ds.read_bytes()
     server.shutdown()
     server.server_close()

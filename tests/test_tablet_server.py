@@ -1,8 +1,12 @@
 """The tablet server without a browser: strict posts, files never corrupted, one-line errors."""
 
 import json
+import os
 import shutil
+import signal
 import socket
+import subprocess
+import sys
 import threading
 import urllib.error
 import urllib.request
@@ -25,7 +29,7 @@ def served(tmp_path):
     ds = tmp_path / "rig.toml"
     shutil.copy(PAPER, ds)
     server = make_server(ds, port=0, quiet=True)
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread = threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True)
     thread.start()
     yield server.url, ds
     server.shutdown()
@@ -254,3 +258,22 @@ def test_the_result_being_evaluated_is_named_and_checked(tmp_path):
     finally:
         same.server_close()
         other.server_close()
+
+
+def test_the_command_serves_until_interrupted(tmp_path):
+    ds = tmp_path / "rig.toml"
+    shutil.copy(PAPER, ds)
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    cmd = [sys.executable, "-m", "handeye_jax.cli", "tablet", "--dataset", str(ds), "--port", "0"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        first = proc.stdout.readline()
+        assert first.startswith("tablet page: http://127.0.0.1:"), first
+        url = first.split()[2]
+        status, doc = request(url + "api/session")
+        assert status == 200 and doc["dataset"]["name"] == "paper2023"
+        assert doc["tablet"]["mm_per_px"] == pytest.approx(25.4 / 267 * 2)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+    assert proc.returncode == 0 and "stopped" in out
