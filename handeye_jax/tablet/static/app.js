@@ -365,7 +365,10 @@ function finishRun() {
 }
 
 async function flush() {
-  if (app.flushing) return;
+  if (app.flushing) {
+    app.flushAgain = true; // an item queued while a pass is under way goes in the next pass
+    return;
+  }
   app.flushing = true;
   clearTimeout(app.retryTimer);
   let retry = false;
@@ -409,6 +412,10 @@ async function flush() {
   app.flushing = false;
   showOutbox();
   if (retry) app.retryTimer = setTimeout(flush, RETRY_MS);
+  else if (app.flushAgain) {
+    app.flushAgain = false;
+    flush();
+  }
 }
 
 async function refreshSession() {
