@@ -91,6 +91,25 @@ def _cmd_predict(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_tablet(args: argparse.Namespace) -> int:
+    from .tablet import serve
+
+    return serve(
+        args.dataset, host=args.host, port=args.port, targets=args.targets,
+        result=args.result, trials_path=args.trials, ppi=args.ppi, scale=args.scale,
+    )  # fmt: skip
+
+
+def _port(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
+    if not 0 <= v <= 65535:
+        raise argparse.ArgumentTypeError(f"must be 0 to 65535 (got {v})")
+    return v
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .calibrate import Settings
     from .models import model_registry
@@ -142,6 +161,26 @@ def build_parser() -> argparse.ArgumentParser:
         help="2: eq. (25) with the affine correction (default); 1: eq. (8), model only",
     )  # fmt: skip
     pre.set_defaults(func=_cmd_predict)
+
+    tab = sub.add_parser(
+        "tablet",
+        help="serve the tablet page: draw landmarks, record touches, measure touching errors",
+        description="Serve the page the tablet shows. Calibration mode writes each landmark's "
+        "touch_error_px (tablet px) into the dataset (previous file kept as DATASET.bak); "
+        "evaluation mode saves trials of touches with their mean and max error in px and mm.",
+    )
+    tab.add_argument("--dataset", help="dataset whose landmarks to draw and touch errors to write")
+    tab.add_argument(
+        "--host", default="127.0.0.1",
+        help="address to listen on (default 127.0.0.1; 0.0.0.0 lets a tablet on the LAN in)",
+    )  # fmt: skip
+    tab.add_argument("--port", type=_port, default=8765, help="TCP port (default 8765)")
+    tab.add_argument("--targets", metavar="TARGETS.json", help="evaluation targets, tablet px")
+    tab.add_argument("--result", metavar="RESULT.json", help="the result being evaluated")
+    tab.add_argument("--trials", metavar="TRIALS.json", help="where evaluation trials are saved")
+    tab.add_argument("--ppi", type=float, help="tablet px per inch (default: the dataset's)")
+    tab.add_argument("--scale", type=float, help="display scale (default: the dataset's)")
+    tab.set_defaults(func=_cmd_tablet)
     return parser
 
 

@@ -1,0 +1,46 @@
+"""Writing the touching errors the tablet measured into a dataset, keeping a backup."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .._atomic import write_text_atomic
+from ..dataset import load_dataset, save_dataset
+from ..errors import InputError
+from .posts import CalibrationPost, PostError
+
+
+def backup_path(path: str | Path) -> Path:
+    """Where the previous version of a dataset is kept: ``DATASET.bak`` beside it."""
+    path = Path(path)
+    return path.with_name(path.name + ".bak")
+
+
+def apply_touch_errors(path: str | Path, post: CalibrationPost) -> bool:
+    """Write ``post.touch_error_px`` (tablet px) into the dataset at ``path``.
+
+    The dataset is read and validated from disk, so edits made since the page loaded are kept.
+    Its previous bytes go to ``DATASET.bak``; both writes are atomic. A post whose landmarks
+    are not the dataset's raises :class:`PostError` (409) and writes nothing.
+
+    Returns ``True`` if the file was written, ``False`` if it already held these values (a
+    resent post), in which case the backup is left alone.
+    """
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as e:
+        raise InputError(path, "", f"cannot read file: {e}") from None
+    ds = load_dataset(path)
+    if ds.n_landmarks != len(post.tablet_px) or not np.array_equal(ds.tablet_px, post.tablet_px):
+        raise PostError(
+            409, "touches",
+            f"the landmarks of {path} are not the ones the page drew; reload the page",
+        )  # fmt: skip
+    if np.array_equal(ds.touch_error_px, post.touch_error_px):
+        return False
+    write_text_atomic(backup_path(path), raw.decode("utf-8"))
+    save_dataset(ds.replace(touch_error_px=post.touch_error_px), path)
+    return True

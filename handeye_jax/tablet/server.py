@@ -1,0 +1,402 @@
+"""The tablet's HTTP server: the page, the dataset's landmarks, and the touches it posts back.
+
+Built on the standard library's :class:`http.server.ThreadingHTTPServer`. Routes:
+
+* ``GET /``, ``/app.js``, ``/style.css``: the page (static files, no build step).
+* ``GET /api/session``: the tablet (ppi, scale, mm per px), the dataset's landmarks, the
+  targets file, the result being evaluated and the trials so far, as JSON.
+* ``GET /api/grid?cols=3&rows=3&left=400&top=150&right=1040&bottom=550``: a new grid of
+  targets, CSS px, snake order.
+* ``POST /api/calibration``: every landmark's ``touch_error_px``; written into the dataset
+  (atomic, previous file kept as ``DATASET.bak``).
+* ``POST /api/evaluation``: one trial of touches; appended to the trials file (atomic).
+
+A refused post gets a 4xx JSON answer ``{"error": ..., "field": ...}`` and changes no file.
+"""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import json
+import socket
+import sys
+import threading
+import urllib.parse
+from dataclasses import dataclass, field
+from http import HTTPStatus
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..dataset import load_dataset
+from ..errors import InputError
+from ..geometry import mm_per_tablet_px
+from . import posts, trials
+from .calibration import apply_touch_errors, backup_path
+from .targets import grid_targets, load_targets
+
+DEFAULT_HOST = "127.0.0.1"
+DEFAULT_PORT = 8765
+_STATIC = {
+    "/": ("index.html", "text/html; charset=utf-8"),
+    "/index.html": ("index.html", "text/html; charset=utf-8"),
+    "/app.js": ("app.js", "text/javascript; charset=utf-8"),
+    "/style.css": ("style.css", "text/css; charset=utf-8"),
+}
+# What is drained of an oversized body so the client reads the 413 instead of a reset.
+_MAX_DRAIN_BYTES = 8 * posts.MAX_BODY_BYTES
+
+
+@dataclass
+class TabletApp:
+    """What the server serves; every file path is fixed when the server starts.
+
+    Attributes:
+        dataset_path: the dataset whose touch errors calibration mode writes, or ``None``.
+        ppi, scale: the tablet's px per inch and display scale (eq. 9).
+        trials_path: the evaluation trials file (JSON).
+        targets_path, targets_px: the targets file and its points (CSS px), or ``None``.
+        result: what is being evaluated (result file, model, seed, dataset), or ``None``.
+    """
+
+    dataset_path: Path | None
+    ppi: float
+    scale: float
+    trials_path: Path
+    targets_path: Path | None = None
+    targets_px: np.ndarray | None = None
+    result: dict[str, Any] | None = None
+    trials_doc: dict[str, Any] = field(default_factory=dict)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def session(self) -> dict[str, Any]:
+        """The page's start-up data, read afresh (the dataset may have changed on disk)."""
+        mm = mm_per_tablet_px(self.ppi, self.scale)
+        out: dict[str, Any] = {
+            "tablet": {"ppi": self.ppi, "scale": self.scale, "mm_per_px": mm},
+            "dataset": None,
+            "targets_file": None,
+            "result": self.result,
+            "trials": {"path": str(self.trials_path), "summary": []},
+            "limits": {
+                "max_body_bytes": posts.MAX_BODY_BYTES,
+                "max_touches": posts.MAX_TOUCHES,
+                "pointer_types": list(posts.POINTER_TYPES),
+            },
+        }
+        if self.dataset_path is not None:
+            ds = load_dataset(self.dataset_path)
+            out["dataset"] = {
+                "path": str(self.dataset_path),
+                "backup": str(backup_path(self.dataset_path)),
+                "name": ds.name,
+                "tablet_px": ds.tablet_px.tolist(),
+                "touch_error_px": ds.touch_error_px.tolist(),
+                "key": _key(str(self.dataset_path.resolve()), ds.tablet_px.tolist()),
+            }
+        if self.targets_px is not None:
+            out["targets_file"] = {
+                "path": str(self.targets_path),
+                "tablet_px": self.targets_px.tolist(),
+                "key": _key(str(self.targets_path), self.targets_px.tolist()),
+            }
+        with self.lock:
+            out["trials"]["summary"] = trials.summarise(self.trials_doc)
+        return out
+
+    def post_calibration(self, doc: Any) -> dict[str, Any]:
+        if self.dataset_path is None:
+            raise posts.PostError(404, "", "no dataset: start the server with --dataset")
+        with self.lock:
+            n = load_dataset(self.dataset_path).n_landmarks
+            post = posts.parse_calibration(doc, n)
+            written = apply_touch_errors(self.dataset_path, post)
+        dist = np.linalg.norm(post.touch_error_px, axis=1)
+        mm = mm_per_tablet_px(self.ppi, self.scale)
+        return {
+            "saved": str(self.dataset_path),
+            "written": written,
+            "backup": str(backup_path(self.dataset_path)) if written else None,
+            "mean_px": float(dist.mean()),
+            "mean_mm": float(dist.mean() * mm),
+            "pointer_types": {
+                k: post.pointer_types.count(k) for k in sorted(set(post.pointer_types))
+            },
+        }
+
+    def post_evaluation(self, doc: Any) -> dict[str, Any]:
+        post = posts.parse_evaluation(doc)
+        expected = {"dataset": self._dataset_points, "file": lambda: self.targets_px}
+        if post.targets in expected:
+            want = expected[post.targets]()
+            if want is None or not np.array_equal(want, post.target_px):
+                raise posts.PostError(
+                    409, "touches", f"the targets are not the {post.targets}'s; reload the page"
+                )
+        with self.lock:
+            trial = trials.find_trial(self.trials_doc, post.run_id)
+            if trial is None:
+                trial = trials.make_trial(post, self.trials_doc, self.result)
+                doc_new = {**self.trials_doc, "trials": [*self.trials_doc["trials"], trial]}
+                trials.save_trials(doc_new, self.trials_path)
+                self.trials_doc = doc_new
+            summary = trials.summarise(self.trials_doc)
+        keep = ("trial", "label", "mean_px", "max_px", "mean_mm", "max_mm")
+        return {"saved": str(self.trials_path), **{k: trial[k] for k in keep}, "summary": summary}
+
+    def _dataset_points(self) -> np.ndarray | None:
+        if self.dataset_path is None:
+            return None
+        return load_dataset(self.dataset_path).tablet_px
+
+
+def _key(*parts: Any) -> str:
+    """A short fingerprint the page uses to keep runs of different landmark sets apart."""
+    return hashlib.sha256(json.dumps(parts).encode()).hexdigest()[:16]
+
+
+class TabletServer(ThreadingHTTPServer):
+    """A :class:`ThreadingHTTPServer` that serves one :class:`TabletApp`."""
+
+    daemon_threads = True
+
+    def __init__(self, address: tuple[str, int], app: TabletApp, quiet: bool = False):
+        self.app = app
+        self.quiet = quiet
+        super().__init__(address, _Handler)
+
+    @property
+    def url(self) -> str:
+        host, port = self.server_address[:2]
+        return f"http://{_url_host(host)}:{port}/"
+
+
+def _url_host(host: str) -> str:
+    return f"[{host}]" if ":" in host else host
+
+
+class _Handler(BaseHTTPRequestHandler):
+    server: TabletServer
+    server_version = "handeye-jax-tablet"
+
+    def log_message(self, format: str, *args: Any) -> None:
+        if not self.server.quiet:
+            super().log_message(format, *args)
+
+    # -- answers -------------------------------------------------------------------------
+    def _send(self, status: int, body: bytes, content_type: str) -> None:
+        self.send_response(status)
+        self.send_header("Content-Type", content_type)
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Cache-Control", "no-store")
+        self.end_headers()
+        self.wfile.write(body)
+
+    def _json(self, status: int, doc: Any) -> None:
+        body = json.dumps(doc, allow_nan=False).encode()
+        self._send(status, body, "application/json")
+
+    def _refuse(self, status: int, field: str, message: str) -> None:
+        self._json(status, {"error": message, "field": field, "status": status})
+
+    # -- routes --------------------------------------------------------------------------
+    def do_GET(self) -> None:
+        url = urllib.parse.urlsplit(self.path)
+        try:
+            if url.path in _STATIC:
+                name, kind = _STATIC[url.path]
+                body = resources.files(__package__).joinpath("static", name).read_bytes()
+                self._send(HTTPStatus.OK, body, kind)
+            elif url.path == "/api/session":
+                self._json(HTTPStatus.OK, self.server.app.session())
+            elif url.path == "/api/grid":
+                self._json(HTTPStatus.OK, {"tablet_px": _grid(url.query).tolist()})
+            else:
+                self._refuse(HTTPStatus.NOT_FOUND, "", f"no such page: {url.path}")
+        except posts.PostError as e:
+            self._refuse(e.status, e.field, e.message)
+        except InputError as e:
+            self._refuse(HTTPStatus.CONFLICT, e.field, str(e))
+
+    def do_POST(self) -> None:
+        routes = {
+            "/api/calibration": self.server.app.post_calibration,
+            "/api/evaluation": self.server.app.post_evaluation,
+        }
+        url = urllib.parse.urlsplit(self.path)
+        try:
+            if url.path not in routes:
+                raise posts.PostError(404, "", f"no such endpoint: {url.path}")
+            doc = posts.parse_json_body(self._read_body())
+            self._json(HTTPStatus.OK, routes[url.path](doc))
+        except posts.PostError as e:
+            self._refuse(e.status, e.field, e.message)
+        except InputError as e:  # the dataset on disk is unreadable or invalid: nothing written
+            self._refuse(HTTPStatus.CONFLICT, e.field, str(e))
+        except OSError as e:
+            self._refuse(HTTPStatus.INTERNAL_SERVER_ERROR, "", f"cannot write: {e}")
+
+    def _read_body(self) -> bytes:
+        if "chunked" in self.headers.get("Transfer-Encoding", "").lower():
+            self.close_connection = True
+            raise posts.PostError(411, "", "send a Content-Length, not a chunked body")
+        kind = self.headers.get("Content-Type", "").split(";")[0].strip().lower()
+        length_text = self.headers.get("Content-Length")
+        try:
+            length = int(length_text) if length_text is not None else -1
+        except ValueError:
+            length = -1
+        if length < 0:
+            self.close_connection = True
+            raise posts.PostError(411, "", "a Content-Length header is required")
+        if length > posts.MAX_BODY_BYTES:
+            self._drain(length)
+            raise posts.PostError(
+                413, "", f"body of {length} bytes is over the limit of {posts.MAX_BODY_BYTES}"
+            )
+        body = self.rfile.read(length)
+        if kind != "application/json":
+            raise posts.PostError(415, "", f"Content-Type must be application/json (got {kind!r})")
+        return body
+
+    def _drain(self, length: int) -> None:
+        self.close_connection = True
+        left = min(length, _MAX_DRAIN_BYTES)
+        while left > 0:
+            chunk = self.rfile.read(min(left, 65536))
+            if not chunk:
+                break
+            left -= len(chunk)
+
+
+def _grid(query: str) -> np.ndarray:
+    q = urllib.parse.parse_qs(query)
+    names = ("cols", "rows", "left", "top", "right", "bottom")
+    values: list[float] = []
+    for name in names:
+        if len(q.get(name, [])) != 1:
+            raise posts.PostError(400, name, "give exactly one value")
+        try:
+            v = float(q[name][0])
+        except ValueError:
+            raise posts.PostError(400, name, f"not a number: {q[name][0]!r}") from None
+        if name in ("cols", "rows") and v != int(v):
+            raise posts.PostError(400, name, f"must be a whole number (got {v})")
+        values.append(v)
+    try:
+        return grid_targets(int(values[0]), int(values[1]), *values[2:])
+    except ValueError as e:
+        field_, _, message = str(e).partition(": ")
+        raise posts.PostError(400, field_, message) from None
+
+
+def make_server(
+    dataset: str | Path | None = None,
+    *,
+    host: str = DEFAULT_HOST,
+    port: int = DEFAULT_PORT,
+    targets: str | Path | None = None,
+    result: str | Path | None = None,
+    trials_path: str | Path | None = None,
+    ppi: float | None = None,
+    scale: float | None = None,
+    quiet: bool = False,
+) -> TabletServer:
+    """Check the inputs and bind the tablet server; call ``serve_forever()`` on it to run.
+
+    Args:
+        dataset: the dataset (TOML) to draw and to write touch errors into; optional.
+        host: the address to listen on; ``127.0.0.1`` (this machine only) by default,
+            ``0.0.0.0`` to let a tablet on the LAN load the page.
+        port: the TCP port; 0 picks a free one (see ``server.url``).
+        targets: evaluation targets, a targets JSON or a dataset TOML (tablet px).
+        result: the calibration result being evaluated (recorded with each trial).
+        trials_path: where evaluation trials are saved (JSON); defaults to
+            ``DATASET_STEM.trials.json`` beside the dataset, or ``tablet-trials.json``.
+        ppi, scale: the tablet's px per inch and display scale; taken from the dataset when
+            not given, required without one.
+        quiet: do not log requests to standard error.
+
+    Raises :class:`InputError` naming the file or option for bad input, a port in use included.
+    """
+    ds_path = Path(dataset) if dataset is not None else None
+    ds = load_dataset(ds_path) if ds_path is not None else None
+    if ppi is None and ds is not None:
+        ppi = ds.tablet_ppi
+    if scale is None and ds is not None:
+        scale = ds.tablet_scale
+    for name, v in (("--ppi", ppi), ("--scale", scale)):
+        if v is None:
+            raise InputError(None, name, "needed without --dataset, to turn tablet px into mm")
+        if not np.isfinite(v) or v <= 0:
+            raise InputError(None, name, f"must be a finite number > 0 (got {v})")
+    if trials_path is None:
+        trials_path = (
+            ds_path.with_name(ds_path.stem + ".trials.json") if ds_path else "tablet-trials.json"
+        )
+    trials_path = Path(trials_path)
+    if not trials_path.parent.is_dir():
+        raise InputError(trials_path, "", f"folder {str(trials_path.parent)!r} does not exist")
+    info = _result_info(result) if result is not None else None
+    if info is not None and ds is not None and info["dataset"] != ds.name:
+        info["note"] = (
+            f"the result was fitted on dataset {info['dataset']!r}, not on {ds.name!r}: "
+            "its landmarks are not these"
+        )
+    app = TabletApp(
+        dataset_path=ds_path,
+        ppi=float(ppi),
+        scale=float(scale),
+        trials_path=trials_path,
+        targets_path=Path(targets) if targets is not None else None,
+        targets_px=load_targets(targets) if targets is not None else None,
+        result=info,
+        trials_doc=trials.load_trials(trials_path, float(ppi), float(scale)),
+    )
+    if not 0 <= port <= 65535:
+        raise InputError(None, "--port", f"must be 0 to 65535 (got {port})")
+    try:
+        return TabletServer((host, port), app, quiet=quiet)
+    except socket.gaierror as e:
+        raise InputError(None, "--host", f"cannot use {host!r}: {e.strerror}") from None
+    except OSError as e:
+        if e.errno == errno.EADDRINUSE:
+            msg = f"{host}:{port} is in use by another program; choose another --port"
+        else:
+            msg = f"cannot listen on {host}:{port}: {e.strerror or e}"
+        raise InputError(None, "--port" if e.errno == errno.EADDRINUSE else "--host", msg) from None
+
+
+def _result_info(path: str | Path) -> dict[str, Any]:
+    from ..result import load_result
+
+    r = load_result(path)
+    return {"path": str(path), "model": r.model, "seed": r.seed, "dataset": r.dataset}
+
+
+def serve(dataset: str | Path | None = None, **kwargs: Any) -> int:
+    """Run the tablet server until Ctrl-C; arguments as for :func:`make_server`. Returns 0."""
+    server = make_server(dataset, **kwargs)
+    app = server.app
+    print(f"tablet page: {server.url}  (open it on the tablet, full screen, zoom 100%)")
+    print(
+        f"tablet: {app.ppi:g} ppi, scale {app.scale:g}: "
+        f"1 tablet px = {mm_per_tablet_px(app.ppi, app.scale):.4f} mm"
+    )
+    if app.dataset_path is not None:
+        print(f"calibration writes touch_error_px (px) into {app.dataset_path}")
+    print(f"evaluation trials go to {app.trials_path}")
+    sys.stdout.flush()
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        print("stopped")
+    finally:
+        server.server_close()
+    if app.trials_doc["trials"]:
+        print(trials.format_summary(app.trials_doc))
+    return 0

@@ -1,0 +1,226 @@
+"""The tablet page in real headless Chromium: pen touches, screenshots, reloads, lost links.
+
+Chromium is Debian's (/usr/bin/chromium, installed by .ci/run); Playwright drives it. Pen
+contacts are real input events (DevTools ``Input.dispatchMouseEvent`` with
+``pointerType: "pen"``), so they pass through Chromium's input pipeline like a tablet pen's.
+"""
+
+import io
+import json
+import shutil
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+from playwright.sync_api import sync_playwright
+from scipy import ndimage
+
+from handeye_jax import load_dataset
+from handeye_jax.tablet import grid_targets, make_server
+
+PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = [
+    "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+]  # fmt: skip
+# The paper's tablet, a Surface Pro 7 (2736 x 1824 px at display scale 2): 1368 x 912 CSS px.
+SCALE = 2.0
+VIEWPORT = {"width": 1368, "height": 912}
+# A landmark pixel is pure black; nothing else on the page is darker than this.
+BLACK = 60
+
+
+@pytest.fixture(scope="module")
+def browser():
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        yield b
+        b.close()
+
+
+@pytest.fixture
+def tablet(tmp_path):
+    """The server over a copy of the paper's dataset; yields (server, dataset path, bytes)."""
+    ds = tmp_path / "rig.toml"
+    shutil.copy(PAPER, ds)
+    server = make_server(ds, port=0, quiet=True)
+    threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True).start()
+    yield server, ds, ds.read_bytes()
+    server.shutdown()
+    server.server_close()
+
+
+def open_page(browser, url, scale=SCALE):
+    context = browser.new_context(viewport=VIEWPORT, device_scale_factor=scale)
+    page = context.new_page()
+    page.errors = []
+    page.on("pageerror", lambda e: page.errors.append(str(e)))
+    page.goto(url)
+    page.wait_for_selector("#tablet-info:not(:empty)")
+    return page
+
+
+@pytest.fixture
+def page(browser, tablet):
+    page = open_page(browser, tablet[0].url)
+    yield page
+    assert page.errors == []
+    page.context.close()
+
+
+def pen(page, xy):
+    """A pen contact at CSS px ``xy`` (press and lift), through Chromium's input pipeline."""
+    cdp = page.context.new_cdp_session(page)
+    for kind in ("mousePressed", "mouseReleased"):
+        event = {"type": kind, "x": float(xy[0]), "y": float(xy[1]), "button": "left"}
+        cdp.send("Input.dispatchMouseEvent", {**event, "clickCount": 1, "pointerType": "pen"})
+    cdp.detach()
+
+
+def landmark_dots(page):
+    """Centres of the pure-black blobs in a screenshot, CSS px, sorted by (y, x)."""
+    rgb = np.asarray(Image.open(io.BytesIO(page.screenshot())).convert("RGB"))
+    dark = rgb.max(axis=2) < BLACK
+    labels, n = ndimage.label(dark)
+    rows_cols = np.array(ndimage.center_of_mass(dark, labels, range(1, n + 1))).reshape(-1, 2)
+    xy = (rows_cols[:, ::-1] + 0.5) / page.evaluate("devicePixelRatio")
+    return xy[np.lexsort((xy[:, 0], xy[:, 1]))]
+
+
+def assert_dots_at(page, tablet_px):
+    want = np.asarray(tablet_px, dtype=float)
+    want = want[np.lexsort((want[:, 0], want[:, 1]))]
+    got = landmark_dots(page)
+    assert got.shape == want.shape, got
+    np.testing.assert_allclose(got, want, atol=0.5)
+
+
+def wait_saved(page):
+    page.wait_for_selector("#status.ok", timeout=15000)
+    return page.inner_text("#status")
+
+
+def offsets(n, seed):
+    return np.round(np.random.default_rng(seed).uniform(-6, 6, (n, 2)), 2)
+
+
+def prompt(page):
+    return page.inner_text("#prompt")
+
+
+def test_calibration_records_pen_touches_and_writes_the_dataset(page, tablet):
+    _, ds_path, original = tablet
+    ds = load_dataset(ds_path)
+    page.click("#start-calibration")
+    assert page.is_hidden("#warning")  # devicePixelRatio 2 = the dataset's scale
+    assert_dots_at(page, ds.tablet_px)  # the calibration screen, pixel by pixel
+    d = offsets(ds.n_landmarks, seed=6)
+    pen(page, ds.tablet_px[0] + d[0])
+    page.mouse.click(20, 20)  # pen preferred: a mouse (or palm) contact is not a touch
+    assert "landmark 1 (1 of 9 done)" in prompt(page)
+    for m in range(1, 5):
+        pen(page, ds.tablet_px[m] + d[m] + (8 if m == 4 else 0))  # landmark 4: a bad touch
+    page.click('#touches tr[data-m="4"] button.retake')
+    assert "landmark 4 (5 of 9 done)" in prompt(page)  # the bad touch stays until replaced
+    for m in range(4, ds.n_landmarks):
+        pen(page, ds.tablet_px[m] + d[m])
+    assert "all 9 touched" in prompt(page)
+    row = page.locator('#touches tr[data-m="2"] td').all_inner_texts()
+    e = np.hypot(*d[2])
+    assert row[5] == "pen" and float(row[3]) == pytest.approx(e, abs=0.01)
+    assert float(row[4]) == pytest.approx(e * ds.mm_per_tablet_px, abs=0.01)
+    assert ds_path.read_bytes() == original  # nothing is written before the operator sends
+    page.click("#send")
+    assert "9 pen;" in wait_saved(page) and "written to" in page.inner_text("#status")
+    saved = load_dataset(ds_path)
+    assert np.abs(saved.touch_error_px - d).max() <= 0.5
+    assert saved == ds.replace(touch_error_px=saved.touch_error_px)
+    assert (ds_path.parent / "rig.toml.bak").read_bytes() == original
+    assert page.evaluate("localStorage.getItem('handeye-jax.tablet/1:outbox')") == "[]"
+
+
+def test_a_reload_mid_run_keeps_the_progress(page, tablet):
+    _, ds_path, _ = tablet
+    ds = load_dataset(ds_path)
+    d = offsets(ds.n_landmarks, seed=7)
+    page.click("#start-calibration")
+    for m in range(4):
+        pen(page, ds.tablet_px[m] + d[m])
+    page.reload()
+    page.wait_for_selector("#tablet-info:not(:empty)")
+    assert "landmark 4 (4 of 9 done)" in prompt(page)
+    assert page.locator("#touches td", has_text="pen").count() == 4
+    for m in range(4, ds.n_landmarks):
+        pen(page, ds.tablet_px[m] + d[m])
+    page.click("#send")
+    wait_saved(page)
+    assert np.abs(load_dataset(ds_path).touch_error_px - d).max() <= 0.5
+
+
+def test_a_dropped_connection_loses_nothing(page, tablet):
+    _, ds_path, original = tablet
+    ds = load_dataset(ds_path)
+    d = offsets(ds.n_landmarks, seed=8)
+    page.route("**/api/**", lambda route: route.abort())  # the Wi-Fi drops
+    page.click("#start-calibration")
+    for m in range(ds.n_landmarks):
+        pen(page, ds.tablet_px[m] + d[m])
+    page.click("#send")
+    page.wait_for_selector("#status.error")
+    assert "unreachable" in page.inner_text("#status")
+    page.reload()  # still offline: the page comes back from the last session it saw
+    page.wait_for_selector("#outbox li")
+    assert "waiting for the server" in page.inner_text("#outbox")
+    assert ds_path.read_bytes() == original
+    page.unroute("**/api/**")  # back online: the retry delivers it
+    wait_saved(page)
+    assert np.abs(load_dataset(ds_path).touch_error_px - d).max() <= 0.5
+    assert page.locator("#outbox li").count() == 0
+
+
+def test_evaluation_trials_report_mean_and_max_in_px_and_mm(page, tablet):
+    _, ds_path, _ = tablet
+    mm = load_dataset(ds_path).mm_per_tablet_px
+    page.select_option("#target-source", "grid")
+    grid = {"cols": 4, "rows": 2, "left": 300, "top": 200, "right": 1000, "bottom": 600}
+    for key, value in grid.items():
+        page.fill(f"#grid-{key}", str(value))
+    page.fill("#trial-label", "stage 1")
+    page.click("#start-evaluation")
+    page.wait_for_selector("#run:not([hidden])")
+    targets = grid_targets(4, 2, 300.0, 200.0, 1000.0, 600.0)
+    assert_dots_at(page, targets)  # the evaluation screen, pixel by pixel
+    means = []
+    for trial, seed in ((1, 9), (2, 10)):
+        if trial == 2:
+            page.click("#start-evaluation")
+            page.wait_for_selector("#run:not([hidden])")  # the grid comes from the server
+        d = offsets(len(targets), seed)
+        for t, dt in zip(targets, d, strict=True):
+            pen(page, t + dt)
+        page.click("#send")
+        assert f"stage 1 trial {trial}" in wait_saved(page)
+        means.append(np.hypot(*d.T).mean())
+        doc = json.loads((ds_path.parent / "rig.trials.json").read_text())
+        saved = doc["trials"][-1]
+        assert saved["trial"] == trial and saved["targets"] == "grid"
+        assert saved["mean_px"] == pytest.approx(means[-1], abs=0.01)
+        assert saved["max_px"] == pytest.approx(np.hypot(*d.T).max(), abs=0.01)
+        assert saved["mean_mm"] == pytest.approx(means[-1] * mm, abs=0.01)
+        assert {t["pointer_type"] for t in saved["touches"]} == {"pen"}
+    rows = [r.split("\t") for r in page.inner_text("#summary").splitlines()]
+    average_mm = next(r for r in rows if r[0] == "in mm")[-1]
+    assert float(average_mm) == pytest.approx(np.mean(means) * mm, abs=0.01)
+
+
+def test_a_display_scale_other_than_the_datasets_is_warned_about(browser, tablet):
+    page = open_page(browser, tablet[0].url, scale=1.25)
+    try:
+        warning = page.inner_text("#warning")
+        assert page.is_visible("#warning")
+        assert "devicePixelRatio is 1.25" in warning and "scale is 2" in warning
+    finally:
+        page.context.close()

@@ -1,0 +1,279 @@
+"""The tablet server without a browser: strict posts, files never corrupted, one-line errors."""
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from handeye_jax import load_dataset
+from handeye_jax.cli import main
+from handeye_jax.tablet import grid_targets, load_targets, make_server
+from handeye_jax.tablet.posts import MAX_BODY_BYTES
+
+PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
+
+
+@pytest.fixture
+def served(tmp_path):
+    """A server on a free port over a copy of the paper's dataset; yields (url, dataset path)."""
+    ds = tmp_path / "rig.toml"
+    shutil.copy(PAPER, ds)
+    server = make_server(ds, port=0, quiet=True)
+    thread = threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True)
+    thread.start()
+    yield server.url, ds
+    server.shutdown()
+    server.server_close()
+
+
+def request(url, body=None, headers=None, method=None):
+    """(status, JSON answer) of a request; ``body`` is bytes or a JSON-able object."""
+    data = body if isinstance(body, bytes) or body is None else json.dumps(body).encode()
+    h = {"Content-Type": "application/json"} if data is not None else {}
+    h.update(headers or {})
+    req = urllib.request.Request(url, data=data, headers=h, method=method)
+    try:
+        with urllib.request.urlopen(req, timeout=30) as r:
+            return r.status, json.loads(r.read())
+    except urllib.error.HTTPError as e:
+        return e.code, json.loads(e.read())
+
+
+def calibration_body(tablet_px, errors, run_id="run-1"):
+    return {
+        "run_id": run_id,
+        "touches": [
+            {"m": m, "tablet_px": list(xy), "touch_error_px": list(e), "pointer_type": "pen"}
+            for m, (xy, e) in enumerate(zip(tablet_px, errors, strict=True))
+        ],
+    }
+
+
+def test_valid_calibration_post_writes_dataset_and_backup(served):
+    url, ds = served
+    before = ds.read_bytes()
+    old = load_dataset(ds)
+    errors = np.arange(18, dtype=float).reshape(9, 2) / 4 - 2
+    status, doc = request(url + "api/calibration", calibration_body(old.tablet_px.tolist(), errors))
+    assert status == 200 and doc["written"] is True
+    new = load_dataset(ds)
+    np.testing.assert_array_equal(new.touch_error_px, errors)
+    assert new == old.replace(touch_error_px=errors)  # nothing else changed
+    assert (ds.parent / "rig.toml.bak").read_bytes() == before
+    # A resend (the answer was lost) writes nothing and keeps the backup of the original.
+    status, doc = request(url + "api/calibration", calibration_body(old.tablet_px.tolist(), errors))
+    assert status == 200 and doc["written"] is False
+    assert (ds.parent / "rig.toml.bak").read_bytes() == before
+
+
+def _bad_bodies(tablet_px):
+    good = calibration_body(tablet_px, [[1.0, -1.0]] * len(tablet_px))
+
+    def with_touch(i, **change):
+        body = json.loads(json.dumps(good))
+        body["touches"][i].update(change)
+        return body
+
+    short = json.loads(json.dumps(good))
+    short["touches"].pop()
+    moved = with_touch(3, tablet_px=[1041.0, 350.0])
+    return [
+        (400, b"{not json"),
+        (400, b"[1, 2]"),
+        (400, b'{"run_id": "r", "touches": [{"m": 0, "tablet_px": [NaN, 1]}]}'),
+        (400, {**good, "extra": 1}),
+        (400, short),
+        (400, with_touch(2, m=5)),
+        (400, with_touch(4, touch_error_px=[1.0])),
+        (400, with_touch(4, touch_error_px=[1e300, 0.0])),
+        (400, with_touch(4, touch_error_px=["1", 0.0])),
+        (400, with_touch(4, touch_error_px=[True, 0.0])),
+        (400, with_touch(0, pointer_type="laser")),
+        (400, with_touch(0, tablet_px=[-5.0, 10.0])),
+        (400, {**good, "run_id": ""}),
+        (409, moved),
+    ]
+
+
+def test_bad_posts_get_4xx_and_leave_the_dataset_byte_identical(served):
+    url, ds = served
+    before = ds.read_bytes()
+    tablet_px = load_dataset(ds).tablet_px.tolist()
+    for status, body in _bad_bodies(tablet_px):
+        got, doc = request(url + "api/calibration", body)
+        assert got == status, (body, doc)
+        assert doc["error"] and "field" in doc
+    got, doc = request(url + "api/calibration", b"x" * (MAX_BODY_BYTES + 1))
+    assert got == 413 and "limit" in doc["error"]
+    got, doc = request(url + "api/calibration", b"{}", headers={"Content-Type": "text/plain"})
+    assert got == 415
+    got, doc = request(url + "api/nothing", b"{}")
+    assert got == 404
+    assert ds.read_bytes() == before
+    assert sorted(p.name for p in ds.parent.iterdir()) == ["rig.toml"]  # no backup, no temp
+
+
+def test_a_dataset_broken_on_disk_is_refused_not_overwritten(served):
+    url, ds = served
+    tablet_px = load_dataset(ds).tablet_px.tolist()
+    broken = ds.read_bytes().replace(b"depth = 168.2", b"depth = -168.2")
+    ds.write_bytes(broken)
+    status, doc = request(url + "api/calibration", calibration_body(tablet_px, [[0, 0]] * 9))
+    assert status == 409 and "landmarks[0].depth" in doc["error"]
+    assert ds.read_bytes() == broken
+
+
+def test_evaluation_trials_saved_once_with_px_and_mm(served):
+    url, ds = served
+    targets = grid_targets(2, 1, 100.0, 200.0, 300.0, 200.0)
+    touched = targets + [[3.0, 4.0], [0.0, -1.0]]
+    body = {
+        "run_id": "t-1",
+        "label": "stage 1",
+        "targets": "grid",
+        "touches": [
+            {"m": m, "target_px": t.tolist(), "touch_px": p.tolist(), "pointer_type": "pen"}
+            for m, (t, p) in enumerate(zip(targets, touched, strict=True))
+        ],
+    }
+    for _ in range(2):  # the second is a resend of the same trial
+        status, doc = request(url + "api/evaluation", body)
+        assert status == 200 and doc["trial"] == 1
+    saved = json.loads((ds.parent / "rig.trials.json").read_text())
+    assert len(saved["trials"]) == 1
+    trial = saved["trials"][0]
+    mm = load_dataset(ds).mm_per_tablet_px
+    assert trial["mean_px"] == pytest.approx(3.0) and trial["max_px"] == pytest.approx(5.0)
+    assert trial["mean_mm"] == pytest.approx(3.0 * mm) and trial["max_mm"] == pytest.approx(5 * mm)
+    assert [t["pointer_type"] for t in trial["touches"]] == ["pen", "pen"]
+    assert doc["summary"][0]["average"]["mean_px"] == pytest.approx(3.0)
+    # Targets said to be the dataset's must be the dataset's.
+    status, _ = request(url + "api/evaluation", {**body, "run_id": "t-2", "targets": "dataset"})
+    assert status == 409
+
+
+def test_grid_endpoint_and_its_errors(served):
+    url, _ = served
+    status, doc = request(url + "api/grid?cols=3&rows=3&left=400&top=150&right=1040&bottom=550")
+    assert status == 200
+    np.testing.assert_array_equal(doc["tablet_px"], load_dataset(PAPER).tablet_px)
+    for query, field in [
+        ("cols=0&rows=3&left=0&top=0&right=9&bottom=9", "cols"),
+        ("cols=2&rows=2&left=9&top=0&right=1&bottom=9", "right"),
+        ("cols=2&rows=2&left=nan&top=0&right=1&bottom=9", "left"),
+        ("cols=2&rows=2&left=0&top=0&right=1", "bottom"),
+    ]:
+        status, doc = request(url + "api/grid?" + query)
+        assert status == 400 and doc["field"] == field
+
+
+def test_targets_file(tmp_path):
+    f = tmp_path / "held_out.json"
+    f.write_text(json.dumps({"tablet_px": [[500, 250], [900.5, 450]]}))
+    np.testing.assert_array_equal(load_targets(f), [[500, 250], [900.5, 450]])
+    f.write_text(json.dumps({"tablet_px": [[500, 250], [900.5]]}))
+    with pytest.raises(Exception, match=r"tablet_px\[1\]"):
+        load_targets(f)
+
+
+def _one_error_line(capsys, *needles):
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("handeye-jax: error:"), err
+    for n in needles:
+        assert n in err[0]
+
+
+def test_cli_errors_are_one_line(tmp_path, capsys):
+    broken = tmp_path / "broken.toml"
+    broken.write_text(PAPER.read_text().replace("ppi = 267.0", "ppi = nan"))
+    assert main(["tablet", "--dataset", str(broken), "--port", "0"]) == 2
+    _one_error_line(capsys, "broken.toml", "tablet.ppi")
+
+    assert main(["tablet", "--port", "0"]) == 2
+    _one_error_line(capsys, "--ppi")
+
+    trials = tmp_path / "t.json"
+    trials.write_text('{"format": "something else"}')
+    assert main(["tablet", "--dataset", str(PAPER), "--trials", str(trials), "--port", "0"]) == 2
+    _one_error_line(capsys, "t.json", "format")
+    assert trials.read_text() == '{"format": "something else"}'
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        assert main(["tablet", "--dataset", str(PAPER), "--port", str(port)]) == 2
+    _one_error_line(capsys, "--port", str(port), "in use")
+
+
+def paper_result(path, dataset_name="paper2023"):
+    """A result file holding the paper's printed seed-1 HTM values (Tables 7 and 10)."""
+    from test_paper import TABLE7
+
+    from handeye_jax.result import CalibrationResult, StageResult, rig_to_dict
+
+    table10 = dict(X1=-0.10, Y1=0.0, theta1=0.03, Sx1=1.00, Sy1=1.02,
+                   X2=0.06, Y2=-0.11, theta2=0.0, Sx2=1.02, Sy2=0.99)  # fmt: skip
+
+    def stage(F, f1, f2, params):
+        return StageResult(F=F, f1=f1, f2=f2, params=params, residuals_mm=[], de={}, polish={})
+
+    CalibrationResult(
+        model="htm", seed=1, settings={}, dataset=dataset_name,
+        rig=rig_to_dict(load_dataset(PAPER).rig()),
+        stage1=stage(1.68, 0.64, 1.04, TABLE7), stage2=stage(1.00, 0.19, 0.82, table10),
+        centre_index=4, centres_mm=[[0.0, 0.0], [0.0, 0.0]], timings_s={}, sign_twin={},
+        warnings=[],
+    ).save(path)  # fmt: skip
+    return path
+
+
+def test_the_result_being_evaluated_is_named_and_checked(tmp_path):
+    trials = tmp_path / "trials.json"
+    same = make_server(
+        PAPER, port=0, quiet=True, result=paper_result(tmp_path / "r.json"), trials_path=trials
+    )
+    other = make_server(
+        PAPER, port=0, quiet=True, result=paper_result(tmp_path / "o.json", "another rig")
+    )
+    try:
+        info = same.app.session()["result"]
+        assert info["model"] == "htm" and info["seed"] == 1 and "note" not in info
+        assert "another rig" in other.app.session()["result"]["note"]
+        touch = {"m": 0, "target_px": [10, 20], "touch_px": [11, 20], "pointer_type": "touch"}
+        body = {"run_id": "r", "label": "stage 2", "targets": "grid", "touches": [touch]}
+        assert same.app.post_evaluation(body)["mean_px"] == 1.0
+        saved = json.loads(trials.read_text())["trials"][0]
+        assert saved["result"]["path"].endswith("r.json") and saved["result"]["model"] == "htm"
+    finally:
+        same.server_close()
+        other.server_close()
+
+
+def test_the_command_serves_until_interrupted(tmp_path):
+    ds = tmp_path / "rig.toml"
+    shutil.copy(PAPER, ds)
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    cmd = [sys.executable, "-m", "handeye_jax.cli", "tablet", "--dataset", str(ds), "--port", "0"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        first = proc.stdout.readline()
+        assert first.startswith("tablet page: http://127.0.0.1:"), first
+        url = first.split()[2]
+        status, doc = request(url + "api/session")
+        assert status == 200 and doc["dataset"]["name"] == "paper2023"
+        assert doc["tablet"]["mm_per_px"] == pytest.approx(25.4 / 267 * 2)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+    assert proc.returncode == 0 and "stopped" in out
