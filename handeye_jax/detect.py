@@ -5,11 +5,12 @@ The steps, each a function:
 1. :func:`darkness`: how much darker than its surroundings each pixel is, ``D = B − I``, with
    ``B`` the local white level (a median filter much wider than a dot). This is the paper's
    ``255 − I`` weight with the true white level in place of 255, so vignetting, a grey display
-   and the dark bezel do not bias or swamp the dots.
-2. :func:`binarise`: Otsu's threshold on ``D`` (never below a few σ of the image noise), or
-   OpenCV's adaptive threshold on the picture.
-3. :func:`find_blobs`: connected components within the area limits, each with a sub-pixel
-   centroid weighted by ``D`` in a small window that is re-centred until it settles.
+   and the dark bezel do not bias the centroids.
+2. :func:`binarise`: Otsu's threshold on the picture's black top-hat (never below a few σ of
+   the image noise, with hysteresis), or OpenCV's adaptive threshold on the picture.
+3. :func:`find_blobs`: connected components within the area limits and clear of the
+   picture's edge, each with a sub-pixel centroid weighted by ``D`` in a small window that
+   is re-centred until it settles.
 4. :func:`order_blobs`: the blobs put into the dataset's landmark order by matching their
    layout to the drawn one (``tablet_px``) through a homography, so a grid rotated in the
    picture or seen in perspective is ordered correctly.
@@ -42,6 +43,7 @@ class DetectSettings:
         background_px: side of the median filter that estimates the white level, image px
             (odd; several times a blob's size).
         noise_sigmas: Otsu's threshold is raised to at least this many σ of the image noise.
+        peak_sigmas: a blob must also peak this many σ above the noise (hysteresis).
         smoothing_px: σ of the Gaussian that smooths the picture before thresholding, px
             (about a blob's size: it averages the noise down, not the dots).
         adaptive_block_px, adaptive_offset: OpenCV's ``adaptiveThreshold`` block size (odd,
@@ -53,11 +55,12 @@ class DetectSettings:
 
     threshold: str = "otsu"
     background_px: int = 9
-    noise_sigmas: float = 5.0
+    noise_sigmas: float = 4.0
+    peak_sigmas: float = 7.0
     smoothing_px: float = 1.0
     adaptive_block_px: int = 15
-    adaptive_offset: float = 8.0
-    min_area_px: int = 3
+    adaptive_offset: float = 3.0
+    min_area_px: int = 2
     max_area_px: int = 80
     centroid_window_px: int = 1
     depth_window_px: int = 2
@@ -110,8 +113,9 @@ def binarise(grey: np.ndarray, settings: DetectSettings) -> np.ndarray:
     noise, so the threshold is never below ``noise_sigmas`` robust σ of the top-hat.
     """
     if settings.threshold == "adaptive":
+        smooth = cv2.GaussianBlur(grey, (0, 0), settings.smoothing_px)
         return cv2.adaptiveThreshold(
-            grey, 255, cv2.ADAPTIVE_THRESH_GAUSSIAN_C, cv2.THRESH_BINARY_INV,
+            smooth, 255, cv2.ADAPTIVE_THRESH_GAUSSIAN_C, cv2.THRESH_BINARY_INV,
             settings.adaptive_block_px, settings.adaptive_offset,
         )  # fmt: skip
     kernel = cv2.getStructuringElement(
@@ -127,8 +131,14 @@ def binarise(grey: np.ndarray, settings: DetectSettings) -> np.ndarray:
     otsu, _ = cv2.threshold(stretched, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
     med = float(np.median(top_hat))
     sigma = 1.4826 * float(np.median(np.abs(top_hat - med)))
-    t = max(float(otsu) / scale, med + settings.noise_sigmas * sigma, 0.5)
-    return np.where(top_hat > t, 255, 0).astype(np.uint8)
+    low = max(float(otsu) / scale, med + settings.noise_sigmas * sigma, 0.5)
+    high = max(low, med + settings.peak_sigmas * sigma)
+    # Hysteresis: a blob is the pixels above ``low`` around a peak above ``high``.
+    mask = np.where(top_hat > low, 255, 0).astype(np.uint8)
+    n, labels = cv2.connectedComponents(mask, connectivity=8)
+    peak = np.zeros(n)
+    np.maximum.at(peak, labels.ravel(), top_hat.ravel())
+    return np.where((labels > 0) & (peak[labels] > high), 255, 0).astype(np.uint8)
 
 
 def refine_centroid(dark: np.ndarray, start_px: np.ndarray, half: int) -> np.ndarray:
@@ -159,7 +169,13 @@ def find_blobs(image: np.ndarray, settings: DetectSettings | None = None) -> Blo
     mask = binarise(grey, settings)
     n, _, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8)
     area = stats[1:, cv2.CC_STAT_AREA]
-    keep = np.flatnonzero((area >= settings.min_area_px) & (area <= settings.max_area_px))
+    x, y = stats[1:, cv2.CC_STAT_LEFT], stats[1:, cv2.CC_STAT_TOP]
+    right, bottom = x + stats[1:, cv2.CC_STAT_WIDTH], y + stats[1:, cv2.CC_STAT_HEIGHT]
+    h, w = grey.shape
+    # A blob cut by the picture's edge has no reliable centroid (and is not a whole dot).
+    inside = (x > 0) & (y > 0) & (right < w) & (bottom < h)
+    sized = (area >= settings.min_area_px) & (area <= settings.max_area_px)
+    keep = np.flatnonzero(sized & inside)
     pts = [refine_centroid(dark, centroids[1 + i], settings.centroid_window_px) for i in keep]
     return Blobs(np.array(pts, dtype=float).reshape(-1, 2), area[keep].astype(float))
 

@@ -86,7 +86,8 @@ def dot_darkness(truth: TwinTruth, sigma_px: float) -> np.ndarray:
     for xy in truth.landmarks_tablet_px:
         samples, _ = truth.project(xy + offsets)
         quad, _ = truth.project(xy + corners)
-        area = 0.5 * abs(np.cross(quad[2] - quad[0], quad[3] - quad[1]))  # image px²
+        d1, d2 = quad[2] - quad[0], quad[3] - quad[1]
+        area = 0.5 * abs(d1[0] * d2[1] - d1[1] * d2[0])  # image px²
         c = samples.mean(axis=0)
         u0, v0 = int(np.floor(c[0])) - reach, int(np.floor(c[1])) - reach
         n = 2 * reach + 1

@@ -58,28 +58,27 @@ class NoisePreset:
 
 
 PRESETS: dict[str, NoisePreset] = {
-    "none": NoisePreset("none", Imaging(), DepthSensing(), 0.0, 0.0, 0.0),
+    "none": NoisePreset(
+        "none", Imaging(), DepthSensing(),
+        touch_sigma_mm=0.0, hand_round_mm=0.0, target_sigma_px=0.0,
+    ),
     # Table 2's spread: touch errors of a few tablet px (σ ≈ 2.4 px ≈ 0.45 mm), hand positions
-    # in whole mm; a fair 8-bit camera.
+    # in whole mm; a fair 8-bit sRGB camera and a RealSense-like depth image.
     "paper": NoisePreset(
         "paper",
-        Imaging(blur_px=0.0, noise_levels=2.0, vignetting=0.15, gamma=2.2),
+        Imaging(blur_px=0.0, noise_levels=1.5, vignetting=0.15, gamma=2.2),
         DepthSensing(noise_mm=0.5, step_mm=1.0, holes=0.02),
-        0.45,
-        1.0,
-        0.15,
-    ),  # fmt: skip
+        touch_sigma_mm=0.45, hand_round_mm=1.0, target_sigma_px=0.15,
+    ),
     # Defocus, a noisy sensor, coarse depth with many holes, a careless operator. One-pixel
     # dots drown in this picture's noise: simulate it with larger dots (dot_px >= 2).
     "harsh": NoisePreset(
         "harsh",
         Imaging(blur_px=0.4, noise_levels=3.0, vignetting=0.35, gamma=2.2),
         DepthSensing(noise_mm=1.5, step_mm=2.0, holes=0.10),
-        1.0,
-        1.0,
-        0.3,
-    ),  # fmt: skip
-}
+        touch_sigma_mm=1.0, hand_round_mm=1.0, target_sigma_px=0.3,
+    ),
+}  # fmt: skip
 
 
 @dataclass(frozen=True)

@@ -166,6 +166,7 @@ def draw_truth(
     lens_blur_px: float = 0.5,
     dot_px: float = 1.0,
     scale: float = 2.0,
+    fixed: dict[str, float] | None = None,
 ) -> TwinTruth:
     """A rig truth drawn uniformly from :data:`RANGES` by ``seed`` (bit-for-bit repeatable).
 
@@ -182,13 +183,20 @@ def draw_truth(
         lens_blur_px: σ of the lens's Gaussian point-spread function, image px.
         dot_px: side of each landmark dot, tablet px.
         scale: the display scale (eq. 9).
+        fixed: values for some of :data:`RANGES`' names instead of draws (still drawn, so the
+            other values do not change), e.g. ``{"gamma_t": 30.0}``.
     """
+    fixed = dict(fixed or {})
+    unknown = sorted(set(fixed) - set(RANGES))
+    if unknown:
+        raise ValueError(f"unknown names in fixed: {unknown}; known: {sorted(RANGES)}")
     rng = np.random.default_rng(seed)
     layout = snake_grid_px() if landmarks_tablet_px is None else np.asarray(landmarks_tablet_px)
     angles = 22.5 * np.arange(len(layout))
     w, h = image_size_px
     for _ in range(1000):
         u = {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in RANGES.items()}
+        u.update(fixed)
         zero, sign = HAND_ANGLE_CONVENTIONS[int(rng.integers(len(HAND_ANGLE_CONVENTIONS)))]
         model = {k: u[k] for k in HTMModel.param_names}
         camera = {"fx": u["fx"], "fy": u["fx"], "cx": (w - 1) / 2 + u["cx_offset"],
