@@ -89,14 +89,13 @@ def table(runs: list[dict]) -> str:
         )
         + " | "
         + " | ".join(
-            f"{avg(lab, 'mean_px'):.2f} / {avg(lab, 'max_px'):.2f}" for lab in ("stage 1", "stage 2")
+            f"{avg(lab, 'mean_px'):.2f} / {avg(lab, 'max_px'):.2f}"
+            for lab in ("stage 1", "stage 2")
         )
         + " | |"
     )
     better = sum(x["rows"]["stage 2"].mean_mm < x["rows"]["stage 1"].mean_mm for x in runs)
-    lines.append(
-        f"\nstage 2 has the lower mean held-out error in {better} of {len(runs)} seeds."
-    )
+    lines.append(f"\nstage 2 has the lower mean held-out error in {better} of {len(runs)} seeds.")
     return "\n".join(lines)
 
 

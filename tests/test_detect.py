@@ -145,8 +145,9 @@ def test_wrong_blob_count_reports_positions_and_writes_no_dataset(twin_dir, tmp_
     bad = tmp_path / "ten.png"
     bad.write_bytes(encode_png(img))
     out, overlay = tmp_path / "new.toml", tmp_path / "ov.png"
-    argv = ["detect", str(bad), str(twin_dir / "depth.png"), "--dataset",
-            str(twin_dir / "dataset.toml"), "--out", str(out), "--overlay", str(overlay)]  # fmt: skip
+    ds = str(twin_dir / "dataset.toml")
+    argv = ["detect", str(bad), str(twin_dir / "depth.png"), "--dataset", ds,
+            "--out", str(out), "--overlay", str(overlay)]  # fmt: skip
     err = _fails(capsys, argv, "found 10 blobs, expected 9", str(bad), "(320.", "ov.png")
     assert not out.exists() and overlay.exists()
     assert "blobs" in err
