@@ -7,7 +7,7 @@ For each seed, a rig truth is drawn, the twin renders its pictures, the landmark
 in the written PNGs, the dataset is calibrated (HTM, DE + LM, both stages), and the held-out
 touching error of stage 1, stage 2 and the oracle (the true parameters with the same measured
 observations) is measured on 20 targets the fit never saw. Prints a Markdown table and writes
-it to ``benchmarks/RESULTS.md`` under its own heading (replacing only that section).
+it to ``benchmarks/RESULTS.md`` under a heading per preset (replacing only that section).
 """
 
 from __future__ import annotations
@@ -99,12 +99,12 @@ def table(runs: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def write_section(path: Path, text: str) -> None:
-    """Put ``text`` under :data:`HEADING` in ``path``, replacing only that section."""
+def write_section(path: Path, heading: str, text: str) -> None:
+    """Put ``text`` (which starts with ``heading``) in ``path``, replacing only that section."""
     old = path.read_text() if path.exists() else ""
-    if HEADING in old:
-        start = old.index(HEADING)
-        nxt = old.find("\n## ", start + len(HEADING))
+    if heading + "\n" in old:
+        start = old.index(heading + "\n")
+        nxt = old.find("\n## ", start + len(heading))
         new = old[:start] + text + ("\n" + old[nxt + 1 :] if nxt >= 0 else "")
     else:
         new = old.rstrip("\n") + "\n\n" + text
@@ -130,8 +130,9 @@ def main() -> None:
     command = f"python benchmarks/twin_study.py --seeds {seeds} --preset {args.preset}"
     if (args.population, args.generations) != (Settings.population, Settings.generations):
         command += f" --population {args.population} --generations {args.generations}"
+    heading = f"{HEADING} (preset {args.preset})"
     text = (
-        f"{HEADING}\n\ncommand: {command}\n"
+        f"{heading}\n\ncommand: {command}\n"
         f"machine: {platform.machine()}, jax {jax.__version__}; float64; "
         f"{time.strftime('%Y-%m-%d')}; {time.perf_counter() - t0:.0f} s\n"
         f"each seed: a rig truth drawn from `twin.RANGES`, preset `{args.preset}`, landmarks "
@@ -141,7 +142,7 @@ def main() -> None:
         "measured observations of the targets.\n\n" + table(runs)
     )
     print(text)
-    write_section(args.results, text)
+    write_section(args.results, heading, text)
 
 
 if __name__ == "__main__":
