@@ -56,8 +56,9 @@ def table(runs: list[dict]) -> str:
     head = (
         "| seed | centroid RMS px | depth max err mm | F1st mm | F2nd mm "
         "| stage 1 mean / max mm | stage 2 mean / max mm | oracle mean / max mm "
-        "| stage 1 mean / max tablet px | stage 2 mean / max tablet px | on a bound |\n"
-        "|---|---|---|---|---|---|---|---|---|---|---|"
+        "| stage 1 mean / max tablet px | stage 2 mean / max tablet px "
+        "| oracle mean / max tablet px | on a bound |\n"
+        "|---|---|---|---|---|---|---|---|---|---|---|---|"
     )
     lines = [head]
 
@@ -72,7 +73,7 @@ def table(runs: list[dict]) -> str:
         lines.append(
             f"| {x['seed']} | {x['centroid_rms_px']:.3f} | {x['depth_max_mm']:.2f} | "
             f"{x['F1']:.3f} | {x['F2']:.3f} | {mm(r['stage 1'])} | {mm(r['stage 2'])} | "
-            f"{mm(r['oracle'])} | {px(r['stage 1'])} | {px(r['stage 2'])} | "
+            f"{mm(r['oracle'])} | {px(r['stage 1'])} | {px(r['stage 2'])} | {px(r['oracle'])} | "
             f"{', '.join(x['warnings']) or '-'} |"
         )
 
@@ -90,7 +91,7 @@ def table(runs: list[dict]) -> str:
         + " | "
         + " | ".join(
             f"{avg(lab, 'mean_px'):.2f} / {avg(lab, 'max_px'):.2f}"
-            for lab in ("stage 1", "stage 2")
+            for lab in ("stage 1", "stage 2", "oracle")
         )
         + " | |"
     )
