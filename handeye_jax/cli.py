@@ -32,6 +32,16 @@ def _positive_int(text: str) -> int:
     return v
 
 
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not v > 0 or v == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0 (got {text})")
+    return v
+
+
 def _population(text: str) -> int:
     v = _positive_int(text)
     if v < 4:
@@ -99,9 +109,11 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if not out.parent.is_dir() or (out.exists() and not out.is_dir()):
         raise InputError(out, "", "cannot write: parent folder missing or not a folder")
     if args.truth:
+        if args.dot_px is not None:
+            raise InputError(None, "--dot-px", "the truth file sets the dot size (dot_px)")
         truth = load_truth(args.truth)
     else:
-        truth = draw_truth(args.seed, dot_px=args.dot_px)
+        truth = draw_truth(args.seed, dot_px=1.0 if args.dot_px is None else args.dot_px)
     twin = simulate(truth, PRESETS[args.preset], args.seed, exact=args.exact,
                     n_heldout=args.heldout)  # fmt: skip
     paths = write_twin(twin, out)
@@ -225,9 +237,8 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--heldout", type=_positive_int, default=20, help="held-out targets")
     sim.add_argument(
         "--dot-px",
-        type=float,
-        default=1.0,
-        help="side of the landmark dots drawn, tablet px (default 1, as the paper)",
+        type=_positive_float,
+        help="side of the landmark dots, tablet px (default 1, as the paper; not with --truth)",
     )
     sim.set_defaults(func=_cmd_simulate)
 

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from jaxtyping import Float, Int, UInt8, UInt16
 
 from .dataset import Dataset
 from .errors import InputError
@@ -99,12 +100,12 @@ def to_grey(image: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(image, code)
 
 
-def darkness(grey: np.ndarray, background_px: int = 9) -> np.ndarray:
+def darkness(grey: UInt8[np.ndarray, "h w"], background_px: int = 9) -> Float[np.ndarray, "h w"]:
     """``D = B − I`` in grey levels (float): darkness below the local white level ``B``."""
     return cv2.medianBlur(grey, background_px).astype(float) - grey.astype(float)
 
 
-def binarise(grey: np.ndarray, settings: DetectSettings) -> np.ndarray:
+def binarise(grey: UInt8[np.ndarray, "h w"], settings: DetectSettings) -> UInt8[np.ndarray, "h w"]:
     """The mask (``uint8``, 255 = dot) of pixels dark enough to belong to a dot.
 
     Otsu's threshold is taken on the black top-hat of the picture (its closing minus itself,
@@ -141,7 +142,9 @@ def binarise(grey: np.ndarray, settings: DetectSettings) -> np.ndarray:
     return np.where((labels > 0) & (peak[labels] > high), 255, 0).astype(np.uint8)
 
 
-def refine_centroid(dark: np.ndarray, start_px: np.ndarray, half: int) -> np.ndarray:
+def refine_centroid(
+    dark: Float[np.ndarray, "h w"], start_px: Float[np.ndarray, "2"], half: int
+) -> Float[np.ndarray, "2"]:
     """Darkness-weighted centroid in a ``(2·half+1)²`` window re-centred until it settles."""
     h, w = dark.shape
     c = np.asarray(start_px, dtype=float)
@@ -194,7 +197,9 @@ def _max_area_quad(points: np.ndarray) -> np.ndarray:
     return best
 
 
-def order_blobs(blobs_px: np.ndarray, layout_px: np.ndarray) -> np.ndarray:
+def order_blobs(
+    blobs_px: Float[np.ndarray, "n 2"], layout_px: Float[np.ndarray, "n 2"]
+) -> Int[np.ndarray, " n"]:
     """Indices that put the blobs into the layout's order: ``blobs_px[order][m]`` is landmark m.
 
     The four outermost landmarks of the layout (the corners of the largest quadrilateral on
@@ -251,7 +256,9 @@ def order_blobs(blobs_px: np.ndarray, layout_px: np.ndarray) -> np.ndarray:
     return good[0][3]
 
 
-def depth_at(depth_mm: np.ndarray, image_px: np.ndarray, half: int = 2) -> np.ndarray:
+def depth_at(
+    depth_mm: UInt16[np.ndarray, "h w"], image_px: Float[np.ndarray, "n 2"], half: int = 2
+) -> Float[np.ndarray, " n"]:
     """Median of the non-zero depth pixels within ``±half`` px of each point, mm; NaN if none.
 
     Args:

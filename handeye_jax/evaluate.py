@@ -15,6 +15,7 @@ from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Float
 
 from ._x64 import in_float64
 from .errors import InputError
@@ -62,8 +63,8 @@ def load_heldout(path: str | Path) -> Heldout:
 
 @in_float64
 def landing_tablet_px(
-    truth: TwinTruth, hand_xy_mm: np.ndarray, hand_angle_deg: np.ndarray
-) -> np.ndarray:
+    truth: TwinTruth, hand_xy_mm: Float[np.ndarray, "k 2"], hand_angle_deg: Float[np.ndarray, " k"]
+) -> Float[np.ndarray, "k 2"]:
     """Where the pen lands on the display, tablet px, when the hand goes to ``hand_xy_mm``.
 
     The pen tip is at the hand plus the true pen offset (eqs. 6–7); it comes down on the

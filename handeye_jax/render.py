@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from jax.scipy.special import ndtr
+from jaxtyping import Float, UInt8, UInt16
 
 from ._x64 import in_float64
 from .twin import TwinTruth
@@ -72,7 +73,7 @@ def _pixel_weights(centres: np.ndarray, lo: int, n: int, sigma: float) -> np.nda
     return np.diff(np.asarray(cdf), axis=1)
 
 
-def dot_darkness(truth: TwinTruth, sigma_px: float) -> np.ndarray:
+def dot_darkness(truth: TwinTruth, sigma_px: float) -> Float[np.ndarray, "h w"]:
     """Darkness the landmark dots add, blurred by the PSF and integrated over pixels, (h, w).
 
     In units of the display's contrast: a pixel fully covered by black reads 1.
@@ -99,7 +100,7 @@ def dot_darkness(truth: TwinTruth, sigma_px: float) -> np.ndarray:
     return out
 
 
-def display_coverage(truth: TwinTruth) -> np.ndarray:
+def display_coverage(truth: TwinTruth) -> Float[np.ndarray, "h w"]:
     """Fraction of each pixel covered by the lit display (area-integrated), (h, w)."""
     w, h = truth.image_size_px
     dw, dh = truth.display_px
@@ -112,7 +113,9 @@ def display_coverage(truth: TwinTruth) -> np.ndarray:
     return cv2.resize(canvas, (w, h), interpolation=cv2.INTER_AREA).astype(float) / 255.0
 
 
-def render_capture(truth: TwinTruth, imaging: Imaging, rng: np.random.Generator) -> np.ndarray:
+def render_capture(
+    truth: TwinTruth, imaging: Imaging, rng: np.random.Generator
+) -> UInt8[np.ndarray, "h w 3"]:
     """The colour picture of the tablet showing the landmarks, ``uint8`` BGR ``(h, w, 3)``.
 
     Args:
@@ -137,7 +140,7 @@ def render_capture(truth: TwinTruth, imaging: Imaging, rng: np.random.Generator)
     return cv2.merge([grey, grey, grey])
 
 
-def true_depth_mm(truth: TwinTruth) -> np.ndarray:
+def true_depth_mm(truth: TwinTruth) -> Float[np.ndarray, "h w"]:
     """Depth of the display plane along the optical axis at every pixel centre, mm, (h, w)."""
     w, h = truth.image_size_px
     p0, px, py = truth.camera_points(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]))
@@ -148,7 +151,9 @@ def true_depth_mm(truth: TwinTruth) -> np.ndarray:
     return float(normal @ p0) / (rays @ normal)
 
 
-def render_depth(truth: TwinTruth, sensing: DepthSensing, rng: np.random.Generator) -> np.ndarray:
+def render_depth(
+    truth: TwinTruth, sensing: DepthSensing, rng: np.random.Generator
+) -> UInt16[np.ndarray, "h w"]:
     """The depth image, ``uint16`` mm ``(h, w)``; 0 where there is no measurement.
 
     Args:

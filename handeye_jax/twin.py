@@ -19,6 +19,7 @@ from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Float
 
 from . import geometry as geo
 from ._validate import _describe, _Reader
@@ -117,7 +118,7 @@ class TwinTruth:
         return HTMModel.from_dict(self.model)
 
     @in_float64
-    def camera_points(self, tablet_px: np.ndarray) -> np.ndarray:
+    def camera_points(self, tablet_px: Float[np.ndarray, "n 2"]) -> Float[np.ndarray, "n 3"]:
         """Display points, tablet px ``(n, 2)``, in the camera frame at capture, mm ``(n, 3)``."""
         p = tablet_to_camera(
             self.htm(), self.rig(), np.asarray(tablet_px, float) * self.mm_per_tablet_px,
@@ -126,7 +127,9 @@ class TwinTruth:
         return np.asarray(p)
 
     @in_float64
-    def project(self, tablet_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def project(
+        self, tablet_px: Float[np.ndarray, "n 2"]
+    ) -> tuple[Float[np.ndarray, "n 2"], Float[np.ndarray, " n"]]:
         """Where display points appear in the picture: ``(image_px (n, 2), depth_mm (n,))``."""
         c = self.camera_px
         uv, z = geo.project(jnp.asarray(self.camera_points(tablet_px)), c["fx"], c["fy"],
