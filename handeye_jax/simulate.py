@@ -28,6 +28,7 @@ import numpy as np
 from ._atomic import write_text_atomic
 from .dataset import Dataset, dataset_to_toml
 from .detect import BlobCountError, DetectSettings, depth_at, find_blobs, order_blobs
+from .errors import InputError
 from .render import DepthSensing, Imaging, render_capture, render_depth
 from .synthetic import synthesize_dataset
 from .twin import TwinTruth
@@ -229,13 +230,16 @@ def write_twin(twin: Twin, out_dir: str | Path) -> list[Path]:
         "capture.png": encode_png(twin.capture),
         "depth.png": encode_png(twin.depth),
     }
-    out_dir.mkdir(exist_ok=True)
     paths = []
-    for name, data in files.items():
-        path = out_dir / name
-        if isinstance(data, str):
-            write_text_atomic(path, data)
-        else:
-            write_bytes_atomic(path, data)
-        paths.append(path)
+    try:
+        out_dir.mkdir(exist_ok=True)
+        for name, data in files.items():
+            path = out_dir / name
+            if isinstance(data, str):
+                write_text_atomic(path, data)
+            else:
+                write_bytes_atomic(path, data)
+            paths.append(path)
+    except OSError as e:
+        raise InputError(out_dir, "", f"cannot write: {e}") from None
     return paths
