@@ -188,7 +188,8 @@ def add_twin_commands(sub: argparse._SubParsersAction) -> None:
         help="held-out touching error of a calibration on a synthetic twin",
         description="Send the hand to each held-out target of TWIN_DIR as RESULT predicts "
         "it (stage 1 and 2), see where the true pen lands, and print the mean and max "
-        "touching error in mm and tablet px, beside the oracle (the true parameters).",
+        "touching error in mm and tablet px, beside the oracle (the true parameters) and the "
+        "oracle with a stage-2 correction fitted on top (by the result's settings).",
     )
     ev.add_argument("result", help="result file from 'calibrate --out'")
     ev.add_argument("twin_dir", help="folder written by 'simulate'")

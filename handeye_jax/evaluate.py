@@ -5,7 +5,8 @@ calibration never saw) the hand is sent to the command a calibration predicts fr
 target's measured image point and depth; the pen lands where the twin's true chain puts it,
 and the touching error is where it lands on the display minus the target, in mm and tablet px.
 The oracle sends the hand with the true parameters and the same measured observations: what
-a perfect calibration would achieve with these measurements.
+a perfect stage 1 would achieve with these measurements; "oracle + stage 2" adds a stage-2
+correction fitted on top of the true parameters, to show what stage 2 does to a perfect model.
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ import numpy as np
 from jaxtyping import Float
 
 from ._x64 import in_float64
+from .calibrate import Settings, fit_correction
+from .dataset import Dataset, load_dataset
 from .errors import InputError
 from .models import AbstractModel
 from .predict import hand_command, read_points_csv
@@ -115,40 +118,59 @@ class TouchingError:
 
 
 @in_float64
-def evaluate(result: CalibrationResult, truth: TwinTruth, heldout: Heldout) -> list[TouchingError]:
-    """Touching error of the result's stage 1 and stage 2 and of the oracle, in that order.
+def evaluate(
+    result: CalibrationResult,
+    truth: TwinTruth,
+    heldout: Heldout,
+    dataset: Dataset | None = None,
+) -> list[TouchingError]:
+    """Touching error of the result's stages and of the oracle.
+
+    Rows, in order: ``stage 1`` and ``stage 2`` (the result, eqs. 8 and 25), ``oracle`` (the
+    true parameters, eq. 8) and, when ``dataset`` is given, ``oracle + stage 2`` (the true
+    parameters with a stage-2 correction fitted to ``dataset`` by the result's settings).
 
     Args:
         result: a calibration of the twin's dataset.
         truth: the twin's rig truth.
         heldout: the held-out targets as measured.
+        dataset: the dataset the result was fitted to, for the oracle's stage 2.
     """
+    image_px = jnp.asarray(heldout.image_px)
+    depth_mm = jnp.asarray(heldout.depth_mm)
+    angle_deg = jnp.asarray(heldout.hand_angle_deg)
     rows = []
     for label, stage in (("stage 1", 1), ("stage 2", 2)):
-        cmd = result.predict(heldout.image_px, heldout.depth_mm, heldout.hand_angle_deg, stage)
-        rows.append((label, cmd))
-    oracle = hand_command(
-        truth.htm(), truth.rig(), jnp.asarray(heldout.image_px), jnp.asarray(heldout.depth_mm),
-        jnp.asarray(heldout.hand_angle_deg),
-    )  # fmt: skip
-    rows.append(("oracle", np.asarray(oracle)))
+        rows.append((label, result.predict(image_px, depth_mm, angle_deg, stage)))
+    model, rig = truth.htm(), truth.rig()
+    rows.append(("oracle", hand_command(model, rig, image_px, depth_mm, angle_deg)))
+    if dataset is not None:
+        known = {k: v for k, v in result.settings.items() if k in Settings.__dataclass_fields__}
+        correction, centres = fit_correction(dataset, model, Settings(**known))
+        cmd = hand_command(model, rig, image_px, depth_mm, angle_deg, correction,
+                           jnp.asarray(centres))  # fmt: skip
+        rows.append(("oracle + stage 2", cmd))
     return [
         TouchingError(
             label,
-            landing_tablet_px(truth, cmd, heldout.hand_angle_deg) - heldout.tablet_px,
+            landing_tablet_px(truth, np.asarray(cmd), heldout.hand_angle_deg) - heldout.tablet_px,
             truth.mm_per_tablet_px,
-        )  # fmt: skip
+        )
         for label, cmd in rows
     ]
 
 
 def evaluate_twin(result: CalibrationResult, twin_dir: str | Path) -> list[TouchingError]:
-    """:func:`evaluate` on a folder written by ``simulate`` (``truth.json``, ``heldout.csv``)."""
+    """:func:`evaluate` on a folder written by ``simulate``, with the oracle's stage 2.
+
+    Reads ``truth.json``, ``heldout.csv`` and ``dataset.toml`` from ``twin_dir``.
+    """
     twin_dir = Path(twin_dir)
     if not twin_dir.is_dir():
         raise InputError(twin_dir, "", "not a folder written by 'handeye-jax simulate'")
-    return evaluate(result, load_truth(twin_dir / "truth.json"),
-                    load_heldout(twin_dir / "heldout.csv"))  # fmt: skip
+    truth = load_truth(twin_dir / "truth.json")
+    heldout = load_heldout(twin_dir / "heldout.csv")
+    return evaluate(result, truth, heldout, load_dataset(twin_dir / "dataset.toml"))
 
 
 def format_evaluation(rows: list[TouchingError]) -> str:

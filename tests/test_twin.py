@@ -169,9 +169,9 @@ def test_simulate_detect_calibrate_evaluate_end_to_end(tmp_path, capsys):
     rows = {
         line.split("|")[1].strip(): [float(v) for v in line.split("|")[2:6]]
         for line in out.splitlines()
-        if line.startswith("| stage") or line.startswith("| oracle")
+        if line.startswith(("| stage", "| oracle"))
     }
-    assert set(rows) == {"stage 1", "stage 2", "oracle"}
+    assert set(rows) == {"stage 1", "stage 2", "oracle", "oracle + stage 2"}
     # With Table 2's noise the oracle touches within a few tenths of a mm; a calibration
     # from nine landmarks is worse, but within a mm on average.
     assert rows["oracle"][0] < 0.3 and rows["stage 1"][0] < 1.0 and rows["stage 2"][0] < 1.0
