@@ -17,7 +17,7 @@ import numpy as np
 
 from ._x64 import in_float64
 from .dataset import Dataset, check_min_landmarks
-from .models import AbstractParametric, AffinePair, get_model
+from .models import AbstractModel, AbstractParametric, AffinePair, get_model
 from .objective import (
     AbstractObjective,
     Stage1Objective,
@@ -240,3 +240,24 @@ def calibrate(
         sign_twin=_sign_twin(obj1, model_cls, x1),
         warnings=warnings,
     )
+
+
+@in_float64
+def fit_correction(
+    dataset: Dataset, model: AbstractModel, settings: Settings = Settings()
+) -> tuple[AffinePair, np.ndarray]:
+    """Stage 2 alone: fit the affine correction to a dataset with a given stage-1 model.
+
+    With the true model (on synthetic data) this is the oracle's stage 2. The DE key is the
+    one :func:`calibrate` uses for its stage 2, so the two are comparable seed for seed.
+
+    Returns:
+        The fitted correction and its centres of rotation (rows: A1, A2), mm.
+    """
+    obs = dataset.observations()
+    _, key2 = jax.random.split(jax.random.PRNGKey(settings.seed))
+    points = _points(type(model), model.to_vector(), obs)
+    objective = Stage2Objective(AffinePair, points, obs.centre_index)
+    x2, *_ = _optimise(objective, AffinePair, dataset.search, key2, settings, False, "stage 2")
+    centres = _centres(jnp.asarray(x2), points, obs.centre_index)
+    return AffinePair.from_vector(jnp.asarray(x2)), np.asarray(centres)

@@ -112,6 +112,7 @@ def _port(text: str) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     from .calibrate import Settings
+    from .cli_twin import add_twin_commands
     from .models import model_registry
 
     d = Settings()
@@ -145,6 +146,7 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument("--out", metavar="RESULT.json", help="write the result (JSON) here")
     cal.add_argument("--quiet", action="store_true", help="no progress bars")
     cal.set_defaults(func=_cmd_calibrate)
+    add_twin_commands(sub)  # simulate, detect, evaluate
 
     pre = sub.add_parser(
         "predict",

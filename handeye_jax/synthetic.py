@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float
 
 from . import geometry as geo
 from ._x64 import in_float64
@@ -29,6 +30,7 @@ def synthesize_dataset(
     scale: float = 2.0,
     touch_error_px: np.ndarray | None = None,
     tablet_height_mm: float = 120.0,
+    camera_z_mm: float = 0.0,
     name: str = "synthetic",
     search: dict[str, tuple[float, float]] | None = None,
 ) -> Dataset:
@@ -44,6 +46,8 @@ def synthesize_dataset(
             positions include it, and the dataset records it, so F stays 0.
         tablet_height_mm: height of the tablet surface in the base frame, mm. It does not
             enter the objective (x-y only) but sets the depths the camera sees.
+        camera_z_mm: the camera's offset along the hand's z axis, mm (``zc``; the models
+            leave it out because it never enters x-y).
         name: the dataset's name.
         search: ``[search]`` overrides to record in the dataset.
     """
@@ -52,12 +56,9 @@ def synthesize_dataset(
     touch_px = np.zeros((n, 2)) if touch_error_px is None else np.asarray(touch_error_px, float)
     mm = geo.mm_per_tablet_px(ppi, scale)
 
-    p_base = truth.tablet_to_base(jnp.asarray(tablet_px * mm))
-    p_base = p_base.at[:, 2].add(tablet_height_mm)
-    R_bh, t_bh = rig.T_base_hand_capture()
-    R_hc, t_hc = truth.camera_mount()
-    p_hand = (p_base - t_bh) @ R_bh
-    p_camera = (p_hand - t_hc) @ R_hc
+    p_camera = tablet_to_camera(
+        truth, rig, tablet_px * mm, tablet_height_mm=tablet_height_mm, camera_z_mm=camera_z_mm
+    )
     image_px, depth_mm = geo.project(p_camera, rig.fx_px, rig.fy_px, rig.cx_px, rig.cy_px)
 
     touched = truth.tablet_to_base(jnp.asarray((tablet_px + touch_px) * mm))[:, :2]
@@ -80,6 +81,29 @@ def synthesize_dataset(
         hand_angle_deg=np.asarray(hand_angle_deg, dtype=float),
         touch_error_px=touch_px,
     )
+
+
+def tablet_to_camera(
+    truth: AbstractModel,
+    rig: Rig,
+    tablet_mm: Float[ArrayLike, "n 2"],
+    *,
+    tablet_height_mm: float = 120.0,
+    camera_z_mm: float = 0.0,
+) -> Float[Array, "n 3"]:
+    """Points on the tablet display, mm in the tablet frame, to the camera frame at capture, mm.
+
+    The chain of eq. (5) run backwards: tablet → base (lifted by ``tablet_height_mm``) → hand
+    at the capture pose → camera (whose mount is ``truth``'s, shifted by ``camera_z_mm`` along
+    the hand's z axis). Call inside :func:`handeye_jax.float64` for float64.
+    """
+    p_base = truth.tablet_to_base(jnp.asarray(tablet_mm, dtype=float))
+    p_base = p_base.at[:, 2].add(tablet_height_mm)
+    R_bh, t_bh = rig.T_base_hand_capture()
+    R_hc, t_hc = truth.camera_mount()
+    t_hc = t_hc.at[2].add(camera_z_mm)
+    p_hand = (p_base - t_bh) @ R_bh
+    return (p_hand - t_hc) @ R_hc
 
 
 def snake_grid_px(

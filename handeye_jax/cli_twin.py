@@ -1,0 +1,196 @@
+"""``handeye-jax simulate``, ``detect`` and ``evaluate``: thin commands over the twin's API.
+
+:func:`add_twin_commands` adds them to the command line (:mod:`handeye_jax.cli`); the work is
+in :mod:`~handeye_jax.simulate`, :mod:`~handeye_jax.detect` and :mod:`~handeye_jax.evaluate`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from jaxtyping import Float
+
+from .cli import _output_path, _positive_int
+from .dataset import Dataset, save_dataset
+from .detect import overlay_image, read_image
+from .errors import InputError
+from .simulate import encode_png, write_bytes_atomic
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not v > 0 or v == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0 (got {text})")
+    return v
+
+
+def write_overlay(
+    capture: str | Path,
+    points_px: Float[np.ndarray, "n 2"],
+    depth_mm: Float[np.ndarray, " n"] | None,
+    out: Path,
+) -> None:
+    """The picture with each point circled and numbered (with its depth in mm, if given)."""
+    image = read_image(capture)
+    if depth_mm is None:
+        labels = [f"?{i}" for i in range(len(points_px))]
+    else:
+        labels = [f"{m}: {z:.0f} mm" for m, z in enumerate(depth_mm)]
+    write_bytes_atomic(out, encode_png(overlay_image(image, points_px, labels)))
+
+
+def backup_and_save(dataset: Dataset, path: Path) -> None:
+    """Replace ``path`` with ``dataset`` and keep the previous file as ``path.bak``.
+
+    The new file is written (and validated) beside the old one first; only then is the old
+    one copied to the backup and replaced in one rename, so a failure leaves it as it was.
+    """
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".new", dir=path.parent)
+    os.close(fd)
+    try:
+        save_dataset(dataset, tmp)
+        backup = path.with_name(path.name + ".bak")
+        try:
+            shutil.copy2(path, backup)
+        except OSError as e:
+            raise InputError(backup, "", f"cannot keep the previous dataset: {e}") from None
+        shutil.copymode(path, tmp)
+        os.replace(tmp, path)
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from .simulate import PRESETS, simulate, write_twin
+    from .twin import draw_truth, load_truth
+
+    out = Path(args.out_dir)
+    if not out.parent.is_dir() or (out.exists() and not out.is_dir()):
+        raise InputError(out, "", "cannot write: parent folder missing or not a folder")
+    if args.truth:
+        if args.dot_px is not None:
+            raise InputError(None, "--dot-px", "the truth file sets the dot size (dot_px)")
+        truth = load_truth(args.truth)
+    else:
+        truth = draw_truth(args.seed, dot_px=1.0 if args.dot_px is None else args.dot_px)
+    twin = simulate(truth, PRESETS[args.preset], args.seed, exact=args.exact,
+                    n_heldout=args.heldout)  # fmt: skip
+    paths = write_twin(twin, out)
+    how = "exact" if args.exact else "detected"
+    print(f"twin (seed {args.seed}, preset {args.preset}, image_px and depth {how}) written "
+          f"to {out}: {', '.join(p.name for p in paths)}")  # fmt: skip
+    return 0
+
+
+def _cmd_detect(args: argparse.Namespace) -> int:
+    from .dataset import load_dataset, save_dataset
+    from .detect import BlobCountError, DetectSettings, detect_landmarks, fill_dataset
+
+    out = _output_path(args.out)
+    overlay = _output_path(args.overlay)
+    dataset = load_dataset(args.dataset)
+    settings = DetectSettings(threshold=args.threshold, min_area_px=args.min_area,
+                              max_area_px=args.max_area)  # fmt: skip
+    try:
+        found = detect_landmarks(args.capture, args.depth, dataset.tablet_px, settings)
+    except BlobCountError as e:
+        if overlay is not None:
+            write_overlay(args.capture, e.blobs.image_px, None, overlay)
+            e = BlobCountError(e.path, e.blobs, dataset.n_landmarks, f"; overlay in {overlay}")
+        raise e from None
+    if overlay is not None:
+        write_overlay(args.capture, found.image_px, found.depth_mm, overlay)
+    new = fill_dataset(dataset, found)
+    if out is None:
+        backup_and_save(new, Path(args.dataset))
+        print(f"{dataset.n_landmarks} landmarks found; {args.dataset} updated "
+              f"(previous file kept as {args.dataset}.bak)")  # fmt: skip
+    else:
+        save_dataset(new, out)
+        print(f"{dataset.n_landmarks} landmarks found; dataset written to {out}")
+    return 0
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from .evaluate import evaluate_twin, format_evaluation
+    from .result import load_result
+
+    print(format_evaluation(evaluate_twin(load_result(args.result), args.twin_dir)))
+    return 0
+
+
+def add_twin_commands(sub: argparse._SubParsersAction) -> None:
+    """Add ``simulate``, ``detect`` and ``evaluate`` to the command line's subparsers."""
+    sim = sub.add_parser(
+        "simulate",
+        help="a synthetic twin of the rig: pictures, dataset, truth and held-out targets",
+        description="Draw a rig truth (or read --truth), render the camera's colour and depth "
+        "images of the tablet, detect the landmarks, simulate the touches, and write "
+        "dataset.toml, capture.png, depth.png, truth.json and heldout.csv into OUT_DIR.",
+    )
+    sim.add_argument("out_dir", help="folder to write (created if missing)")
+    sim.add_argument("--seed", type=int, default=1, help="seeds the truth and every noise draw")
+    sim.add_argument(
+        "--preset",
+        choices=("none", "paper", "harsh"),
+        default="paper",
+        help="noise preset (default paper: about the spread of Table 2)",
+    )
+    sim.add_argument("--truth", metavar="TRUTH.json", help="use this rig truth instead of a draw")
+    sim.add_argument(
+        "--exact",
+        action="store_true",
+        help="take image_px and depth from the truth instead of the detector",
+    )
+    sim.add_argument("--heldout", type=_positive_int, default=20, help="held-out targets")
+    sim.add_argument(
+        "--dot-px",
+        type=_positive_float,
+        help="side of the landmark dots, tablet px (default 1, as the paper; not with --truth)",
+    )
+    sim.set_defaults(func=_cmd_simulate)
+
+    det = sub.add_parser(
+        "detect",
+        help="find the landmarks in the camera's picture and fill image_px and depth",
+        description="Find the dark landmark dots in CAPTURE (8-bit) and read their depth from "
+        "DEPTH (16-bit PNG, mm, 0 = none); write the dataset with image_px and depth filled "
+        "in, every other field as it was.",
+    )
+    det.add_argument("capture", help="colour picture of the tablet (PNG)")
+    det.add_argument("depth", help="depth image (16-bit PNG, mm)")
+    det.add_argument("--dataset", required=True, help="the dataset to fill (TOML)")
+    det.add_argument(
+        "--out",
+        metavar="NEW.toml",
+        help="write here; without it DATASET is updated and the old one kept as .bak",
+    )
+    det.add_argument(
+        "--overlay",
+        metavar="OVERLAY.png",
+        help="write the picture with the detected centroids numbered in landmark order",
+    )
+    det.add_argument("--threshold", choices=("otsu", "adaptive"), default="otsu")
+    det.add_argument("--min-area", type=_positive_int, default=3, help="smallest blob, px²")
+    det.add_argument("--max-area", type=_positive_int, default=80, help="largest blob, px²")
+    det.set_defaults(func=_cmd_detect)
+
+    ev = sub.add_parser(
+        "evaluate",
+        help="held-out touching error of a calibration on a synthetic twin",
+        description="Send the hand to each held-out target of TWIN_DIR as RESULT predicts "
+        "it (stage 1 and 2), see where the true pen lands, and print the mean and max "
+        "touching error in mm and tablet px, beside the oracle (the true parameters) and the "
+        "oracle with a stage-2 correction fitted on top (by the result's settings).",
+    )
+    ev.add_argument("result", help="result file from 'calibrate --out'")
+    ev.add_argument("twin_dir", help="folder written by 'simulate'")
+    ev.set_defaults(func=_cmd_evaluate)

@@ -1,0 +1,189 @@
+"""Held-out touching error on a synthetic twin: the paper's Tables 9 and 12, done honestly.
+
+For each held-out target (drawn at a tablet position and touched at a hand angle the
+calibration never saw) the hand is sent to the command a calibration predicts from the
+target's measured image point and depth; the pen lands where the twin's true chain puts it,
+and the touching error is where it lands on the display minus the target, in mm and tablet px.
+The oracle sends the hand with the true parameters and the same measured observations: what
+a perfect stage 1 would achieve with these measurements; "oracle + stage 2" adds a stage-2
+correction fitted on top of the true parameters, to show what stage 2 does to a perfect model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Float
+
+from ._x64 import in_float64
+from .calibrate import Settings, fit_correction
+from .dataset import Dataset, load_dataset
+from .errors import InputError
+from .models import AbstractModel
+from .predict import hand_command, read_points_csv
+from .result import CalibrationResult
+from .twin import TwinTruth, load_truth
+
+
+@dataclass(frozen=True)
+class Heldout:
+    """Held-out targets: as measured (``u, v``, depth, hand angle) and where drawn.
+
+    Attributes:
+        image_px: measured image point of each target, px, ``(k, 2)``.
+        depth_mm: measured depth, mm, ``(k,)``.
+        hand_angle_deg: hand angle to touch it with, deg, ``(k,)``.
+        tablet_px: where it is drawn on the display, tablet px, ``(k, 2)``.
+    """
+
+    image_px: np.ndarray
+    depth_mm: np.ndarray
+    hand_angle_deg: np.ndarray
+    tablet_px: np.ndarray
+
+
+def load_heldout(path: str | Path) -> Heldout:
+    """Read ``heldout.csv`` (``u,v,depth,hand_angle,tablet_x,tablet_y``); InputError if bad."""
+    path = Path(path)
+    header, rows, values = read_points_csv(path)
+    cols = []
+    for name in ("tablet_x", "tablet_y"):
+        if name not in header:
+            raise InputError(path, "header", f"missing column {name}")
+        j = header.index(name)
+        try:
+            col = np.array([float(r[j]) for r in rows])
+        except ValueError:
+            raise InputError(path, name, "not a number in every row") from None
+        if not np.isfinite(col).all():
+            raise InputError(path, name, "must be finite")
+        cols.append(col)
+    return Heldout(values[:, :2], values[:, 2], values[:, 3], np.column_stack(cols))
+
+
+@in_float64
+def landing_tablet_px(
+    truth: TwinTruth, hand_xy_mm: Float[np.ndarray, "k 2"], hand_angle_deg: Float[np.ndarray, " k"]
+) -> Float[np.ndarray, "k 2"]:
+    """Where the pen lands on the display, tablet px, when the hand goes to ``hand_xy_mm``.
+
+    The pen tip is at the hand plus the true pen offset (eqs. 6–7); it comes down on the
+    display plane where the true tablet pose (eq. 11) puts that base-frame ``(x, y)``.
+    """
+    model: AbstractModel = truth.htm()
+    offset = model.pen_offset(truth.rig().phi_deg(jnp.asarray(hand_angle_deg, dtype=float)))
+    tip_xy = np.asarray(hand_xy_mm) + np.asarray(offset)[:, :2]
+    R_base_tablet, t_base_tablet = (np.asarray(a) for a in model.tablet_pose())
+    # Points of the display plane are R[:, :2]·q + t; solve the x-y rows for q (mm).
+    q_mm = np.linalg.solve(R_base_tablet[:2, :2], (tip_xy - t_base_tablet[:2]).T).T
+    return q_mm / truth.mm_per_tablet_px
+
+
+@dataclass(frozen=True)
+class TouchingError:
+    """Touching error over the held-out targets.
+
+    Attributes:
+        label: what sent the hand (``"stage 1"``, ``"stage 2"``, ``"oracle"``).
+        errors_px: landing minus target per target, tablet px, ``(k, 2)``.
+        mm_per_px: the display's tablet px size, mm.
+    """
+
+    label: str
+    errors_px: np.ndarray
+    mm_per_px: float
+
+    @property
+    def lengths_px(self) -> np.ndarray:
+        return np.linalg.norm(self.errors_px, axis=1)
+
+    @property
+    def mean_mm(self) -> float:
+        return float(self.lengths_px.mean() * self.mm_per_px)
+
+    @property
+    def max_mm(self) -> float:
+        return float(self.lengths_px.max() * self.mm_per_px)
+
+    @property
+    def mean_px(self) -> float:
+        return float(self.lengths_px.mean())
+
+    @property
+    def max_px(self) -> float:
+        return float(self.lengths_px.max())
+
+
+@in_float64
+def evaluate(
+    result: CalibrationResult,
+    truth: TwinTruth,
+    heldout: Heldout,
+    dataset: Dataset | None = None,
+) -> list[TouchingError]:
+    """Touching error of the result's stages and of the oracle.
+
+    Rows, in order: ``stage 1`` and ``stage 2`` (the result, eqs. 8 and 25), ``oracle`` (the
+    true parameters, eq. 8) and, when ``dataset`` is given, ``oracle + stage 2`` (the true
+    parameters with a stage-2 correction fitted to ``dataset`` by the result's settings).
+
+    Args:
+        result: a calibration of the twin's dataset.
+        truth: the twin's rig truth.
+        heldout: the held-out targets as measured.
+        dataset: the dataset the result was fitted to, for the oracle's stage 2.
+    """
+    image_px = jnp.asarray(heldout.image_px)
+    depth_mm = jnp.asarray(heldout.depth_mm)
+    angle_deg = jnp.asarray(heldout.hand_angle_deg)
+    rows = []
+    for label, stage in (("stage 1", 1), ("stage 2", 2)):
+        rows.append((label, result.predict(image_px, depth_mm, angle_deg, stage)))
+    model, rig = truth.htm(), truth.rig()
+    rows.append(("oracle", hand_command(model, rig, image_px, depth_mm, angle_deg)))
+    if dataset is not None:
+        known = {k: v for k, v in result.settings.items() if k in Settings.__dataclass_fields__}
+        correction, centres = fit_correction(dataset, model, Settings(**known))
+        cmd = hand_command(model, rig, image_px, depth_mm, angle_deg, correction,
+                           jnp.asarray(centres))  # fmt: skip
+        rows.append(("oracle + stage 2", cmd))
+    return [
+        TouchingError(
+            label,
+            landing_tablet_px(truth, np.asarray(cmd), heldout.hand_angle_deg) - heldout.tablet_px,
+            truth.mm_per_tablet_px,
+        )
+        for label, cmd in rows
+    ]
+
+
+def evaluate_twin(result: CalibrationResult, twin_dir: str | Path) -> list[TouchingError]:
+    """:func:`evaluate` on a folder written by ``simulate``, with the oracle's stage 2.
+
+    Reads ``truth.json``, ``heldout.csv`` and ``dataset.toml`` from ``twin_dir``.
+    """
+    twin_dir = Path(twin_dir)
+    if not twin_dir.is_dir():
+        raise InputError(twin_dir, "", "not a folder written by 'handeye-jax simulate'")
+    truth = load_truth(twin_dir / "truth.json")
+    heldout = load_heldout(twin_dir / "heldout.csv")
+    return evaluate(result, truth, heldout, load_dataset(twin_dir / "dataset.toml"))
+
+
+def format_evaluation(rows: list[TouchingError]) -> str:
+    """A Markdown table of the touching errors, mm and tablet px."""
+    n = len(rows[0].errors_px)
+    lines = [
+        f"held-out touching error over {n} targets (landing minus target on the display)",
+        "",
+        "| sent by | mean mm | max mm | mean tablet px | max tablet px |",
+        "|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r.label} | {r.mean_mm:.3f} | {r.max_mm:.3f} | {r.mean_px:.2f} | {r.max_px:.2f} |"
+        )
+    return "\n".join(lines)

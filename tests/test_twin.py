@@ -1,0 +1,229 @@
+"""The synthetic twin: its truth, its determinism, its evaluation, and the commands end to end."""
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from handeye_jax import HTMModel, load_dataset, load_result
+from handeye_jax.cli import main
+from handeye_jax.dataset import Dataset
+from handeye_jax.errors import InputError
+from handeye_jax.evaluate import Heldout, evaluate, landing_tablet_px, load_heldout
+from handeye_jax.objective import Stage1Objective
+from handeye_jax.simulate import PRESETS, simulate, write_twin
+from handeye_jax.synthetic import synthesize_dataset
+from handeye_jax.twin import RANGES, draw_truth, load_truth
+
+ROOT = Path(__file__).resolve().parents[1]
+FAST = ["--population", "200", "--generations", "400", "--quiet"]
+
+
+@pytest.mark.parametrize("seed", [0, 7, 123])
+def test_truth_json_round_trips_and_stays_in_range(tmp_path, seed):
+    truth = draw_truth(seed)
+    path = tmp_path / "truth.json"
+    path.write_text(truth.to_json())
+    assert load_truth(path) == truth
+    for name, value in truth.model.items():
+        lo, hi = RANGES[name]
+        assert lo <= value <= hi and HTMModel.default_ranges[name][0] < value
+    assert draw_truth(seed) == truth and draw_truth(seed + 1) != truth
+
+
+@pytest.mark.parametrize(
+    "change,field",
+    [
+        (lambda d: d.pop("ppi"), "ppi"),
+        (lambda d: d["model"].update(xc="x"), "model.xc"),
+        (lambda d: d.update(hand_angle_sign=0), "hand_angle_sign"),
+        (lambda d: d.update(dot_px=-1), "dot_px"),
+        (lambda d: d["capture_position_mm"].__setitem__(0, 1000.0), "not in the picture"),
+        (lambda d: d.update(format="other"), "format"),
+    ],
+)
+def test_bad_truth_json_names_the_field(tmp_path, change, field):
+    doc = draw_truth(1).to_dict()
+    change(doc)
+    path = tmp_path / "truth.json"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(InputError, match=field) as e:
+        load_truth(path)
+    assert str(path) in str(e.value)
+
+
+def _f1st(ds: Dataset, truth) -> float:
+    return float(Stage1Objective(HTMModel, ds.observations())(truth.htm().to_vector()))
+
+
+def test_exact_noise_free_twin_is_fitted_exactly_by_its_truth():
+    truth = draw_truth(4)
+    twin = simulate(truth, PRESETS["none"], 4, exact=True, n_heldout=5)
+    assert _f1st(twin.dataset, truth) < 1e-9
+    # Detected instead of exact: only the centroid and 1-mm depth errors remain.
+    detected = simulate(truth, PRESETS["none"], 4, n_heldout=5)
+    assert 1e-6 < _f1st(detected.dataset, truth) < 0.2
+
+
+def test_same_seed_same_bits_and_noise_where_the_preset_says():
+    truth = draw_truth(6)
+    a = simulate(truth, PRESETS["paper"], 6, n_heldout=4)
+    b = simulate(truth, PRESETS["paper"], 6, n_heldout=4)
+    assert a.capture.tobytes() == b.capture.tobytes() and a.depth.tobytes() == b.depth.tobytes()
+    assert a.dataset == b.dataset
+    c = simulate(truth, PRESETS["paper"], 7, n_heldout=4)
+    assert c.capture.tobytes() != a.capture.tobytes()
+    ds = a.dataset
+    assert np.array_equal(ds.hand_xy_mm, np.round(ds.hand_xy_mm))  # whole mm, as in Table 2
+    assert np.array_equal(ds.touch_error_px, np.round(ds.touch_error_px))
+    assert np.any(ds.touch_error_px != 0)
+    assert a.depth.dtype == np.uint16 and 0 < np.mean(a.depth == 0) < 0.05
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    x=st.floats(400, 1040), y=st.floats(150, 550), angle=st.floats(0, 180),
+    touch=st.tuples(st.floats(-5, 5), st.floats(-5, 5)),
+)  # fmt: skip
+def test_pen_lands_where_the_true_chain_says(x, y, angle, touch):
+    truth = _TRUTH
+    target = np.array([[x, y]])
+    ds = synthesize_dataset(
+        truth.htm(), truth.rig(), target, np.array([angle]), ppi=truth.ppi, scale=truth.scale,
+        touch_error_px=np.array([touch]),
+    )  # fmt: skip
+    landed = landing_tablet_px(truth, ds.hand_xy_mm, np.array([angle]))
+    np.testing.assert_allclose(landed - target, [touch], atol=1e-9)
+
+
+_TRUTH = draw_truth(8)
+
+
+class _Perfect:
+    """A stand-in result that commands with the true model: it must land exactly."""
+
+    def __init__(self, truth):
+        self.truth = truth
+
+    def predict(self, image_px, depth_mm, hand_angle_deg, stage=2):
+        from handeye_jax.predict import hand_command
+
+        t = self.truth
+        args = (jnp.asarray(image_px), jnp.asarray(depth_mm), jnp.asarray(hand_angle_deg))
+        return np.asarray(hand_command(t.htm(), t.rig(), *args))
+
+
+def test_evaluate_gives_zero_for_the_truth_on_exact_observations():
+    twin = simulate(_TRUTH, PRESETS["none"], 1, exact=True, n_heldout=6)
+    # Exact held-out observations: the true image points and depths.
+    image_px, depth_mm = _TRUTH.project(twin.heldout_tablet_px)
+    held = Heldout(image_px, depth_mm, twin.heldout_hand_angle_deg, twin.heldout_tablet_px)
+    rows = evaluate(_Perfect(_TRUTH), _TRUTH, held)
+    assert [r.label for r in rows] == ["stage 1", "stage 2", "oracle"]
+    for r in rows:
+        assert r.max_mm < 1e-9
+    # A model off by 1 mm in the pen offset misses by about that much.
+    wrong = HTMModel.from_dict(dict(_TRUTH.model, xp=_TRUTH.model["xp"] + 1.0))
+
+    class _Off(_Perfect):
+        def predict(self, image_px, depth_mm, hand_angle_deg, stage=2):
+            from handeye_jax.predict import hand_command
+
+            return np.asarray(hand_command(wrong, _TRUTH.rig(), jnp.asarray(image_px),
+                              jnp.asarray(depth_mm), jnp.asarray(hand_angle_deg)))  # fmt: skip
+
+    off = evaluate(_Off(_TRUTH), _TRUTH, held)[0]
+    assert 0.99 < off.mean_mm < 1.01 and abs(off.mean_px * off.mm_per_px - off.mean_mm) < 1e-12
+
+
+def test_heldout_csv_errors(tmp_path):
+    p = tmp_path / "heldout.csv"
+    p.write_text("u,v,depth,hand_angle,tablet_x\n1,2,3,4,5\n")
+    with pytest.raises(InputError, match="tablet_y"):
+        load_heldout(p)
+    p.write_text("u,v,depth,hand_angle,tablet_x,tablet_y\n1,2,3,4,5,x\n")
+    with pytest.raises(InputError, match="tablet_y"):
+        load_heldout(p)
+
+
+def test_simulate_detect_calibrate_evaluate_end_to_end(tmp_path, capsys):
+    twin = tmp_path / "twin"
+    assert main(["simulate", str(twin), "--seed", "2", "--preset", "paper"]) == 0
+    names = {p.name for p in twin.iterdir()}
+    assert names == {"dataset.toml", "capture.png", "depth.png", "truth.json", "heldout.csv"}
+    ds = twin / "dataset.toml"
+    assert main(["detect", str(twin / "capture.png"), str(twin / "depth.png"),
+                 "--dataset", str(ds), "--out", str(tmp_path / "detected.toml")]) == 0  # fmt: skip
+    assert load_dataset(tmp_path / "detected.toml") == load_dataset(ds)
+    result = tmp_path / "result.json"
+    assert main(["calibrate", str(tmp_path / "detected.toml"), "--out", str(result), *FAST]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", str(result), str(twin)]) == 0
+    out = capsys.readouterr().out
+    rows = {
+        line.split("|")[1].strip(): [float(v) for v in line.split("|")[2:6]]
+        for line in out.splitlines()
+        if line.startswith(("| stage", "| oracle"))
+    }
+    assert set(rows) == {"stage 1", "stage 2", "oracle", "oracle + stage 2"}
+    # With Table 2's noise the oracle touches within a few tenths of a mm; a calibration
+    # from nine landmarks is worse, but within a mm on average.
+    assert rows["oracle"][0] < 0.3 and rows["stage 1"][0] < 1.0 and rows["stage 2"][0] < 1.0
+    assert rows["oracle"][0] < rows["stage 1"][0]
+    held = load_heldout(twin / "heldout.csv")
+    assert held.image_px.shape == (20, 2)
+    assert load_result(result).dataset.startswith("twin-seed2")
+
+
+def test_simulate_from_a_truth_file_and_exact(tmp_path, capsys):
+    truth_path = tmp_path / "truth.json"
+    truth_path.write_text(draw_truth(9).to_json())
+    out = tmp_path / "exact"
+    assert main(["simulate", str(out), "--truth", str(truth_path), "--exact", "--preset",
+                 "none", "--heldout", "3"]) == 0  # fmt: skip
+    assert load_truth(out / "truth.json") == load_truth(truth_path)
+    twin = simulate(load_truth(truth_path), PRESETS["none"], 1, exact=True, n_heldout=3)
+    np.testing.assert_allclose(load_dataset(out / "dataset.toml").image_px,
+                               twin.landmarks_image_px, atol=1e-12)  # fmt: skip
+
+
+def test_simulate_and_evaluate_input_errors(tmp_path, capsys):
+    bad = tmp_path / "truth.json"
+    bad.write_text("{")
+    assert main(["simulate", str(tmp_path / "o"), "--truth", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "truth.json" in err and "not valid JSON" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()
+    assert main(["simulate", str(tmp_path / "no" / "such" / "dir")]) == 2
+    assert "parent folder" in capsys.readouterr().err
+    write_twin(simulate(_TRUTH, PRESETS["none"], 1, exact=True, n_heldout=2), tmp_path / "t")
+    assert main(["evaluate", str(tmp_path / "missing.json"), str(tmp_path / "t")]) == 2
+    assert "missing.json" in capsys.readouterr().err
+
+
+def test_twin_study_runs_at_a_tiny_size(tmp_path, monkeypatch, capsys):
+    # In this process, so it reuses the compiled DE of the end-to-end test (same budget).
+    spec = importlib.util.spec_from_file_location(
+        "twin_study", ROOT / "benchmarks" / "twin_study.py"
+    )
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    results = tmp_path / "RESULTS.md"
+    results.write_text("# Benchmark results\n\nkept\n\n## Later section\n\nalso kept\n")
+    argv = ["twin_study.py", "--seeds", "3", "--population", "200", "--generations", "400",
+            "--results", str(results)]  # fmt: skip
+    monkeypatch.setattr(sys, "argv", argv)
+    study.main()
+    text = results.read_text()
+    assert text.startswith("# Benchmark results\n\nkept\n") and "also kept" in text
+    assert "## Synthetic twin: held-out touching error" in text and "| 3 |" in text
+    assert "| mean |" in text and "stage 2 has the lower mean held-out error" in text
+    study.main()  # a second run replaces its own section and nothing else
+    again = results.read_text()
+    assert again.count("## Synthetic twin") == 1 and again.count("also kept") == 1
