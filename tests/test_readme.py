@@ -25,7 +25,8 @@ def test_exactly_two_setup_commands_and_ci_runs_the_test_one():
     assert len(commands) == 2
     assert "handeye-jax calibrate data/paper2023.toml" in commands[0]
     ci = (ROOT / ".ci" / "run").read_text()
-    install, test = commands[1].split(" && ")
+    chromium, install, test = commands[1].split(" && ")
+    assert chromium in ci
     assert install.replace('"', "") in ci.replace('"', "") or '-e ".[test]"' in ci
     assert test in ci
     assert os.access(ROOT / ".ci" / "run", os.X_OK)
