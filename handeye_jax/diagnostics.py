@@ -23,8 +23,8 @@ from .refits import CONVENTIONS, refits
 
 # A parameter closer than this fraction of its range to a bound is reported as on the bound.
 BOUND_FRACTION = 1e-3
-#: Population members closer than this (Euclidean distance in box-normalised coordinates,
-#: divided by sqrt(d)) to a better member belong to its optimum.
+#: Population members closer than this to a better member, in every parameter (as a fraction
+#: of its search range), belong to its optimum.
 MODE_RADIUS = 0.05
 #: A distinct optimum is reported when its best F is within this many mm of the best.
 MODE_F_MARGIN_MM = 0.5
@@ -79,8 +79,8 @@ def population_modes(
 ) -> list[dict[str, Any]]:
     """The distinct optima in a final DE population, best first.
 
-    Members are grouped greedily in order of fitness: a member within :data:`MODE_RADIUS`
-    (box-normalised) of a group's best member joins that group. Groups whose best F is within
+    Members are grouped greedily in order of fitness: a member within :data:`MODE_RADIUS` of
+    a group's best member in every parameter (as a fraction of its range) joins that group. Groups whose best F is within
     :data:`MODE_F_MARGIN_MM` of the overall best are reported.
 
     Args:
@@ -99,7 +99,7 @@ def population_modes(
     counts: list[int] = []
     for i in range(len(f)):
         if leaders:
-            dist = np.linalg.norm(u[leaders] - u[i], axis=1) / np.sqrt(u.shape[1])
+            dist = np.abs(u[leaders] - u[i]).max(axis=1)
             j = int(np.argmin(dist))
             if dist[j] < MODE_RADIUS:
                 counts[j] += 1
