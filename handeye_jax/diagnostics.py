@@ -80,8 +80,8 @@ def population_modes(
     """The distinct optima in a final DE population, best first.
 
     Members are grouped greedily in order of fitness: a member within :data:`MODE_RADIUS` of
-    a group's best member in every parameter (as a fraction of its range) joins that group. Groups whose best F is within
-    :data:`MODE_F_MARGIN_MM` of the overall best are reported.
+    a group's best member in every parameter (as a fraction of its range) joins that group.
+    Groups whose best F is within :data:`MODE_F_MARGIN_MM` of the overall best are reported.
 
     Args:
         population, fitness: the final population ``(N, d)`` and its F (mm).

@@ -252,8 +252,9 @@ class _Line(eqx.Module):
 @eqx.filter_jit
 def _solve_lines(truths, lo, hi):
     return jax.vmap(
-        lambda t: levenberg_marquardt_steps(_Line(t).residuals, jnp.array([1.5, 0.0]), lo, hi,
-                                            steps=100)  # fmt: skip
+        lambda t: levenberg_marquardt_steps(
+            _Line(t).residuals, jnp.array([1.5, 0.0]), lo, hi, steps=100
+        )  # fmt: skip
     )(truths)
 
 
