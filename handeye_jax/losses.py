@@ -19,7 +19,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .objective import NORM_SMOOTHING_MM, AbstractObjective, Errors, fitness
+from .objective import NORM_SMOOTHING_MM, AbstractObjective, Errors
 
 LOSS_NAMES = ("l1", "huber", "cauchy")
 
@@ -128,12 +128,3 @@ class LossObjective(AbstractObjective):
 
         return jnp.concatenate([scaled(errors.image_vs_tablet), scaled(errors.hand)])
 
-
-def paper_fitness_on(errors: Errors, weights: Float[Array, " n"]) -> Float[Array, ""]:
-    """The paper's F (mm) over the landmarks with non-zero weight only."""
-    keep = weights > 0
-    sub = Errors(
-        image_vs_tablet=errors.image_vs_tablet * keep[:, None], hand=errors.hand * keep[:, None]
-    )
-    n, k = keep.shape[0], jnp.sum(keep)
-    return fitness(sub)[0] * n / k

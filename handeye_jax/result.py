@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax.numpy as jnp
 import numpy as np
@@ -22,6 +22,9 @@ from .errors import InputError
 from .models import AbstractCorrection, AbstractModel, AffinePair, get_model, model_registry
 from .observations import Rig
 from .predict import hand_command
+
+if TYPE_CHECKING:
+    from .dataset import Dataset
 
 FORMAT = "handeye-jax.result/1"
 
@@ -161,7 +164,7 @@ OBSERVATION_ARRAYS: dict[str, tuple[int, ...]] = {
 }  # fmt: skip
 
 
-def observations_to_dict(dataset) -> dict[str, Any]:
+def observations_to_dict(dataset: Dataset) -> dict[str, Any]:
     """The dataset's landmark arrays (px, mm, deg) and tablet pixel size, as JSON lists."""
     doc: dict[str, Any] = {k: np.asarray(getattr(dataset, k)).tolist() for k in OBSERVATION_ARRAYS}
     doc["mm_per_tablet_px"] = float(dataset.mm_per_tablet_px)
