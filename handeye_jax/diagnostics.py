@@ -36,9 +36,9 @@ OUTLIER_FACTOR = 3.0
 #: fraction of the declared one's, and at least CONVENTION_MARGIN_MM.
 CONVENTION_FRACTION = 0.1
 CONVENTION_MARGIN_MM = 0.05
-#: Budget of the refits: random LM starts per convention, LM iterations per refit.
-CONVENTION_STARTS = 16
-REFIT_STEPS = 200
+#: Budget of the refits: random LM starts per convention, most LM iterations per refit.
+CONVENTION_STARTS = 8
+REFIT_STEPS = 150
 
 
 def bound_hits(
@@ -178,7 +178,7 @@ def convention_check(F: np.ndarray, declared: tuple[float, int], F_fit: float) -
         "passed": warning is None,
         "warning": warning,
         "method": f"LM from {CONVENTION_STARTS} uniform starts per convention "
-        f"({REFIT_STEPS} iterations each), the declared one also from the fit; the pen's "
+        f"(at most {REFIT_STEPS} iterations each), the declared one also from the fit; the pen's "
         "search box is kept",
     }
 
@@ -209,13 +209,12 @@ def diagnose(
         seed: the calibration's seed (the convention multi-starts draw from it).
     """
     classes = (model_cls, correction_cls)
-    bounds = [tuple(jnp.asarray(b) for b in c.search_bounds(search)) for c in classes]
+    bounds = [c.search_bounds(search) for c in classes]
     key = jax.random.fold_in(jax.random.PRNGKey(seed), 5)
     out = refits(
         model_cls, correction_cls, obs, loss, jnp.asarray(x[0]), jnp.asarray(x[1]),
         bounds[0], bounds[1], key, CONVENTION_STARTS, REFIT_STEPS,
     )  # fmt: skip
-    out = jax.tree.map(np.asarray, out)
     loo = (
         _loo(out.loo1_image_vs_tablet, out.loo1_hand, stage_results[0].F),
         _loo(out.loo2_image_vs_tablet, out.loo2_hand, stage_results[1].F),

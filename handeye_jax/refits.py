@@ -1,5 +1,5 @@
 """Batched refits for the diagnostics: leave-one-out for both stages, and the hand-angle
-conventions, as one compiled program.
+conventions, with two small compiled programs (batched residuals and Jacobians per stage).
 
 * **Leave-one-out, stage 1.** For each landmark m, Levenberg–Marquardt from the full optimum
   on the stage-1 objective with landmark m's weight set to 0; the held-out error is the refit
@@ -17,14 +17,18 @@ conventions, as one compiled program.
   conventions whose zeros differ by 180° (the pen offset turned half round) are told apart
   by it.
 
-All stage-1 refits (n leave-one-out + 8 × starts + 1) share one vmapped LM.
+All stage-1 refits (n leave-one-out + 8 × starts + 1) are one batch of
+:func:`~handeye_jax.optim.batched.levenberg_marquardt_batch`, the n stage-2 refits another.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from .identifiability import error_jacobian
@@ -32,7 +36,7 @@ from .losses import AbstractLoss, LossObjective
 from .models import AbstractCorrection, AbstractModel
 from .objective import Stage1Objective, Stage2Objective, chain_points, fitness, norms
 from .observations import Observations
-from .optim.batched import levenberg_marquardt_steps
+from .optim.batched import levenberg_marquardt_batch, residuals_and_jacobian
 
 #: The hand-angle conventions (zero deg, sign) the convention check tries.
 CONVENTIONS: tuple[tuple[float, int], ...] = tuple(
@@ -40,7 +44,8 @@ CONVENTIONS: tuple[tuple[float, int], ...] = tuple(
 )
 
 
-class Refits(eqx.Module):
+@dataclass(frozen=True)
+class Refits:
     """Outcome of :func:`refits`; lengths in mm, one row per landmark or convention.
 
     Attributes:
@@ -55,18 +60,18 @@ class Refits(eqx.Module):
             full fit and their Jacobian (see :mod:`handeye_jax.identifiability`).
     """
 
-    loo1_image_vs_tablet: Float[Array, " n"]
-    loo1_hand: Float[Array, " n"]
-    loo2_image_vs_tablet: Float[Array, " n"]
-    loo2_hand: Float[Array, " n"]
-    convention_F: Float[Array, " 8"]
-    convention_params: Float[Array, "8 d"]
-    declared_params: Float[Array, "k d"]
-    declared_F: Float[Array, " k"]
-    errors1: Float[Array, " r"]
-    jacobian1: Float[Array, "r d1"]
-    errors2: Float[Array, " r"]
-    jacobian2: Float[Array, "r d2"]
+    loo1_image_vs_tablet: np.ndarray
+    loo1_hand: np.ndarray
+    loo2_image_vs_tablet: np.ndarray
+    loo2_hand: np.ndarray
+    convention_F: np.ndarray
+    convention_params: np.ndarray
+    declared_params: np.ndarray
+    declared_F: np.ndarray
+    errors1: np.ndarray
+    jacobian1: np.ndarray
+    errors2: np.ndarray
+    jacobian2: np.ndarray
 
 
 def _with_convention(obs: Observations, zero_deg, sign) -> Observations:
@@ -77,6 +82,40 @@ def _with_convention(obs: Observations, zero_deg, sign) -> Observations:
 
 
 @eqx.filter_jit
+def _stage1_batch(model_cls, obs, loss, zero, sign, weights, X):
+    """Per problem: residuals, Jacobian, error lengths and the paper's F1st at ``X``."""
+
+    def one(zero_deg, sgn, w, x):
+        base = Stage1Objective(model_cls, _with_convention(obs, zero_deg, sgn))
+        r, J = residuals_and_jacobian(LossObjective(base, loss, w).residuals, x)
+        errors = base.errors(x)
+        return r, J, norms(errors), fitness(errors)[0]
+
+    return jax.vmap(one)(zero, sign, weights, X)
+
+
+@eqx.filter_jit
+def _stage2_batch(model_cls, correction_cls, obs, loss, X1, weights, X2):
+    """Per problem: stage 2 on the points of stage-1 parameters ``X1``; as above."""
+
+    def one(x1, w, x2):
+        points = chain_points(model_cls.from_vector(x1), obs)
+        base = Stage2Objective(correction_cls, points, obs.centre_index)
+        r, J = residuals_and_jacobian(LossObjective(base, loss, w).residuals, x2)
+        return r, J, norms(base.errors(x2))
+
+    return jax.vmap(one)(X1, weights, X2)
+
+
+@eqx.filter_jit
+def _jacobians(model_cls, correction_cls, obs, x1, x2):
+    points = chain_points(model_cls.from_vector(x1), obs)
+    return (
+        error_jacobian(Stage1Objective(model_cls, obs), x1),
+        error_jacobian(Stage2Objective(correction_cls, points, obs.centre_index), x2),
+    )
+
+
 def refits(
     model_cls: type[AbstractModel],
     correction_cls: type[AbstractCorrection],
@@ -84,11 +123,11 @@ def refits(
     loss: AbstractLoss,
     x1: Float[Array, " d1"],
     x2: Float[Array, " d2"],
-    bounds1: tuple[Float[Array, " d1"], Float[Array, " d1"]],
-    bounds2: tuple[Float[Array, " d2"], Float[Array, " d2"]],
+    bounds1: tuple[np.ndarray, np.ndarray],
+    bounds2: tuple[np.ndarray, np.ndarray],
     key: PRNGKeyArray,
     starts: int,
-    steps: int,
+    max_steps: int,
 ) -> Refits:
     """Leave-one-out refits of both stages and the convention refits of stage 1.
 
@@ -99,53 +138,50 @@ def refits(
         x1, x2: the full fit's stage-1 and stage-2 parameters.
         bounds1, bounds2: each stage's search box ``(lower, upper)``.
         key: PRNG key for the convention multi-starts.
-        starts: random LM starts per convention, static.
-        steps: LM iterations of every refit, static.
+        starts: random LM starts per convention.
+        max_steps: most LM iterations of every refit.
     """
+    x1, x2 = np.asarray(x1, float), np.asarray(x2, float)
     n, d1 = obs.n_landmarks, x1.shape[0]
     n_conv = len(CONVENTIONS)
-    lo1, hi1 = bounds1
-    lo2, hi2 = bounds2
-    zero = jnp.array([c[0] for c in CONVENTIONS])
-    sign = jnp.array([float(c[1]) for c in CONVENTIONS])
-    declared = jnp.argmax((zero == obs.rig.angle_zero_deg) & (sign == obs.rig.angle_sign))
+    lo1, hi1 = (np.asarray(b, float) for b in bounds1)
+    zero = np.array([c[0] for c in CONVENTIONS])
+    sign = np.array([float(c[1]) for c in CONVENTIONS])
+    declared = int(np.argmax((zero == float(obs.rig.angle_zero_deg))
+                             & (sign == float(obs.rig.angle_sign))))  # fmt: skip
 
     # Problems: n leave-one-out, then `starts` per convention, then the declared one from x1.
-    leave_out = 1.0 - jnp.eye(n)
-    conv_of = jnp.concatenate([jnp.repeat(jnp.arange(n_conv), starts), declared[None]])
-    x_random = jax.random.uniform(key, (n_conv * starts, d1), minval=lo1, maxval=hi1)
-    all_zero = jnp.concatenate([jnp.full(n, obs.rig.angle_zero_deg), zero[conv_of]])
-    all_sign = jnp.concatenate([jnp.full(n, obs.rig.angle_sign), sign[conv_of]])
-    all_w = jnp.concatenate([leave_out, jnp.ones((conv_of.shape[0], n))])
-    all_x0 = jnp.concatenate([jnp.broadcast_to(x1, (n, d1)), x_random, x1[None]])
+    leave_out = 1.0 - np.eye(n)
+    conv_of = np.concatenate([np.repeat(np.arange(n_conv), starts), [declared]])
+    x_random = np.asarray(jax.random.uniform(key, (n_conv * starts, d1), minval=lo1, maxval=hi1))
+    all_zero = jnp.asarray(np.concatenate([np.full(n, float(obs.rig.angle_zero_deg)),
+                                           zero[conv_of]]))  # fmt: skip
+    all_sign = jnp.asarray(np.concatenate([np.full(n, float(obs.rig.angle_sign)), sign[conv_of]]))
+    all_w = jnp.asarray(np.concatenate([leave_out, np.ones((conv_of.shape[0], n))]))
+    all_x0 = np.concatenate([np.broadcast_to(x1, (n, d1)), x_random, x1[None]])
 
-    def lm1(zero_deg, sgn, weights, x0):
-        obj = LossObjective(Stage1Objective(model_cls, _with_convention(obs, zero_deg, sgn)),
-                            loss, weights)  # fmt: skip
-        x, _ = levenberg_marquardt_steps(obj.residuals, x0, lo1, hi1, steps=steps)
-        errors = obj.errors(x)
-        return x, norms(errors), fitness(errors)[0]
+    def stage1(X):
+        return _stage1_batch(model_cls, obs, loss, all_zero, all_sign, all_w, jnp.asarray(X))
 
-    xs, (n1, n2), F = jax.vmap(lm1)(all_zero, all_sign, all_w, all_x0)
+    xs, _ = levenberg_marquardt_batch(lambda X: stage1(X)[:2], all_x0, lo1, hi1,
+                                      max_steps=max_steps)  # fmt: skip
+    _, _, (n1, n2), F = (jax.tree.map(np.asarray, v) for v in stage1(xs))
+    F_conv = np.where(np.isfinite(F[n:]), F[n:], np.inf)
+    best = np.array([np.flatnonzero(conv_of == c)[np.argmin(F_conv[conv_of == c])]
+                     for c in range(n_conv)])  # fmt: skip
 
-    F_conv = jnp.where(jnp.isfinite(F[n:]), F[n:], jnp.inf)
-    best = jax.vmap(lambda c: jnp.argmin(jnp.where(conv_of == c, F_conv, jnp.inf)))(
-        jnp.arange(n_conv)
-    )
+    X1, W = jnp.asarray(xs[:n]), jnp.asarray(leave_out)
 
-    def lm2(x1m, weights):
-        points = chain_points(model_cls.from_vector(x1m), obs)
-        obj = LossObjective(Stage2Objective(correction_cls, points, obs.centre_index), loss,
-                            weights)  # fmt: skip
-        x, _ = levenberg_marquardt_steps(obj.residuals, x2, lo2, hi2, steps=steps)
-        return norms(obj.errors(x))
+    def stage2(X):
+        return _stage2_batch(model_cls, correction_cls, obs, loss, X1, W, jnp.asarray(X))
 
-    m1, m2 = jax.vmap(lm2)(xs[:n], leave_out)
-    points = chain_points(model_cls.from_vector(x1), obs)
-    e1, J1 = error_jacobian(Stage1Objective(model_cls, obs), x1)
-    e2, J2 = error_jacobian(Stage2Objective(correction_cls, points, obs.centre_index), x2)
-    mine = n + jnp.nonzero(conv_of == declared, size=starts + 1)[0]
-    diag = jnp.arange(n)
+    x2s, _ = levenberg_marquardt_batch(lambda X: stage2(X)[:2], np.broadcast_to(x2, (n, x2.size)),
+                                       *bounds2, max_steps=max_steps)  # fmt: skip
+    m1, m2 = (np.asarray(v) for v in stage2(x2s)[2])
+    (e1, J1), (e2, J2) = _jacobians(model_cls, correction_cls, obs, jnp.asarray(x1),
+                                    jnp.asarray(x2))  # fmt: skip
+    mine = n + np.flatnonzero(conv_of == declared)
+    diag = np.arange(n)
     return Refits(
         loo1_image_vs_tablet=n1[diag, diag],
         loo1_hand=n2[diag, diag],
@@ -154,9 +190,9 @@ def refits(
         convention_F=F_conv[best],
         convention_params=xs[n:][best],
         declared_params=xs[mine],
-        declared_F=jnp.where(jnp.isfinite(F[mine]), F[mine], jnp.inf),
-        errors1=e1,
-        jacobian1=J1,
-        errors2=e2,
-        jacobian2=J2,
+        declared_F=np.where(np.isfinite(F[mine]), F[mine], np.inf),
+        errors1=np.asarray(e1),
+        jacobian1=np.asarray(J1),
+        errors2=np.asarray(e2),
+        jacobian2=np.asarray(J2),
     )

@@ -17,7 +17,7 @@ from handeye_jax.losses import LossObjective, get_loss
 from handeye_jax.objective import AbstractObjective, Errors, Stage1Objective, fitness
 from handeye_jax.observations import Rig
 from handeye_jax.optim import levenberg_marquardt
-from handeye_jax.optim.batched import levenberg_marquardt_steps
+from handeye_jax.optim.batched import levenberg_marquardt_batch, residuals_and_jacobian
 from handeye_jax.refits import CONVENTIONS
 from handeye_jax.synthetic import snake_grid_px, synthesize_dataset
 from tests.test_cli import PAPER
@@ -250,22 +250,19 @@ class _Line(eqx.Module):
 
 
 @eqx.filter_jit
-def _solve_lines(truths, lo, hi):
-    return jax.vmap(
-        lambda t: levenberg_marquardt_steps(
-            _Line(t).residuals, jnp.array([1.5, 0.0]), lo, hi, steps=100
-        )  # fmt: skip
-    )(truths)
+def _lines_rj(truths, X):
+    return jax.vmap(lambda t, x: residuals_and_jacobian(_Line(t).residuals, x))(truths, X)
 
 
 @settings(max_examples=8, deadline=None)
 @given(st.floats(0.5, 3.0), st.floats(-1.5, 1.5))
-def test_batched_lm_solves_each_problem_of_a_vmap(a, b):
+def test_batched_lm_solves_each_problem_of_a_batch(a, b):
     truths = jnp.array([[a, b], [2.0, 0.3], [1.0, -1.0]])
-    lo, hi = jnp.array([0.1, -2.0]), jnp.array([4.0, 2.0])
-    x, cost = _solve_lines(truths, lo, hi)
-    np.testing.assert_allclose(np.asarray(x), np.asarray(truths), atol=1e-6)
-    assert np.all(np.asarray(cost) < 1e-12)
+    lo, hi = np.array([0.1, -2.0]), np.array([4.0, 2.0])
+    x0 = np.tile([1.5, 0.0], (3, 1))
+    x, cost = levenberg_marquardt_batch(lambda X: _lines_rj(truths, jnp.asarray(X)), x0, lo, hi)
+    np.testing.assert_allclose(x, np.asarray(truths), atol=1e-6)
+    assert np.all(cost < 1e-12)
 
 
 # -- the result file and the summary -----------------------------------------------------

@@ -1,12 +1,15 @@
-"""A traceable Levenberg–Marquardt for many small least-squares problems at once (``vmap``).
+"""Levenberg–Marquardt for a batch of small least-squares problems at once.
 
-:func:`~handeye_jax.optim.polish.levenberg_marquardt` uses optimistix and returns NumPy
-results: right for one polish. The diagnostics solve dozens of small problems (leave-one-out
-refits, multi-starts under other conventions) and must stay cheap to compile: a vmapped
-``optimistix.least_squares`` measured 1.4 s to trace and 1.6 s to compile per call site on
-this project's 2-core machine, while this fixed-step loop of ~20 operations traces in a
-fraction of that. It keeps :mod:`.polish`'s box transform ``x = lo + (hi − lo)(sin z + 1)/2``
-and knows nothing about what the residuals compute.
+:func:`~handeye_jax.optim.polish.levenberg_marquardt` (optimistix) is right for one polish.
+The diagnostics solve well over a hundred small problems (leave-one-out refits, multi-starts
+under other conventions), and must stay cheap to compile: a vmapped
+``optimistix.least_squares``, or any LM loop compiled into one XLA program, measured several
+seconds of tracing and compilation on this project's 2-core machine. Here only the batched
+residuals and Jacobians are compiled (the caller's ``fn``, a single small program); the LM
+iterations run on the host in NumPy over the whole batch, one call of ``fn`` per iteration.
+
+It keeps :mod:`.polish`'s box transform ``x = lo + (hi − lo)(sin z + 1)/2`` and knows nothing
+about what the residuals compute.
 """
 
 from __future__ import annotations
@@ -14,78 +17,85 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import jax
-import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
-from .polish import _Box
-
-#: Damping factors: start, and the factor it shrinks by after a step that lowers the cost
-#: (it grows by ``_GROW`` after one that does not; Nielsen's classic choices are close).
+#: Damping: start, and the factors after a step that lowers the cost and one that does not.
 _LAMBDA0 = 1e-3
 _SHRINK = 1.0 / 3.0
 _GROW = 4.0
+_LAMBDA_RANGE = (1e-12, 1e12)
 
 
-def levenberg_marquardt_steps(
-    residuals: Callable[[Float[Array, " d"]], Float[Array, " r"]],
-    x0: Float[Array, " d"],
-    lower: Float[Array, " d"],
-    upper: Float[Array, " d"],
+def residuals_and_jacobian(
+    residuals: Callable[[Float[Array, " d"]], Float[Array, " r"]], x: Float[Array, " d"]
+) -> tuple[Float[Array, " r"], Float[Array, "r d"]]:
+    """``(r(x), ∂r/∂x)`` in one forward-mode pass (the residuals ride along as auxiliary)."""
+
+    def f(x):
+        r = residuals(x)
+        return r, r
+
+    J, r = jax.jacfwd(f, has_aux=True)(x)
+    return r, J
+
+
+def levenberg_marquardt_batch(
+    fn: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+    x0: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
     *,
-    steps: int = 200,
-) -> tuple[Float[Array, " d"], Float[Array, ""]]:
-    """``steps`` Levenberg–Marquardt iterations from ``x0`` inside the box; traceable.
+    max_steps: int = 300,
+    rtol: float = 1e-12,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Levenberg–Marquardt on B problems at once, each inside the box ``[lower, upper]``.
 
-    Each iteration solves ``(JᵀJ + λ·diag(JᵀJ))·δ = −Jᵀr`` (Marquardt's scaling) in the box
-    coordinates ``z`` and keeps the step only if it lowers ``|r|²``. A fixed count, so a
-    ``vmap`` over problems is one loop with no data-dependent exit; a converged problem just
-    stops moving.
+    Each iteration solves ``(JᵀJ + λ·diag(JᵀJ))·δ = −Jᵀr`` (Marquardt's scaling) for every
+    problem in the box coordinates ``z`` and keeps a problem's step only if it lowers its
+    ``|r|²``; λ shrinks after an accepted step and grows after a rejected one.
 
     Args:
-        residuals: residual vector as a function of the parameters (pass a bound method of an
-            equinox Module so ``vmap`` may batch the Module's arrays).
-        x0: start, inside the box.
-        lower, upper: the box (finite).
-        steps: iterations, static.
+        fn: batched residuals and Jacobians: ``x (B, d) -> (r (B, m), J (B, m, d))``. Compile
+            it once (e.g. ``jax.jit`` of a ``vmap``); it is called once per iteration.
+        x0: starts, ``(B, d)``, inside the box.
+        lower, upper: the box, ``(d,)``, finite.
+        max_steps: most iterations.
+        rtol: stop when no problem's cost fell by more than this fraction for 10 iterations.
 
     Returns:
-        ``(x, cost)``: the end point and ``|r(x)|²``.
+        ``(x, cost)``: the end points ``(B, d)`` and their ``|r|²`` ``(B,)``.
     """
-    box = _Box(lower, upper)
+    lo, hi = np.asarray(lower, float), np.asarray(upper, float)
+    half = (hi - lo) / 2.0
+    z = np.arcsin(np.clip((np.asarray(x0, float) - lo) / half - 1.0, -1.0, 1.0))
 
-    def res_and_jac(z):
-        # One forward-mode pass gives both: the residuals ride along as the auxiliary output.
-        def f(z):
-            r = residuals(box.to_x(z))
-            return r, r
+    def evaluate(z):
+        r, J = (np.asarray(a) for a in fn(lo + half * (np.sin(z) + 1.0)))
+        J = J * (half * np.cos(z))[:, None, :]  # chain rule through the box transform
+        ok = np.isfinite(r).all(axis=1) & np.isfinite(J).all(axis=(1, 2))
+        return r, J, np.where(ok, np.sum(np.where(ok[:, None], r, 0.0) ** 2, axis=1), np.inf)
 
-        J, r = jax.jacfwd(f, has_aux=True)(z)
-        ok = jnp.all(jnp.isfinite(r)) & jnp.all(jnp.isfinite(J))
-        return r, J, jnp.where(ok, jnp.sum(r**2), jnp.inf)
-
-    def propose(z, r, J, lam):
-        H = J.T @ J
-        damping = lam * (jnp.diag(H) + 1e-12)
-        return z + jnp.linalg.solve(H + jnp.diag(damping), -(J.T @ r))
-
-    # The carry holds the accepted point with its residuals and Jacobian, and a trial point;
-    # each iteration evaluates only the trial (one pass of the residuals), then keeps it if
-    # it lowers the cost and proposes the next trial from whichever point it kept.
-    def body(_, carry):
-        z, r, J, c, lam, z_try = carry
-        r_t, J_t, c_t = res_and_jac(z_try)
-        better = c_t < c
-        z, r, J, c = (
-            jnp.where(better, a, b) for a, b in ((z_try, z), (r_t, r), (J_t, J), (c_t, c))
-        )
-        lam = jnp.clip(jnp.where(better, lam * _SHRINK, lam * _GROW), 1e-12, 1e12)
-        return z, r, J, c, lam, propose(z, r, J, lam)
-
-    # The first iteration evaluates the start itself (against an infinite cost), so the
-    # residuals are traced once, inside the loop.
-    z0 = box.to_z(x0)
-    r_shape = jax.eval_shape(residuals, x0).shape
-    r0, J0 = jnp.zeros(r_shape, z0.dtype), jnp.zeros((*r_shape, *z0.shape), z0.dtype)
-    init = (z0, r0, J0, jnp.asarray(jnp.inf, z0.dtype), jnp.asarray(_LAMBDA0 / _SHRINK), z0)
-    z, _, _, c, _, _ = jax.lax.fori_loop(0, steps + 1, body, init)
-    return box.to_x(z), c
+    r, J, cost = evaluate(z)
+    lam = np.full(z.shape[0], _LAMBDA0)
+    eye = np.eye(z.shape[1])
+    quiet = 0
+    for _ in range(max_steps):
+        H = np.einsum("bmi,bmj->bij", J, J)
+        g = np.einsum("bmi,bm->bi", J, r)
+        damping = lam[:, None, None] * (np.diagonal(H, axis1=1, axis2=2)[:, None, :] + 1e-12) * eye
+        # H + λ·(diag H + ε) is positive definite for λ > 0: the solve cannot fail.
+        dz = -np.linalg.solve(H + damping, g[..., None])[..., 0]
+        dz = np.where(np.isfinite(dz), dz, 0.0)
+        r_t, J_t, cost_t = evaluate(z + dz)
+        better = cost_t < cost
+        gain = np.where(better, (cost - cost_t) / np.maximum(cost, 1e-300), 0.0)
+        z = np.where(better[:, None], z + dz, z)
+        r = np.where(better[:, None], r_t, r)
+        J = np.where(better[:, None, None], J_t, J)
+        cost = np.where(better, cost_t, cost)
+        lam = np.clip(np.where(better, lam * _SHRINK, lam * _GROW), *_LAMBDA_RANGE)
+        quiet = quiet + 1 if gain.max() <= rtol else 0
+        if quiet >= 10:
+            break
+    return lo + half * (np.sin(z) + 1.0), cost
