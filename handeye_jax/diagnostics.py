@@ -37,8 +37,8 @@ OUTLIER_FACTOR = 3.0
 CONVENTION_FRACTION = 0.1
 CONVENTION_MARGIN_MM = 0.05
 #: Budget of the refits: random LM starts per convention, most LM iterations per refit.
-CONVENTION_STARTS = 8
-REFIT_STEPS = 150
+CONVENTION_STARTS = 6
+REFIT_STEPS = 400
 
 
 def bound_hits(

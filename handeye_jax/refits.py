@@ -23,6 +23,7 @@ All stage-1 refits (n leave-one-out + 8 × starts + 1) are one batch of
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import equinox as eqx
@@ -81,7 +82,9 @@ def _with_convention(obs: Observations, zero_deg, sign) -> Observations:
     return eqx.tree_at(lambda o: o.rig, obs, rig)
 
 
-@eqx.filter_jit
+# jax.jit rather than eqx.filter_jit: these are called once per LM iteration, and jax.jit's
+# dispatch is the cheaper one (every argument but the classes is a pytree of arrays).
+@functools.partial(jax.jit, static_argnums=0)
 def _stage1_batch(model_cls, obs, loss, zero, sign, weights, X):
     """Per problem: residuals, Jacobian, error lengths and the paper's F1st at ``X``."""
 
@@ -94,7 +97,7 @@ def _stage1_batch(model_cls, obs, loss, zero, sign, weights, X):
     return jax.vmap(one)(zero, sign, weights, X)
 
 
-@eqx.filter_jit
+@functools.partial(jax.jit, static_argnums=(0, 1))
 def _stage2_batch(model_cls, correction_cls, obs, loss, X1, weights, X2):
     """Per problem: stage 2 on the points of stage-1 parameters ``X1``; as above."""
 
