@@ -127,4 +127,3 @@ class LossObjective(AbstractObjective):
             return (e * (jnp.sqrt(w) * jnp.sqrt(self.loss(r)) / r)[:, None]).reshape(-1)
 
         return jnp.concatenate([scaled(errors.image_vs_tablet), scaled(errors.hand)])
-
