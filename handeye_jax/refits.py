@@ -32,12 +32,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from .identifiability import error_jacobian
 from .losses import AbstractLoss, LossObjective
 from .models import AbstractCorrection, AbstractModel
 from .objective import Stage1Objective, Stage2Objective, chain_points, fitness, norms
 from .observations import Observations
-from .optim.batched import levenberg_marquardt_batch, residuals_and_jacobian
+from .optim.batched import levenberg_marquardt_batch
 
 #: The hand-angle conventions (zero deg, sign) the convention check tries.
 CONVENTIONS: tuple[tuple[float, int], ...] = tuple(
@@ -82,17 +81,33 @@ def _with_convention(obs: Observations, zero_deg, sign) -> Observations:
     return eqx.tree_at(lambda o: o.rig, obs, rig)
 
 
+def _flat(errors) -> Float[Array, " r"]:
+    return jnp.concatenate([errors.image_vs_tablet.reshape(-1), errors.hand.reshape(-1)])
+
+
+def _two_jacobians(objective: LossObjective, x):
+    """LM residuals and the raw error vectors at ``x``, each with its Jacobian: one pass."""
+
+    def f(x):
+        out = (objective.residuals(x), _flat(objective.errors(x)))
+        return out, out
+
+    (J_r, J_e), (r, e) = jax.jacfwd(f, has_aux=True)(x)
+    return r, J_r, e, J_e
+
+
 # jax.jit rather than eqx.filter_jit: these are called once per LM iteration, and jax.jit's
 # dispatch is the cheaper one (every argument but the classes is a pytree of arrays).
 @functools.partial(jax.jit, static_argnums=0)
 def _stage1_batch(model_cls, obs, loss, zero, sign, weights, X):
-    """Per problem: residuals, Jacobian, error lengths and the paper's F1st at ``X``."""
+    """Per problem: LM residuals and Jacobian, error vectors and Jacobian, error lengths and
+    the paper's F1st at ``X``."""
 
     def one(zero_deg, sgn, w, x):
         base = Stage1Objective(model_cls, _with_convention(obs, zero_deg, sgn))
-        r, J = residuals_and_jacobian(LossObjective(base, loss, w).residuals, x)
+        r, J_r, e, J_e = _two_jacobians(LossObjective(base, loss, w), x)
         errors = base.errors(x)
-        return r, J, norms(errors), fitness(errors)[0]
+        return r, J_r, e, J_e, norms(errors), fitness(errors)[0]
 
     return jax.vmap(one)(zero, sign, weights, X)
 
@@ -104,19 +119,10 @@ def _stage2_batch(model_cls, correction_cls, obs, loss, X1, weights, X2):
     def one(x1, w, x2):
         points = chain_points(model_cls.from_vector(x1), obs)
         base = Stage2Objective(correction_cls, points, obs.centre_index)
-        r, J = residuals_and_jacobian(LossObjective(base, loss, w).residuals, x2)
-        return r, J, norms(base.errors(x2))
+        r, J_r, e, J_e = _two_jacobians(LossObjective(base, loss, w), x2)
+        return r, J_r, e, J_e, norms(base.errors(x2))
 
     return jax.vmap(one)(X1, weights, X2)
-
-
-@eqx.filter_jit
-def _jacobians(model_cls, correction_cls, obs, x1, x2):
-    points = chain_points(model_cls.from_vector(x1), obs)
-    return (
-        error_jacobian(Stage1Objective(model_cls, obs), x1),
-        error_jacobian(Stage2Objective(correction_cls, points, obs.centre_index), x2),
-    )
 
 
 def refits(
@@ -168,21 +174,29 @@ def refits(
 
     xs, _ = levenberg_marquardt_batch(lambda X: stage1(X)[:2], all_x0, lo1, hi1,
                                       max_steps=max_steps)  # fmt: skip
-    _, _, (n1, n2), F = (jax.tree.map(np.asarray, v) for v in stage1(xs))
+    # The last problem (declared convention, all landmarks) evaluated at the fit itself gives
+    # the fit's error vectors and Jacobian from the same compiled program.
+    at_fit = np.concatenate([xs[:-1], x1[None]])
+    _, _, e1, J1, (n1, n2), F = (jax.tree.map(np.asarray, v) for v in stage1(at_fit))
+    e1, J1 = e1[-1], J1[-1]
+    F = F.copy()
+    F[-1] = min(F[-1], float(np.asarray(stage1(xs)[5])[-1]))
     F_conv = np.where(np.isfinite(F[n:]), F[n:], np.inf)
     best = np.array([np.flatnonzero(conv_of == c)[np.argmin(F_conv[conv_of == c])]
                      for c in range(n_conv)])  # fmt: skip
 
     X1, W = jnp.asarray(xs[:n]), jnp.asarray(leave_out)
 
-    def stage2(X):
+    def stage2(X, X1=X1):
         return _stage2_batch(model_cls, correction_cls, obs, loss, X1, W, jnp.asarray(X))
 
     x2s, _ = levenberg_marquardt_batch(lambda X: stage2(X)[:2], np.broadcast_to(x2, (n, x2.size)),
                                        *bounds2, max_steps=max_steps)  # fmt: skip
-    m1, m2 = (np.asarray(v) for v in stage2(x2s)[2])
-    (e1, J1), (e2, J2) = _jacobians(model_cls, correction_cls, obs, jnp.asarray(x1),
-                                    jnp.asarray(x2))  # fmt: skip
+    m1, m2 = (np.asarray(v) for v in stage2(x2s)[4])
+    # Row 0 at the full fit (x1, x2) gives stage 2's error vectors and Jacobian there.
+    x2_fit = np.concatenate([x2[None], x2s[1:]])
+    _, _, e2, J2, _ = stage2(x2_fit, X1.at[0].set(jnp.asarray(x1)))
+    e2, J2 = np.asarray(e2[0]), np.asarray(J2[0])
     mine = n + np.flatnonzero(conv_of == declared)
     diag = np.arange(n)
     return Refits(
@@ -194,8 +208,8 @@ def refits(
         convention_params=xs[n:][best],
         declared_params=xs[mine],
         declared_F=np.where(np.isfinite(F[mine]), F[mine], np.inf),
-        errors1=np.asarray(e1),
-        jacobian1=np.asarray(J1),
-        errors2=np.asarray(e2),
-        jacobian2=np.asarray(J2),
+        errors1=e1,
+        jacobian1=J1,
+        errors2=e2,
+        jacobian2=J2,
     )
