@@ -11,8 +11,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 from .identifiability import analyse_jacobian
@@ -210,10 +208,9 @@ def diagnose(
     """
     classes = (model_cls, correction_cls)
     bounds = [c.search_bounds(search) for c in classes]
-    key = jax.random.fold_in(jax.random.PRNGKey(seed), 5)
     out = refits(
-        model_cls, correction_cls, obs, loss, jnp.asarray(x[0]), jnp.asarray(x[1]),
-        bounds[0], bounds[1], key, CONVENTION_STARTS, REFIT_STEPS,
+        model_cls, correction_cls, obs, loss, np.asarray(x[0]), np.asarray(x[1]),
+        bounds[0], bounds[1], seed, CONVENTION_STARTS, REFIT_STEPS,
     )  # fmt: skip
     loo = (
         _loo(out.loo1_image_vs_tablet, out.loo1_hand, stage_results[0].F),

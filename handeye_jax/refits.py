@@ -30,7 +30,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, PRNGKeyArray
+from jaxtyping import Array, Float
 
 from .losses import AbstractLoss, LossObjective
 from .models import AbstractCorrection, AbstractModel
@@ -134,7 +134,7 @@ def refits(
     x2: Float[Array, " d2"],
     bounds1: tuple[np.ndarray, np.ndarray],
     bounds2: tuple[np.ndarray, np.ndarray],
-    key: PRNGKeyArray,
+    seed: int,
     starts: int,
     max_steps: int,
 ) -> Refits:
@@ -146,7 +146,7 @@ def refits(
         loss: the loss the calibration used.
         x1, x2: the full fit's stage-1 and stage-2 parameters.
         bounds1, bounds2: each stage's search box ``(lower, upper)``.
-        key: PRNG key for the convention multi-starts.
+        seed: seed of the convention multi-starts' uniform draws (NumPy's PCG64).
         starts: random LM starts per convention.
         max_steps: most LM iterations of every refit.
     """
@@ -162,7 +162,7 @@ def refits(
     # Problems: n leave-one-out, then `starts` per convention, then the declared one from x1.
     leave_out = 1.0 - np.eye(n)
     conv_of = np.concatenate([np.repeat(np.arange(n_conv), starts), [declared]])
-    x_random = np.asarray(jax.random.uniform(key, (n_conv * starts, d1), minval=lo1, maxval=hi1))
+    x_random = np.random.default_rng(seed).uniform(lo1, hi1, size=(n_conv * starts, d1))
     all_zero = jnp.asarray(np.concatenate([np.full(n, float(obs.rig.angle_zero_deg)),
                                            zero[conv_of]]))  # fmt: skip
     all_sign = jnp.asarray(np.concatenate([np.full(n, float(obs.rig.angle_sign)), sign[conv_of]]))
@@ -195,7 +195,7 @@ def refits(
     m1, m2 = (np.asarray(v) for v in stage2(x2s)[4])
     # Row 0 at the full fit (x1, x2) gives stage 2's error vectors and Jacobian there.
     x2_fit = np.concatenate([x2[None], x2s[1:]])
-    _, _, e2, J2, _ = stage2(x2_fit, X1.at[0].set(jnp.asarray(x1)))
+    _, _, e2, J2, _ = stage2(x2_fit, jnp.asarray(np.concatenate([x1[None], xs[1:n]])))
     e2, J2 = np.asarray(e2[0]), np.asarray(J2[0])
     mine = n + np.flatnonzero(conv_of == declared)
     diag = np.arange(n)
