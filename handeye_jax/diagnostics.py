@@ -24,6 +24,8 @@ BOUND_FRACTION = 1e-3
 #: Population members closer than this to a better member, in every parameter (as a fraction
 #: of its search range), belong to its optimum.
 MODE_RADIUS = 0.05
+#: At most this many optima are reported, best first.
+MAX_MODES = 5
 #: A distinct optimum is reported when its best F is within this many mm of the best.
 MODE_F_MARGIN_MM = 0.5
 #: Parameters that differ by more than this fraction of their range are listed per optimum.
@@ -74,8 +76,9 @@ def population_modes(
     upper: np.ndarray,
     names: Sequence[str],
     sign_twin: Sequence[str] = (),
+    null_steps: Sequence[dict[str, float]] = (),
 ) -> list[dict[str, Any]]:
-    """The distinct optima in a final DE population, best first.
+    """The distinct optima in a final DE population, best first (at most :data:`MAX_MODES`).
 
     Members are grouped greedily in order of fitness: a member within :data:`MODE_RADIUS` of
     a group's best member in every parameter (as a fraction of its range) joins that group.
@@ -86,6 +89,9 @@ def population_modes(
         lower, upper: the search box.
         names: parameter names.
         sign_twin: parameters whose joint sign flip is a known symmetry (named when found).
+        null_steps: directions the data do not determine (``{name: step}``, from
+            :func:`~handeye_jax.identifiability.analyse_jacobian`); members that differ only
+            along them are one optimum (e.g. the DH model's θc1 − γc).
     """
     ok = np.isfinite(fitness)
     pop, f = np.asarray(population)[ok], np.asarray(fitness)[ok]
@@ -93,6 +99,10 @@ def population_modes(
     pop, f = pop[order], f[order]
     width = np.asarray(upper) - np.asarray(lower)
     u = (pop - lower) / width
+    if null_steps:
+        V = np.array([[st.get(n, 0.0) for n in names] for st in null_steps]) / width
+        Q, _ = np.linalg.qr(V.T)  # orthonormal basis of the undetermined directions
+        u = u - (u @ Q) @ Q.T
     leaders: list[int] = []
     counts: list[int] = []
     for i in range(len(f)):
@@ -123,7 +133,7 @@ def population_modes(
         )
         modes.append({"F": float(f[lead]), "members": count, "differs_from_best": differ,
                       "sign_twin": twin})  # fmt: skip
-    return modes
+    return modes[:MAX_MODES]
 
 
 def outliers(residuals_mm: list[dict[str, Any]], threshold_mm: float) -> list[int]:
@@ -220,14 +230,17 @@ def diagnose(
     depth = np.asarray(obs.depth_mm)
     stages = {}
     jacobians = ((out.errors1, out.jacobian1), (out.errors2, out.jacobian2))
+    null: dict[int, list[dict[str, float]]] = {}
     for k, (cls, (e, J), sr, (pop, fit)) in enumerate(
         zip(classes, jacobians, stage_results, populations, strict=True)
     ):
         lo, hi = cls.search_bounds(search)
         twin = getattr(cls, "sign_twin", ())
+        jac = analyse_jacobian(e, J, cls.param_names, cls.param_units, depth)
+        null[k] = [w["step"] for w in jac["weak_directions"] if w["determined"]]
         stages[f"stage{k + 1}"] = {
-            **analyse_jacobian(e, J, cls.param_names, cls.param_units, depth),
-            "modes": population_modes(pop, fit, lo, hi, cls.param_names, twin),
+            **jac,
+            "modes": population_modes(pop, fit, lo, hi, cls.param_names, twin, null[k]),
             "bound_hits": bound_hits(sr.params, cls, search),
             "loo": loo[k],
             "outliers": outliers(sr.residuals_mm, threshold),
@@ -235,7 +248,7 @@ def diagnose(
     lo, hi = model_cls.search_bounds(search)
     stages["stage1"]["local_optima"] = population_modes(
         out.declared_params, out.declared_F, lo, hi, model_cls.param_names,
-        getattr(model_cls, "sign_twin", ()),
+        getattr(model_cls, "sign_twin", ()), null[0],
     )  # fmt: skip
     rig = obs.rig
     declared = (float(rig.angle_zero_deg), int(rig.angle_sign))
