@@ -111,6 +111,17 @@ def test_population_modes_separate_basins_and_name_the_twin():
     assert set(modes[1]["differs_from_best"]) == {"alpha_t", "beta_t"}
 
 
+def test_members_apart_only_along_an_undetermined_direction_are_one_optimum():
+    lo, hi = np.array([-30.0, -30.0, 0.0]), np.array([30.0, 30.0, 10.0])
+    # theta + gamma = 5 for all; they slide along (1, -1), which the data do not determine.
+    pop = np.array([[t, 5.0 - t, 2.0] for t in (-20.0, -5.0, 0.0, 12.0)])
+    f = np.array([1.0, 1.0 + 1e-6, 1.0 + 2e-6, 1.0 + 3e-6])
+    names = ["theta", "gamma", "z"]
+    assert len(population_modes(pop, f, lo, hi, names)) == 4
+    merged = population_modes(pop, f, lo, hi, names, null_steps=[{"theta": 1.0, "gamma": -1.0}])
+    assert [m["members"] for m in merged] == [4]
+
+
 def test_paper_fit_finds_the_sign_twin_among_local_optima(paper_result):
     d = paper_result.diagnostics["stage1"]
     assert d["modes"] and d["modes"][0]["F"] == pytest.approx(paper_result.stage1.de["F"])
