@@ -17,6 +17,8 @@ import numpy as np
 
 from ._x64 import in_float64
 from .dataset import Dataset, check_min_landmarks
+from .diagnostics import bound_hits, diagnose
+from .losses import L1Loss, LossObjective, get_loss
 from .models import AbstractModel, AbstractParametric, AffinePair, get_model
 from .objective import (
     AbstractObjective,
@@ -28,10 +30,7 @@ from .objective import (
     stage2_errors,
 )
 from .optim import differential_evolution, levenberg_marquardt
-from .result import CalibrationResult, StageResult, rig_to_dict
-
-# A parameter closer than this fraction of its range to a bound is reported as on the bound.
-BOUND_FRACTION = 1e-3
+from .result import CalibrationResult, StageResult, observations_to_dict, rig_to_dict
 
 
 @dataclass(frozen=True)
@@ -47,6 +46,12 @@ class Settings:
         tol: relative spread for the early stop, ``std(F) <= tol·|mean(F)|``.
         crossover: DE's CR. mutation: DE's F (differential weight).
         polish: run Levenberg–Marquardt from the best DE member of each stage.
+        loss: ``"l1"`` (the paper's mean error length), ``"huber"`` or ``"cauchy"``
+            (:mod:`handeye_jax.losses`); a robust loss limits the pull of outlier landmarks.
+        loss_scale_mm: the robust loss's scale, mm; landmarks with an error above
+            ``OUTLIER_FACTOR`` (3) times it are flagged as outliers, whatever the loss.
+        diagnostics: compute the result's ``diagnostics`` (uncertainty, identifiability,
+            optima, leave-one-out, convention check); about a second more.
 
     The paper's settings are ``population=10000, generations=10000, early_stop=False``; the
     defaults reach the same optimum on the paper's data in seconds.
@@ -61,6 +66,9 @@ class Settings:
     crossover: float = 0.9
     mutation: float = 0.5
     polish: bool = True
+    loss: str = "l1"
+    loss_scale_mm: float = 1.0
+    diagnostics: bool = True
 
 
 @eqx.filter_jit
@@ -92,8 +100,14 @@ def _optimise(
     settings: Settings,
     progress: bool,
     label: str,
-) -> tuple[np.ndarray, dict[str, Any], dict[str, Any], dict[str, list[float]], dict[str, float]]:
-    """DE then box-constrained LM on one objective; LM is kept only if it lowers F."""
+) -> tuple[
+    np.ndarray, dict[str, Any], dict[str, Any], dict[str, list[float]], dict[str, float], tuple
+]:
+    """DE then box-constrained LM on one objective; LM is kept only if it lowers F.
+
+    Returns the optimum, DE and LM summaries, the convergence history, timings (s) and the
+    final DE population with its fitness.
+    """
     lower, upper = cls.search_bounds(search)
     t0 = time.perf_counter()
     de = differential_evolution(
@@ -124,7 +138,8 @@ def _optimise(
         "median_F": [float(v) for v in de.median_history],
         "median_generation": [int(g) for g in de.median_generations],
     }
-    return x, de_info, polish, convergence, {"de": t1 - t0, "polish": t2 - t1}
+    timings = {"de": t1 - t0, "polish": t2 - t1}
+    return x, de_info, polish, convergence, timings, (de.population, de.fitness)
 
 
 def _stage_result(objective, x, cls, de_info, polish, convergence) -> StageResult:
@@ -150,22 +165,15 @@ def bound_warnings(
     params: dict[str, float], cls: type[AbstractParametric], search: dict
 ) -> list[str]:
     """One warning per parameter sitting on a bound of its search range."""
-    lower, upper = cls.search_bounds(search)
     out = []
-    for name, unit, lo, hi in zip(cls.param_names, cls.param_units, lower, upper, strict=True):
-        v, width, u = params[name], hi - lo, "" if unit == "1" else f" {unit}"
-        side = (
-            "lower"
-            if v - lo <= BOUND_FRACTION * width
-            else ("upper" if hi - v <= BOUND_FRACTION * width else None)
+    for hit in bound_hits(params, cls, search):
+        name, u = hit["param"], "" if hit["unit"] == "1" else f" {hit['unit']}"
+        (lo, hi), (wlo, whi) = hit["range"], hit["widen_to"]
+        out.append(
+            f"{name} = {hit['value']:.4g}{u} is on the {hit['side']} bound of its search range "
+            f"[{lo:g}, {hi:g}]; the optimum may lie outside it: widen it in the dataset's "
+            f"[search] table, e.g. {name} = [{wlo:g}, {whi:g}]"
         )
-        if side:
-            wider = (lo - width, hi) if side == "lower" else (lo, hi + width)
-            out.append(
-                f"{name} = {v:.4g}{u} is on the {side} bound of its search range "
-                f"[{lo:g}, {hi:g}]; the optimum may lie outside it: widen it in the dataset's "
-                f"[search] table, e.g. {name} = [{wider[0]:g}, {wider[1]:g}]"
-            )
     return out
 
 
@@ -204,26 +212,47 @@ def calibrate(
     obs = dataset.observations()
     key1, key2 = jax.random.split(jax.random.PRNGKey(settings.seed))
 
-    obj1 = Stage1Objective(model_cls, obs)
-    x1, de1, pol1, conv1, t1 = _optimise(
+    loss = get_loss(settings.loss, settings.loss_scale_mm)
+
+    def with_loss(objective):  # the paper's F stays the plain objective (and its compiled code)
+        if isinstance(loss, L1Loss):
+            return objective
+        return LossObjective(objective, loss, jnp.ones(obs.n_landmarks))
+
+    paper1 = Stage1Objective(model_cls, obs)
+    obj1 = with_loss(paper1)
+    x1, de1, pol1, conv1, t1, pop1 = _optimise(
         obj1, model_cls, dataset.search, key1, settings, progress, "stage 1 DE"
     )
-    stage1 = _stage_result(obj1, x1, model_cls, de1, pol1, conv1)
+    stage1 = _stage_result(paper1, x1, model_cls, de1, pol1, conv1)
 
     points = _points(model_cls, jnp.asarray(x1), obs)
-    obj2 = Stage2Objective(AffinePair, points, obs.centre_index)
-    x2, de2, pol2, conv2, t2 = _optimise(
+    paper2 = Stage2Objective(AffinePair, points, obs.centre_index)
+    obj2 = with_loss(paper2)
+    x2, de2, pol2, conv2, t2, pop2 = _optimise(
         obj2, AffinePair, dataset.search, key2, settings, progress, "stage 2 DE"
     )
-    stage2 = _stage_result(obj2, x2, AffinePair, de2, pol2, conv2)
+    stage2 = _stage_result(paper2, x2, AffinePair, de2, pol2, conv2)
     centres = _centres(jnp.asarray(x2), points, obs.centre_index)
 
     warnings = bound_warnings(stage1.params, model_cls, dataset.search) + bound_warnings(
         stage2.params, AffinePair, dataset.search
     )
+    diagnostics: dict[str, Any] = {}
+    t_diag = time.perf_counter()
+    if settings.diagnostics:
+        diagnostics = diagnose(
+            model_cls=model_cls, correction_cls=AffinePair, obs=obs, loss=loss,
+            loss_scale_mm=settings.loss_scale_mm, x=(x1, x2),
+            stage_results=(stage1, stage2), populations=(pop1, pop2), search=dataset.search,
+            seed=settings.seed,
+        )  # fmt: skip
+        if diagnostics["convention"]["warning"]:
+            warnings.append(diagnostics["convention"]["warning"])
     timings = {
         "stage1_de": t1["de"], "stage1_polish": t1["polish"],
         "stage2_de": t2["de"], "stage2_polish": t2["polish"],
+        "diagnostics": time.perf_counter() - t_diag,
         "total": time.perf_counter() - t_start,
     }  # fmt: skip
     return CalibrationResult(
@@ -237,8 +266,10 @@ def calibrate(
         centre_index=obs.centre_index,
         centres_mm=np.asarray(centres).tolist(),
         timings_s=timings,
-        sign_twin=_sign_twin(obj1, model_cls, x1),
+        sign_twin=_sign_twin(paper1, model_cls, x1),
         warnings=warnings,
+        diagnostics=diagnostics,
+        observations=observations_to_dict(dataset),
     )
 
 

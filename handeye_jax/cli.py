@@ -64,6 +64,9 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         population=args.population,
         generations=args.generations,
         early_stop=not args.no_early_stop,
+        loss=args.loss,
+        loss_scale_mm=args.loss_scale_mm,
+        diagnostics=not args.no_diagnostics,
     )
     result = calibrate(dataset, settings, progress=not args.quiet)
     print(format_summary(result))
@@ -110,6 +113,25 @@ def _port(text: str) -> int:
     return v
 
 
+def _positive_mm(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not v > 0 or v == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a finite length > 0 mm (got {text})")
+    return v
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from .report import write_report
+
+    written = write_report(args.result, args.out, args.dataset)
+    folder = written[0].parent if written else args.out
+    print(f"{len(written)} figures (PNG and SVG) written to {folder}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .calibrate import Settings
     from .cli_twin import add_twin_commands
@@ -142,6 +164,18 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument(
         "--no-early-stop", action="store_true",
         help="run all generations instead of stopping when the population has converged",
+    )  # fmt: skip
+    cal.add_argument(
+        "--loss", choices=("l1", "huber", "cauchy"), default=d.loss,
+        help="l1: the paper's mean error length (default); huber / cauchy: robust to outliers",
+    )  # fmt: skip
+    cal.add_argument(
+        "--loss-scale-mm", type=_positive_mm, default=d.loss_scale_mm, metavar="MM",
+        help=f"robust loss scale, mm; errors above 3x it are flagged (default {d.loss_scale_mm:g})",
+    )  # fmt: skip
+    cal.add_argument(
+        "--no-diagnostics", action="store_true",
+        help="skip uncertainty, leave-one-out and convention check (about a second faster)",
     )  # fmt: skip
     cal.add_argument("--out", metavar="RESULT.json", help="write the result (JSON) here")
     cal.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -183,6 +217,17 @@ def build_parser() -> argparse.ArgumentParser:
     tab.add_argument("--ppi", type=float, help="tablet px per inch (default: the dataset's)")
     tab.add_argument("--scale", type=float, help="display scale (default: the dataset's)")
     tab.set_defaults(func=_cmd_tablet)
+    rep = sub.add_parser(
+        "report",
+        help="figures (PNG and SVG) of a calibration result",
+        description="Draw the data, both chains with their residuals, per-landmark errors, the "
+        "DE convergence and the leave-one-out errors of a result.",
+    )
+    rep.add_argument("result", help="result file from 'calibrate --out'")
+    rep.add_argument("--out", metavar="DIR", help="folder for the figures (default: "
+                     "RESULT_report next to the result)")  # fmt: skip
+    rep.add_argument("--dataset", help="the dataset, for results that do not carry their data")
+    rep.set_defaults(func=_cmd_report)
     return parser
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax.numpy as jnp
 import numpy as np
@@ -22,6 +22,9 @@ from .errors import InputError
 from .models import AbstractCorrection, AbstractModel, AffinePair, get_model, model_registry
 from .observations import Rig
 from .predict import hand_command
+
+if TYPE_CHECKING:
+    from .dataset import Dataset
 
 FORMAT = "handeye-jax.result/1"
 
@@ -65,6 +68,8 @@ class CalibrationResult:
     timings_s: dict[str, float]
     sign_twin: dict[str, Any]
     warnings: list[str]
+    diagnostics: dict[str, Any] = field(default_factory=dict)
+    observations: dict[str, Any] = field(default_factory=dict)
     format: str = FORMAT
 
     # -- use -----------------------------------------------------------------------------
@@ -129,6 +134,11 @@ class CalibrationResult:
             "sign_twin": self.sign_twin,
             "warnings": self.warnings,
         }
+        # Optional sections (older results lack them): see handeye_jax.diagnostics.
+        if self.diagnostics:
+            doc["diagnostics"] = self.diagnostics
+        if self.observations:
+            doc["observations"] = self.observations
         return json.dumps(doc, indent=2, allow_nan=False) + "\n"
 
     def save(self, path: str | Path) -> None:
@@ -145,6 +155,20 @@ def rig_to_dict(rig: Rig) -> dict[str, Any]:
         "capture_hand_position_mm": [float(x) for x in rig.capture_position_mm],
         "hand_angle": {"zero_deg": float(rig.angle_zero_deg), "sign": int(rig.angle_sign)},
     }  # fmt: skip
+
+
+#: The landmark data a result carries for its figures: name → shape after the landmark axis.
+OBSERVATION_ARRAYS: dict[str, tuple[int, ...]] = {
+    "tablet_px": (2,), "image_px": (2,), "depth_mm": (), "hand_xy_mm": (2,),
+    "hand_angle_deg": (), "touch_error_px": (2,),
+}  # fmt: skip
+
+
+def observations_to_dict(dataset: Dataset) -> dict[str, Any]:
+    """The dataset's landmark arrays (px, mm, deg) and tablet pixel size, as JSON lists."""
+    doc: dict[str, Any] = {k: np.asarray(getattr(dataset, k)).tolist() for k in OBSERVATION_ARRAYS}
+    doc["mm_per_tablet_px"] = float(dataset.mm_per_tablet_px)
+    return doc
 
 
 def rig_from_dict(d: dict[str, Any]) -> Rig:
@@ -223,4 +247,36 @@ def load_result(path: str | Path) -> CalibrationResult:
         timings_s=doc.get("timings_s", {}),
         sign_twin=doc.get("sign_twin", {}),
         warnings=list(doc.get("warnings", [])),
+        diagnostics=_optional_table(r, doc, "diagnostics"),
+        observations=_observations(r, doc),
     )
+
+
+def _optional_table(r: _Reader, doc: dict[str, Any], key: str) -> dict[str, Any]:
+    value = doc.get(key, {})
+    if not isinstance(value, dict):
+        r.fail(key, f"must be an object (got {_describe(value)})")
+    return value
+
+
+def _observations(r: _Reader, doc: dict[str, Any]) -> dict[str, Any]:
+    """The optional ``observations`` section, checked for shapes and finite numbers."""
+    obs = _optional_table(r, doc, "observations")
+    if not obs:
+        return {}
+    r.table(obs, "observations", (*OBSERVATION_ARRAYS, "mm_per_tablet_px"))
+    r.number(obs["mm_per_tablet_px"], "observations.mm_per_tablet_px", positive=True)
+    n = None
+    for name, tail in OBSERVATION_ARRAYS.items():
+        where = f"observations.{name}"
+        rows = obs[name]
+        if not isinstance(rows, list) or not rows or (n is not None and len(rows) != n):
+            want = "a non-empty list" if n is None else f"a list of {n} (one per landmark)"
+            r.fail(where, f"must be {want} (got {_describe(rows)})")
+        n = len(rows)
+        for i, row in enumerate(rows):
+            if tail:
+                r.vector(row, f"{where}[{i}]", tail[0])
+            else:
+                r.number(row, f"{where}[{i}]")
+    return obs

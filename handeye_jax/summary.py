@@ -10,7 +10,16 @@ def _unit(u: str) -> str:
     return "" if u == "1" else f" {u}"
 
 
-def _stage_lines(title: str, s: StageResult, names, units, early_stop: bool) -> list[str]:
+def _value(v: float, std: float | None, unit: str, has_std: bool) -> str:
+    if not has_std:
+        return f"{v:>12.5f}{_unit(unit)}"
+    spread = "undetermined" if std is None else f"{std:.3g}"
+    return f"{v:>12.5f} ± {spread:<12}{_unit(unit)}"
+
+
+def _stage_lines(
+    title: str, s: StageResult, names, units, early_stop: bool, std: dict | None = None
+) -> list[str]:
     lines = [f"{title}: F = {s.F:.6f} mm  (f1 = {s.f1:.6f} mm, f2 = {s.f2:.6f} mm)"]
     pol = s.polish
     de = s.de
@@ -31,9 +40,10 @@ def _stage_lines(title: str, s: StageResult, names, units, early_stop: bool) -> 
         f"F = {de['F']:.6f} mm; {stop}"
     )
     lines.append(f"  LM polish: {lm}")
-    lines.append("  parameters:")
+    lines.append("  parameters" + (" (± one standard deviation):" if std else ":"))
     for name, unit in zip(names, units, strict=True):
-        lines.append(f"    {name:<9} {s.params[name]:>12.5f}{_unit(unit)}")
+        value = _value(s.params[name], (std or {}).get(name), unit, std is not None)
+        lines.append(f"    {name:<9} {value}".rstrip())
     lines.append("  residuals per landmark, mm:")
     lines.append("    m   |image - tablet|   |hand - target|")
     for r in s.residuals_mm:
@@ -52,9 +62,11 @@ def format_summary(result: CalibrationResult) -> str:
         "",
     ]
     early_stop = bool(result.settings.get("early_stop", True))
+    diag = result.diagnostics
     lines += _stage_lines(
-        "stage 1", result.stage1, model_cls.param_names, model_cls.param_units, early_stop
-    )
+        "stage 1", result.stage1, model_cls.param_names, model_cls.param_units, early_stop,
+        diag.get("stage1", {}).get("std") if diag else None,
+    )  # fmt: skip
     twin = result.sign_twin
     if twin:
         found = ", ".join(f"{k} = {v:+.4f}" for k, v in twin["found"].items())
@@ -62,15 +74,21 @@ def format_summary(result: CalibrationResult) -> str:
             f"  sign twin found: {found}; the mirror twin (both signs flipped) has "
             f"F = {twin['F_flipped']:.6f} mm"
         )
+    if diag:
+        lines += diagnostic_lines(diag, "stage1")
     lines.append("")
     lines += _stage_lines(
-        "stage 2", result.stage2, AffinePair.param_names, AffinePair.param_units, early_stop
-    )
+        "stage 2", result.stage2, AffinePair.param_names, AffinePair.param_units, early_stop,
+        diag.get("stage2", {}).get("std") if diag else None,
+    )  # fmt: skip
     c1, c2 = result.centres_mm
     lines.append(
         f"  centres of rotation (landmark {result.centre_index}): A1 ({c1[0]:.3f}, {c1[1]:.3f}) mm,"
         f" A2 ({c2[0]:.3f}, {c2[1]:.3f}) mm"
     )
+    if diag:
+        lines += diagnostic_lines(diag, "stage2")
+        lines += convention_lines(diag.get("convention", {}))
     for w in result.warnings:
         lines.append(f"warning: {w}")
     t = result.timings_s
@@ -78,6 +96,83 @@ def format_summary(result: CalibrationResult) -> str:
     lines.append(
         f"time: {t['total']:.2f} s (stage 1: DE {t['stage1_de']:.2f} s, LM "
         f"{t['stage1_polish']:.2f} s; stage 2: DE {t['stage2_de']:.2f} s, LM "
-        f"{t['stage2_polish']:.2f} s; includes JIT compilation)"
+        f"{t['stage2_polish']:.2f} s"
+        + (f"; diagnostics {t['diagnostics']:.2f} s" if "diagnostics" in t else "")
+        + "; includes JIT compilation)"
     )
     return "\n".join(lines)
+
+
+def _modes_line(label: str, modes: list[dict]) -> list[str]:
+    if not modes:
+        return []
+    out = [f"  {label}: {len(modes)}"]
+    for k, m in enumerate(modes):
+        diff = ", ".join(f"{n} {d:+.3g}" for n, d in m["differs_from_best"].items())
+        what = "the best" if k == 0 else (diff or "same parameters within 1 % of range")
+        twin = " (the sign twin)" if m.get("sign_twin") else ""
+        out.append(f"    F = {m['F']:.6f} mm, {m['members']} member(s): {what}{twin}")
+    return out
+
+
+def diagnostic_lines(diag: dict, stage: str) -> list[str]:
+    """The diagnostics of one stage: weak directions, optima, bounds, LOO, outliers."""
+    d = diag.get(stage)
+    if not d:
+        return []
+    lines = [f"  diagnostics (residual std {d['sigma_mm']:.4f} mm, {d['dof']} dof):"]
+    weak = d.get("weak_directions", [])
+    if weak:
+        lines.append("  weak directions (singular value relative to the largest):")
+        for w in weak:
+            lines.append(f"    {w['relative_singular_value']:.1e}: {w['note']}")
+    else:
+        lines.append("  weak directions: none (every parameter is determined by the data)")
+    lines += _modes_line("distinct optima in the final DE population", d.get("modes", []))
+    lines += _modes_line("local optima of the multi-start LM refits", d.get("local_optima", []))
+    hits = d.get("bound_hits", [])
+    lines.append(
+        "  on a search-range bound: "
+        + (", ".join(f"{h['param']} ({h['side']}; widen to {h['widen_to']})" for h in hits)
+           or "none")
+    )  # fmt: skip
+    loo = d.get("loo")
+    if loo:
+        what = "stage 1 refitted" if stage == "stage1" else "stages 1 and 2 refitted"
+        lines.append(
+            f"  leave-one-out ({what} without landmark m, m predicted): held-out F = "
+            f"{loo['F']:.4f} mm (f1 = {loo['f1']:.4f}, f2 = {loo['f2']:.4f} mm); in-sample "
+            f"F = {loo['in_sample_F']:.4f} mm"
+        )
+        per = "  ".join(
+            f"{r['m']}: {r['image_vs_tablet_mm']:.2f}/{r['hand_mm']:.2f}"
+            for r in loo["held_out_mm"]
+        )
+        lines.append(f"    held out |image - tablet|/|hand - target| mm, m: {per}")
+    out = d.get("outliers", [])
+    threshold = diag.get("outlier_threshold_mm", float("nan"))
+    lines.append(
+        f"  outlier landmarks (an error > {threshold:g} mm): "
+        + (", ".join(f"m = {m}" for m in out) if out else "none")
+    )
+    return lines
+
+
+def convention_lines(conv: dict) -> list[str]:
+    """The hand-angle convention check, one line per convention."""
+    if not conv:
+        return []
+    dec = conv["declared"]
+    lines = [
+        f"convention check (F1st refitted under each hand-angle convention; declared "
+        f"zero = {dec['zero_deg']:g} deg, sign = {dec['sign']:+d}): "
+        + ("passed" if conv["passed"] else "FAILED")
+    ]
+    for c in sorted(conv["fits"], key=lambda c: c["F"]):
+        mark = (
+            "  <- declared" if (c["zero_deg"], c["sign"]) == (dec["zero_deg"], dec["sign"]) else ""
+        )
+        lines.append(
+            f"    zero {c['zero_deg']:>5g} deg, sign {c['sign']:+d}: F1st = {c['F']:.4f} mm{mark}"
+        )
+    return lines

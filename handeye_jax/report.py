@@ -1,0 +1,307 @@
+"""Figures of a calibration result for people: ``handeye-jax report RESULT.json [--out DIR]``.
+
+Each figure is saved as PNG and SVG, written atomically once all are drawn:
+
+* ``fig3_landmarks``: the landmarks in the captured image (px) and the hand positions at the
+  touches in the base frame (mm), as the paper's Fig. 3;
+* ``chains_stage1``, ``chains_stage2``: the landmarks taken to the base frame by both chains,
+  with the residual arrows scaled up and labelled, as the paper's Figs. 6 and 7;
+* ``residuals``: per-landmark error lengths of both terms, for each stage;
+* ``convergence``: DE's best and median F against generation, for each stage;
+* ``loo``: leave-one-out (held-out) errors against the in-sample ones, for each stage.
+
+The figures need the landmark data: results carry it (``observations``); for a result
+without it, pass the dataset it was fitted on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+from pathlib import Path
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from ._atomic import write_bytes_atomic
+from ._x64 import in_float64
+from .dataset import load_dataset
+from .errors import InputError
+from .objective import chain_points, stage1_errors, stage2_errors
+from .observations import Observations
+from .result import CalibrationResult, load_result, observations_to_dict
+
+FIGURES = ("fig3_landmarks", "chains_stage1", "chains_stage2", "residuals", "convergence", "loo")
+FORMATS = ("png", "svg")
+DPI = 120
+#: Residual arrows are drawn this many times their length (the figures say so).
+ARROW_SCALE = {1: 10.0, 2: 20.0}
+
+
+class ChainPlotData:
+    """Base-frame x-y points (mm) of one stage for the chain figures."""
+
+    def __init__(self, image_xy, tablet_xy, hand_pred_xy, hand_target_xy):
+        self.image_xy = np.asarray(image_xy)
+        self.tablet_xy = np.asarray(tablet_xy)
+        self.hand_pred_xy = np.asarray(hand_pred_xy)
+        self.hand_target_xy = np.asarray(hand_target_xy)
+
+
+def _observations(result: CalibrationResult) -> Observations:
+    o = result.observations
+    mm = float(o["mm_per_tablet_px"])
+    arr = {k: jnp.asarray(np.asarray(o[k], dtype=float)) for k in o if k != "mm_per_tablet_px"}
+    return Observations(
+        rig=result.fitted_rig(),
+        image_px=arr["image_px"],
+        depth_mm=arr["depth_mm"],
+        tablet_mm=arr["tablet_px"] * mm,
+        hand_xy_mm=arr["hand_xy_mm"],
+        hand_angle_deg=arr["hand_angle_deg"],
+        touch_error_mm=arr["touch_error_px"] * mm,
+        centre_index=result.centre_index,
+    )
+
+
+@in_float64
+def chain_data(result: CalibrationResult) -> tuple[ChainPlotData, ChainPlotData]:
+    """Both stages' points in the base frame, recomputed from the result and its data."""
+    obs = _observations(result)
+    points = chain_points(result.fitted_model(), obs)
+    e1 = stage1_errors(points)
+    s1 = ChainPlotData(
+        points.image_xy, points.tablet_xy,
+        points.hand_target_xy + e1.hand, points.hand_target_xy,
+    )  # fmt: skip
+    e2, _ = stage2_errors(result.fitted_correction(), points, result.centre_index)
+    s2 = ChainPlotData(
+        points.tablet_xy + e2.image_vs_tablet, points.tablet_xy,
+        points.hand_target_xy + e2.hand, points.hand_target_xy,
+    )  # fmt: skip
+    return s1, s2
+
+
+# -- figures -----------------------------------------------------------------------------
+
+
+def _figure(**kwargs):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(layout="constrained", **kwargs)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _label_points(ax, xy, dx=0.0, dy=0.0, **kwargs):
+    for m, (x, y) in enumerate(xy):
+        ax.annotate(str(m), (x, y), xytext=(4 + dx, 4 + dy), textcoords="offset points",
+                    fontsize=9, **kwargs)  # fmt: skip
+
+
+def fig_landmarks(result: CalibrationResult):
+    """The paper's Fig. 3: landmarks in the image, hand positions in the base frame."""
+    o = result.observations
+    image = np.asarray(o["image_px"])
+    hand = np.asarray(o["hand_xy_mm"])
+    fig = _figure(figsize=(11, 4.8))
+    ax1, ax2 = fig.subplots(1, 2)
+    ax1.plot(image[:, 0], image[:, 1], "o", color="C0", label="landmark m in the image")
+    _label_points(ax1, image)
+    cam = result.rig["camera_px"]
+    ax1.plot(cam["cx"], cam["cy"], "+", color="k", ms=12, label="principal point")
+    ax1.set_xlim(0, max(640.0, image[:, 0].max() + 40))
+    ax1.set_ylim(max(480.0, image[:, 1].max() + 40), 0)  # image rows grow downwards
+    ax1.set_aspect("equal")
+    ax1.set_xlabel("u (px)")
+    ax1.set_ylabel("v (px)")
+    ax1.set_title("landmarks in the captured image")
+    ax1.legend(loc="lower right", fontsize=9)
+    ax2.plot(hand[:, 0], hand[:, 1], "s", color="C1", label="hand position at touch m")
+    _label_points(ax2, hand)
+    capture = result.rig["capture_hand_position_mm"]
+    ax2.plot(capture[0], capture[1], "*", color="k", ms=12, label="hand at capture")
+    ax2.set_aspect("equal", adjustable="datalim")
+    ax2.set_xlabel("x, base frame (mm)")
+    ax2.set_ylabel("y, base frame (mm)")
+    ax2.set_title("hand positions in the base frame")
+    ax2.legend(loc="best", fontsize=9)
+    ax2.grid(alpha=0.3)
+    fig.suptitle(f"{result.dataset}: the data (paper's Fig. 3)")
+    return fig
+
+
+def fig_chains(result: CalibrationResult, data: ChainPlotData, stage: int):
+    """The paper's Figs. 6 / 7: both chains in the base frame with scaled residual arrows."""
+    k = ARROW_SCALE[stage]
+    fig = _figure(figsize=(12, 5.4))
+    ax1, ax2 = fig.subplots(1, 2)
+    image_label = "image chain x_bi" if stage == 1 else "image chain after A1"
+    for ax, pred, target, names in (
+        (ax1, data.image_xy, data.tablet_xy, (image_label, "tablet chain x_bt")),
+        (ax2, data.hand_pred_xy, data.hand_target_xy,
+         ("hand command from the image" + (" (A2)" if stage == 2 else ""),
+          "hand at touch, touch error removed")),
+    ):  # fmt: skip
+        ax.plot(target[:, 0], target[:, 1], "o", mfc="none", color="C1", ms=8, label=names[1])
+        ax.plot(pred[:, 0], pred[:, 1], ".", color="C0", ms=7, label=names[0])
+        d = pred - target
+        ax.quiver(target[:, 0], target[:, 1], k * d[:, 0], k * d[:, 1], angles="xy",
+                  scale_units="xy", scale=1, color="C3", width=0.004,
+                  label=f"error, drawn ×{k:g}")  # fmt: skip
+        _label_points(ax, target, dx=2, dy=-14, color="0.3")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xlabel("x, base frame (mm)")
+        ax.set_ylabel("y, base frame (mm)")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="best", fontsize=8)
+    s = result.stage1 if stage == 1 else result.stage2
+    ax1.set_title(f"image vs tablet: f1 = {s.f1:.3f} mm")
+    ax2.set_title(f"hand vs target: f2 = {s.f2:.3f} mm")
+    fig.suptitle(
+        f"stage {stage}: landmarks in the base frame by both chains, F = {s.F:.4f} mm "
+        f"(errors drawn ×{k:g})"
+    )
+    return fig
+
+
+def _bars(ax, values: list[np.ndarray], labels: list[str], colors: list[str]):
+    n = len(values[0])
+    width = 0.8 / len(values)
+    x = np.arange(n)
+    for i, (v, lab, c) in enumerate(zip(values, labels, colors, strict=True)):
+        ax.bar(x + (i - (len(values) - 1) / 2) * width, v, width, label=lab, color=c)
+    ax.set_xticks(x)
+    ax.set_xlabel("landmark m")
+    ax.set_ylabel("error length (mm)")
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=9)
+
+
+def fig_residuals(result: CalibrationResult):
+    """Per-landmark error lengths of both terms, for each stage."""
+    fig = _figure(figsize=(11, 4.5))
+    axes = fig.subplots(1, 2, sharey=True)
+    for ax, s, name in zip(axes, (result.stage1, result.stage2), ("stage 1", "stage 2"),
+                           strict=True):  # fmt: skip
+        e1 = np.array([r["image_vs_tablet_mm"] for r in s.residuals_mm])
+        e2 = np.array([r["hand_mm"] for r in s.residuals_mm])
+        _bars(ax, [e1, e2], ["|image − tablet|", "|hand − target|"], ["C0", "C1"])
+        ax.set_title(f"{name}\nf1 = {s.f1:.3f} mm, f2 = {s.f2:.3f} mm, F = {s.F:.3f} mm")
+    fig.suptitle("residual of every landmark (in-sample)")
+    return fig
+
+
+def fig_convergence(result: CalibrationResult):
+    """DE's best and median F against generation, for each stage."""
+    fig = _figure(figsize=(11, 4.5))
+    axes = fig.subplots(1, 2)
+    for ax, s, name in zip(axes, (result.stage1, result.stage2), ("stage 1", "stage 2"),
+                           strict=True):  # fmt: skip
+        c = s.convergence
+        best = np.asarray(c.get("best_F", []), dtype=float)
+        if best.size:
+            ax.plot(np.arange(1, best.size + 1), best, color="C0", label="best F")
+        med = np.asarray(c.get("median_F", []), dtype=float)
+        if med.size:
+            ax.plot(c["median_generation"], med, "o-", color="C1", ms=4,
+                    label="median F of the population")  # fmt: skip
+        ax.axhline(s.F, color="0.3", ls="--", lw=1, label=f"after LM polish: {s.F:.4f} mm")
+        ax.set_yscale("log")
+        ax.set_xlabel("DE generation")
+        ax.set_ylabel("F (mm)")
+        ax.set_title(f"{name}: {s.de.get('generations', '?')} generations")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=9)
+    fig.suptitle("differential evolution: convergence")
+    return fig
+
+
+def fig_loo(result: CalibrationResult):
+    """Held-out (leave-one-out) against in-sample error of each landmark, for each stage."""
+    fig = _figure(figsize=(11, 4.5))
+    axes = fig.subplots(1, 2, sharey=True)
+    diag = result.diagnostics
+    for ax, key, s, name in zip(axes, ("stage1", "stage2"), (result.stage1, result.stage2),
+                                ("stage 1", "stages 1 + 2 (pipeline)"), strict=True):  # fmt: skip
+        loo = diag.get(key, {}).get("loo")
+        if not loo:
+            ax.text(0.5, 0.5, "no leave-one-out in this result", ha="center",
+                    transform=ax.transAxes)  # fmt: skip
+            ax.set_axis_off()
+            continue
+        held = np.array([r["image_vs_tablet_mm"] + r["hand_mm"] for r in loo["held_out_mm"]])
+        ins = np.array([r["image_vs_tablet_mm"] + r["hand_mm"] for r in s.residuals_mm])
+        _bars(ax, [ins, held], ["in-sample", "held out (refit without m)"], ["0.6", "C3"])
+        ax.set_ylabel("|image − tablet| + |hand − target| (mm)")
+        ax.set_title(f"{name}\nheld-out F = {loo['F']:.3f} mm, in-sample F = {s.F:.3f} mm")
+    fig.suptitle("leave-one-out: does the fit predict a landmark it has not seen?")
+    return fig
+
+
+# -- driver ------------------------------------------------------------------------------
+
+
+def render(result: CalibrationResult) -> dict[str, Any]:
+    """All figures of a result (matplotlib Figures) by name; needs ``result.observations``."""
+    s1, s2 = chain_data(result)
+    return {
+        "fig3_landmarks": fig_landmarks(result),
+        "chains_stage1": fig_chains(result, s1, 1),
+        "chains_stage2": fig_chains(result, s2, 2),
+        "residuals": fig_residuals(result),
+        "convergence": fig_convergence(result),
+        "loo": fig_loo(result),
+    }
+
+
+def write_report(
+    result_path: str | Path, out_dir: str | Path | None = None, dataset: str | Path | None = None
+) -> list[Path]:
+    """Draw every figure of a result file and write them (PNG and SVG) into ``out_dir``.
+
+    Args:
+        result_path: a ``handeye-jax.result/1`` file.
+        out_dir: where to write; default ``<result stem>_report`` next to the result. Created
+            if its parent exists.
+        dataset: the dataset the result was fitted on; needed only if the result does not
+            carry its observations (older results).
+
+    Returns:
+        The files written. Nothing is written unless every figure was drawn.
+    """
+    result_path = Path(result_path)
+    result = load_result(result_path)
+    if dataset is not None:
+        ds = load_dataset(dataset)
+        fitted = len(result.stage1.residuals_mm)
+        if fitted and ds.n_landmarks != fitted:
+            raise InputError(dataset, "landmarks", f"{ds.n_landmarks} landmarks, but the "
+                             f"result was fitted on {fitted}")  # fmt: skip
+        result = _with_observations(result, observations_to_dict(ds))
+    if not result.observations:
+        raise InputError(result_path, "observations",
+                         "missing (a result from an older version): pass --dataset")  # fmt: skip
+    out = Path(out_dir) if out_dir is not None else result_path.with_name(
+        f"{result_path.stem}_report"
+    )  # fmt: skip
+    if out.exists() and not out.is_dir():
+        raise InputError(out, "", "cannot write: not a folder")
+    if not out.parent.is_dir():
+        raise InputError(out, "", f"cannot write: folder {str(out.parent)!r} does not exist")
+    rendered = {}
+    for name, fig in render(result).items():
+        for ext in FORMATS:
+            buf = io.BytesIO()
+            fig.savefig(buf, format=ext, dpi=DPI)
+            rendered[out / f"{name}.{ext}"] = buf.getvalue()
+    out.mkdir(exist_ok=True)
+    for path, data in rendered.items():
+        write_bytes_atomic(path, data)
+    return list(rendered)
+
+
+def _with_observations(result: CalibrationResult, obs: dict[str, Any]) -> CalibrationResult:
+    return dataclasses.replace(result, observations=obs)

@@ -1,0 +1,51 @@
+"""Every notebook runs top to bottom (nbclient, the notebooks' small budget) and shows its plots."""
+
+import os
+from pathlib import Path
+
+import nbformat
+import pytest
+from nbclient import NotebookClient
+
+ROOT = Path(__file__).resolve().parents[1]
+NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
+
+
+def test_the_three_notebooks_exist():
+    assert [p.name for p in NOTEBOOKS] == [
+        "01_quickstart.ipynb", "02_loss_landscape.ipynb", "03_de_vs_gradient.ipynb",
+    ]  # fmt: skip
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_notebook_runs(path, monkeypatch):
+    committed = nbformat.read(path, as_version=4)
+    code = [c for c in committed.cells if c.cell_type == "code"]
+    with_output = sum(bool(c.get("outputs")) for c in code)
+    assert with_output >= len(code) - 2, "commit notebooks with their outputs (only set-up cells"
+    " may be silent)"
+    monkeypatch.setenv("HANDEYE_JAX_NOTEBOOK_QUICK", "1")
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+    monkeypatch.setenv("MPLBACKEND", "module://matplotlib_inline.backend_inline")
+    # The kernel shares the suite's XLA cache (tests/conftest.py), so programs the CLI tests
+    # compiled are not compiled again.
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", os.environ["HANDEYE_JAX_CACHE_DIR"])
+    monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+    monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
+    nb = nbformat.read(path, as_version=4)
+    for cell in nb.cells:
+        if cell.cell_type == "code":
+            cell.outputs = []
+    NotebookClient(nb, timeout=600, kernel_name="python3",
+                   resources={"metadata": {"path": str(path.parent)}}).execute()  # fmt: skip
+    outputs = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs]
+    assert not [o for o in outputs if o.output_type == "error"]
+    images = [o for o in outputs if "image/png" in o.get("data", {})]
+    assert len(images) >= 2
+    text = "".join(o.get("text", "") for o in outputs if o.output_type == "stream")
+    want = {
+        "01_quickstart": "convention check passed: True",
+        "02_loss_landscape": "theta_c1 + gamma_c",
+        "03_de_vs_gradient": "of starts reach the target",
+    }[path.stem]
+    assert want in text
