@@ -5,7 +5,8 @@
 Runs the command as a user would, in fresh processes: once with an empty XLA compilation
 cache ("cold": the very first run on a machine) and then with the cache the first run left
 ("warm": every later run). Reports the wall time and its parts: Python and JAX import, each
-stage's DE and LM (compilation included, as the result's timings record them), and the rest.
+stage's DE and LM and the diagnostics (compilation included, as the result's timings record
+them), and the rest.
 """
 
 from __future__ import annotations
@@ -25,6 +26,9 @@ IMPORT = (
 )
 
 
+STAGES = ("stage1_de", "stage1_polish", "stage2_de", "stage2_polish", "diagnostics")
+
+
 def run(cache: str, extra: list[str]) -> dict[str, float]:
     env = dict(os.environ, HANDEYE_JAX_CACHE_DIR=cache)
     with tempfile.TemporaryDirectory() as tmp:
@@ -37,7 +41,7 @@ def run(cache: str, extra: list[str]) -> dict[str, float]:
         timings = json.loads(out.read_text())["timings_s"]
     imp = float(subprocess.run([sys.executable, "-c", IMPORT], check=True, capture_output=True,
                                text=True, env=env).stdout)  # fmt: skip
-    parts = {k: timings[k] for k in ("stage1_de", "stage1_polish", "stage2_de", "stage2_polish")}
+    parts = {k: timings[k] for k in STAGES}
     return {"wall": wall, "import": imp, **parts,
             "other": wall - imp - sum(parts.values())}  # fmt: skip
 
@@ -57,7 +61,7 @@ def main(argv=None) -> None:
     print(f"# first call, {time.strftime('%Y-%m-%d')}, {os.cpu_count()} cores")
     print(f"command: python benchmarks/{Path(__file__).name} {' '.join(sys.argv[1:])}")
     print("times in s, median of", runs, "fresh processes each\n")
-    keys = ["wall", "import", "stage1_de", "stage1_polish", "stage2_de", "stage2_polish", "other"]
+    keys = ["wall", "import", *STAGES, "other"]
     print("| run | " + " | ".join(keys) + " |")
     print("|---" * (len(keys) + 1) + "|")
     for name, rs in rows.items():

@@ -7,19 +7,17 @@ in :mod:`~handeye_jax.simulate`, :mod:`~handeye_jax.detect` and :mod:`~handeye_j
 from __future__ import annotations
 
 import argparse
-import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 from jaxtyping import Float
 
+from ._atomic import write_bytes_atomic
 from .cli import _output_path, _positive_int
-from .dataset import Dataset, save_dataset
+from .dataset import save_dataset
 from .detect import overlay_image, read_image
 from .errors import InputError
-from .simulate import encode_png, write_bytes_atomic
+from .simulate import encode_png
 
 
 def _positive_float(text: str) -> float:
@@ -47,27 +45,6 @@ def write_overlay(
     write_bytes_atomic(out, encode_png(overlay_image(image, points_px, labels)))
 
 
-def backup_and_save(dataset: Dataset, path: Path) -> None:
-    """Replace ``path`` with ``dataset`` and keep the previous file as ``path.bak``.
-
-    The new file is written (and validated) beside the old one first; only then is the old
-    one copied to the backup and replaced in one rename, so a failure leaves it as it was.
-    """
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".new", dir=path.parent)
-    os.close(fd)
-    try:
-        save_dataset(dataset, tmp)
-        backup = path.with_name(path.name + ".bak")
-        try:
-            shutil.copy2(path, backup)
-        except OSError as e:
-            raise InputError(backup, "", f"cannot keep the previous dataset: {e}") from None
-        shutil.copymode(path, tmp)
-        os.replace(tmp, path)
-    finally:
-        Path(tmp).unlink(missing_ok=True)
-
-
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from .simulate import PRESETS, simulate, write_twin
     from .twin import draw_truth, load_truth
@@ -91,7 +68,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_detect(args: argparse.Namespace) -> int:
-    from .dataset import load_dataset, save_dataset
+    from .dataset import load_dataset
     from .detect import BlobCountError, DetectSettings, detect_landmarks, fill_dataset
 
     out = _output_path(args.out)
@@ -110,7 +87,7 @@ def _cmd_detect(args: argparse.Namespace) -> int:
         write_overlay(args.capture, found.image_px, found.depth_mm, overlay)
     new = fill_dataset(dataset, found)
     if out is None:
-        backup_and_save(new, Path(args.dataset))
+        save_dataset(new, args.dataset, keep_backup=True)
         print(f"{dataset.n_landmarks} landmarks found; {args.dataset} updated "
               f"(previous file kept as {args.dataset}.bak)")  # fmt: skip
     else:

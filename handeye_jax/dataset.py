@@ -57,7 +57,7 @@ import numpy as np
 import tomli_w
 
 from . import geometry as geo
-from ._atomic import write_text_atomic
+from ._atomic import write_bytes_atomic, write_text_atomic
 from ._validate import _describe, _join, _Reader
 from ._x64 import in_float64
 from .errors import InputError
@@ -443,16 +443,29 @@ def dataset_to_toml(ds: Dataset) -> str:
     return text
 
 
-def save_dataset(ds: Dataset, path: str | Path) -> None:
+def backup_path(path: str | Path) -> Path:
+    """Where :func:`save_dataset` keeps the previous version of a dataset: ``DATASET.bak``."""
+    path = Path(path)
+    return path.with_name(path.name + ".bak")
+
+
+def save_dataset(ds: Dataset, path: str | Path, *, keep_backup: bool = False) -> None:
     """Write ``ds`` to ``path`` atomically: the file is either complete or untouched.
 
     The text is validated as :func:`load_dataset` would before anything is written, so a
     saved file always loads; raises :class:`InputError` for an invalid dataset or an
-    unwritable path.
+    unwritable path. With ``keep_backup``, the file's previous bytes are first written
+    (atomically too) to :func:`backup_path`, so a failure at any point loses nothing.
     """
     path = Path(path)
     text = dataset_to_toml(ds)
     _parse(tomllib.loads(text), path)
+    if keep_backup:
+        backup = backup_path(path)
+        try:
+            write_bytes_atomic(backup, path.read_bytes())
+        except OSError as e:
+            raise InputError(backup, "", f"cannot keep the previous dataset: {e}") from None
     try:
         write_text_atomic(path, text)
     except OSError as e:

@@ -17,15 +17,13 @@ held-out targets for :mod:`~handeye_jax.evaluate`. :func:`write_twin` writes the
 from __future__ import annotations
 
 import io
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from ._atomic import write_text_atomic
+from ._atomic import write_bytes_atomic, write_text_atomic
 from .dataset import Dataset, dataset_to_toml
 from .detect import BlobCountError, DetectSettings, depth_at, find_blobs, order_blobs
 from .errors import InputError
@@ -201,20 +199,6 @@ def encode_png(image: np.ndarray) -> bytes:
     if not ok:
         raise ValueError("OpenCV could not encode the image as PNG")
     return buf.tobytes()
-
-
-def write_bytes_atomic(path: str | Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary file and ``os.replace``: complete or absent."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def write_twin(twin: Twin, out_dir: str | Path) -> list[Path]:

@@ -4,7 +4,8 @@
 Ctrl-C. The page lives in ``static/`` (HTML, JS and CSS; no build step).
 """
 
-from .calibration import apply_touch_errors, backup_path
+from ..dataset import backup_path
+from .calibration import apply_touch_errors
 from .posts import PostError, parse_calibration, parse_evaluation
 from .server import DEFAULT_HOST, DEFAULT_PORT, TabletApp, TabletServer, make_server, serve
 from .targets import grid_targets, load_targets

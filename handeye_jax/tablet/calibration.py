@@ -6,16 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._atomic import write_text_atomic
 from ..dataset import load_dataset, save_dataset
-from ..errors import InputError
 from .posts import CalibrationPost, PostError
-
-
-def backup_path(path: str | Path) -> Path:
-    """Where the previous version of a dataset is kept: ``DATASET.bak`` beside it."""
-    path = Path(path)
-    return path.with_name(path.name + ".bak")
 
 
 def apply_touch_errors(path: str | Path, post: CalibrationPost) -> bool:
@@ -29,10 +21,6 @@ def apply_touch_errors(path: str | Path, post: CalibrationPost) -> bool:
     resent post), in which case the backup is left alone.
     """
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as e:
-        raise InputError(path, "", f"cannot read file: {e}") from None
     ds = load_dataset(path)
     if ds.n_landmarks != len(post.tablet_px) or not np.array_equal(ds.tablet_px, post.tablet_px):
         raise PostError(
@@ -41,6 +29,5 @@ def apply_touch_errors(path: str | Path, post: CalibrationPost) -> bool:
         )  # fmt: skip
     if np.array_equal(ds.touch_error_px, post.touch_error_px):
         return False
-    write_text_atomic(backup_path(path), raw.decode("utf-8"))
-    save_dataset(ds.replace(touch_error_px=post.touch_error_px), path)
+    save_dataset(ds.replace(touch_error_px=post.touch_error_px), path, keep_backup=True)
     return True

@@ -32,11 +32,11 @@ from typing import Any
 
 import numpy as np
 
-from ..dataset import load_dataset
+from ..dataset import backup_path, load_dataset
 from ..errors import InputError
 from ..geometry import mm_per_tablet_px
 from . import posts, trials
-from .calibration import apply_touch_errors, backup_path
+from .calibration import apply_touch_errors
 from .targets import grid_targets, load_targets
 
 DEFAULT_HOST = "127.0.0.1"
