@@ -1,6 +1,6 @@
 """Synthetic-twin study: simulate → detect → calibrate → evaluate, one row per seed.
 
-    python benchmarks/twin_study.py [--seeds 1 2 3 4 5] [--preset paper]
+    python benchmarks/twin_study.py [--seeds 1 2 3 4 5] [--preset paper] [--dot-px D]
                                     [--population N --generations G] [--results PATH]
 
 For each seed, a rig truth is drawn, the twin renders its pictures, the landmarks are detected
@@ -32,8 +32,8 @@ RESULTS = Path(__file__).resolve().parent / "RESULTS.md"
 HEADING = "## Synthetic twin: held-out touching error"
 
 
-def run_seed(seed: int, preset: str, settings: Settings, folder: Path) -> dict:
-    truth = draw_truth(seed)
+def run_seed(seed: int, preset: str, settings: Settings, folder: Path, dot_px: float = 1.0) -> dict:
+    truth = draw_truth(seed, dot_px=dot_px)
     twin = simulate(truth, PRESETS[preset], seed)
     write_twin(twin, folder)
     ds = load_dataset(folder / "dataset.toml")
@@ -126,6 +126,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5])
     ap.add_argument("--preset", choices=sorted(PRESETS), default="paper")
+    ap.add_argument("--dot-px", type=float, default=1.0,
+                    help="landmark dot size, tablet px (paper: 1; harsh needs 2)")  # fmt: skip
     ap.add_argument("--population", type=int, default=Settings.population)
     ap.add_argument("--generations", type=int, default=Settings.generations)
     ap.add_argument("--results", type=Path, default=RESULTS, help="Markdown file to update")
@@ -136,17 +138,21 @@ def main() -> None:
         for seed in args.seeds:
             s = Settings(model="htm", seed=seed, population=args.population,
                          generations=args.generations)  # fmt: skip
-            runs.append(run_seed(seed, args.preset, s, Path(tmp) / f"seed{seed}"))
+            runs.append(run_seed(seed, args.preset, s, Path(tmp) / f"seed{seed}", args.dot_px))
     seeds = " ".join(map(str, args.seeds))
     command = f"python benchmarks/twin_study.py --seeds {seeds} --preset {args.preset}"
+    if args.dot_px != 1.0:
+        command += f" --dot-px {args.dot_px:g}"
     if (args.population, args.generations) != (Settings.population, Settings.generations):
         command += f" --population {args.population} --generations {args.generations}"
-    heading = f"{HEADING} (preset {args.preset})"
+    heading = f"{HEADING} (preset {args.preset}"
+    heading += f", {args.dot_px:g} px dots)" if args.dot_px != 1.0 else ")"
     text = (
         f"{heading}\n\ncommand: {command}\n"
         f"machine: {platform.machine()}, jax {jax.__version__}; float64; "
         f"{time.strftime('%Y-%m-%d')}; {time.perf_counter() - t0:.0f} s\n"
-        f"each seed: a rig truth drawn from `twin.RANGES`, preset `{args.preset}`, landmarks "
+        f"each seed: a rig truth drawn from `twin.RANGES`, preset `{args.preset}`, "
+        f"{args.dot_px:g}-tablet-px dots, landmarks "
         "detected in the written PNGs, HTM calibration (DE + LM), 20 held-out targets inside "
         "the landmark area at hand angles in [0, 180) deg. Touching error = where the true pen "
         "lands on the display minus the target; oracle = the true parameters with the same "

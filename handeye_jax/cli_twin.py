@@ -15,7 +15,7 @@ from jaxtyping import Float
 from ._atomic import write_bytes_atomic
 from .cli import _output_path, _positive_int
 from .dataset import save_dataset
-from .detect import overlay_image, read_image
+from .detect import DetectSettings, overlay_image, read_image
 from .errors import InputError
 from .simulate import encode_png
 
@@ -69,11 +69,14 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 def _cmd_detect(args: argparse.Namespace) -> int:
     from .dataset import load_dataset
-    from .detect import BlobCountError, DetectSettings, detect_landmarks, fill_dataset
+    from .detect import BlobCountError, detect_landmarks, fill_dataset
 
     out = _output_path(args.out)
     overlay = _output_path(args.overlay)
     dataset = load_dataset(args.dataset)
+    if args.min_area > args.max_area:
+        why = f"must be <= --max-area (got {args.min_area} > {args.max_area})"
+        raise InputError(None, "--min-area", why)
     settings = DetectSettings(threshold=args.threshold, min_area_px=args.min_area,
                               max_area_px=args.max_area)  # fmt: skip
     try:
@@ -156,8 +159,10 @@ def add_twin_commands(sub: argparse._SubParsersAction) -> None:
         help="write the picture with the detected centroids numbered in landmark order",
     )
     det.add_argument("--threshold", choices=("otsu", "adaptive"), default="otsu")
-    det.add_argument("--min-area", type=_positive_int, default=3, help="smallest blob, px²")
-    det.add_argument("--max-area", type=_positive_int, default=80, help="largest blob, px²")
+    det.add_argument("--min-area", type=_positive_int, default=DetectSettings.min_area_px,
+                     help="smallest blob, px² (default: %(default)s)")  # fmt: skip
+    det.add_argument("--max-area", type=_positive_int, default=DetectSettings.max_area_px,
+                     help="largest blob, px² (default: %(default)s)")  # fmt: skip
     det.set_defaults(func=_cmd_detect)
 
     ev = sub.add_parser(

@@ -183,9 +183,18 @@ def find_blobs(image: np.ndarray, settings: DetectSettings | None = None) -> Blo
     return Blobs(np.array(pts, dtype=float).reshape(-1, 2), area[keep].astype(float))
 
 
-def _max_area_quad(points: np.ndarray) -> np.ndarray:
-    """Indices of the four hull points spanning the largest quadrilateral, in hull order."""
+def _max_area_quad(points: np.ndarray, what: str) -> np.ndarray:
+    """Indices of the four hull points spanning the largest quadrilateral, in hull order.
+
+    Raises:
+        ValueError: fewer than four points on the convex hull (e.g. all on one line).
+    """
     hull = cv2.convexHull(points.astype(np.float32), returnPoints=False).ravel()
+    if len(hull) < 4:
+        raise ValueError(
+            f"the {what} span no quadrilateral (only {len(hull)} points on their convex hull;"
+            " collinear?)"
+        )
     best, best_area = None, -1.0
     for quad in itertools.combinations(sorted(hull), 4):
         idx = np.array(quad)
@@ -208,23 +217,26 @@ def order_blobs(
     and each landmark takes the nearest blob. The matches that pair all blobs one to one and
     fit best (within 10 % of the layout's spacing) are kept; among those, the one whose tablet
     x axis points most nearly along +u wins, because the paper's 3×3 grid maps onto itself
-    when turned half round. So the picture may show the grid turned by up to ±90° in its plane
-    and in perspective, not mirrored (as a camera above the display sees it).
+    when turned by a quarter turn. So the picture may show the grid turned by less than ±45°
+    in its plane, and in perspective, not mirrored (as a camera above the display sees it). A
+    square grid turned by more than 45° is indistinguishable from one turned by less, and is
+    ordered as the latter: keep the tablet's x axis roughly along the picture's u axis.
 
     Args:
         blobs_px: blob centroids, image px, ``(n, 2)``.
         layout_px: where the landmarks are drawn, tablet px, ``(n, 2)``, in landmark order.
 
     Raises:
-        ValueError: no match pairs the blobs with the layout.
+        ValueError: no match pairs the blobs with the layout, or either set of points spans no
+            quadrilateral.
     """
     blobs_px, layout_px = np.asarray(blobs_px, float), np.asarray(layout_px, float)
     n = len(layout_px)
     if len(blobs_px) != n or n < 4:
         raise ValueError(f"need the same number (>= 4) of blobs and landmarks, got {len(blobs_px)}"
                          f" and {n}")  # fmt: skip
-    q_layout = _max_area_quad(layout_px)
-    q_blobs = _max_area_quad(blobs_px)
+    q_layout = _max_area_quad(layout_px, "drawn landmarks (tablet_px)")
+    q_blobs = _max_area_quad(blobs_px, "blobs")
     spacing = np.min([np.linalg.norm(a - b) for a, b in itertools.combinations(blobs_px, 2)])
     candidates = []
     for mirror in (False, True):

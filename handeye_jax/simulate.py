@@ -157,8 +157,8 @@ def simulate(
     else:
         blobs = find_blobs(capture, detect_settings)
         if len(blobs.image_px) != n:
-            raise BlobCountError("capture.png (simulated)", blobs, n,
-                                 "; try exact=True or larger dots")  # fmt: skip
+            hint = "; try exact=True (simulate --exact) or larger dots (--dot-px)"
+            raise BlobCountError("capture.png (simulated)", blobs, n, hint)
         image_px = blobs.image_px[order_blobs(blobs.image_px, truth.landmarks_tablet_px)]
         depth_mm = depth_at(depth, image_px, detect_settings.depth_window_px)
     dataset = exact_ds.replace(

@@ -176,3 +176,28 @@ def test_bad_images_are_one_line_errors(twin_dir, tmp_path, capsys):
 def test_detect_landmarks_raises_input_error_naming_the_file(twin_dir):
     with pytest.raises(InputError, match=r"capture.png: blobs: found 9 blobs, expected 8"):
         detect_landmarks(twin_dir / "capture.png", twin_dir / "depth.png", snake_grid_px()[:8])
+
+
+def test_collinear_blobs_or_layout_cannot_be_ordered():
+    line = np.stack([np.linspace(100, 500, 9), np.full(9, 240.0)], axis=1)
+    with pytest.raises(ValueError, match="blobs span no quadrilateral"):
+        order_blobs(line, snake_grid_px())
+    with pytest.raises(ValueError, match=r"drawn landmarks \(tablet_px\) span no quadrilateral"):
+        order_blobs(snake_grid_px(), line)
+
+
+def test_collinear_dots_are_a_one_line_input_error(twin_dir, tmp_path, capsys):
+    img = np.full((480, 640), 235, np.uint8)
+    for u in np.linspace(100, 540, 9):
+        cv2.circle(img, (int(u), 240), 1, 120, -1)
+    cap = tmp_path / "line.png"
+    cap.write_bytes(encode_png(img))
+    ds = str(twin_dir / "dataset.toml")
+    _fails(capsys, ["detect", str(cap), str(twin_dir / "depth.png"), "--dataset", ds],
+           "line.png: blobs: cannot order", "no quadrilateral")  # fmt: skip
+
+
+def test_min_area_above_max_area_is_a_one_line_input_error(twin_dir, capsys):
+    cap, dep, ds = (str(twin_dir / n) for n in ("capture.png", "depth.png", "dataset.toml"))
+    _fails(capsys, ["detect", cap, dep, "--dataset", ds, "--min-area", "90"],
+           "--min-area", "90 > 80")  # fmt: skip
