@@ -76,22 +76,28 @@ def population_modes(
     upper: np.ndarray,
     names: Sequence[str],
     sign_twin: Sequence[str] = (),
-    null_steps: Sequence[dict[str, float]] = (),
+    flat_steps: Sequence[dict[str, float]] = (),
+    reference: np.ndarray | None = None,
 ) -> list[dict[str, Any]]:
-    """The distinct optima in a final DE population, best first (at most :data:`MAX_MODES`).
+    """The distinct optima in a final population, best first (at most :data:`MAX_MODES`).
 
     Members are grouped greedily in order of fitness: a member within :data:`MODE_RADIUS` of
     a group's best member in every parameter (as a fraction of its range) joins that group.
-    Groups whose best F is within :data:`MODE_F_MARGIN_MM` of the overall best are reported.
+    Groups whose best F is within :data:`MODE_F_MARGIN_MM` of the overall best are reported,
+    each with the parameters in which it differs from ``reference``.
 
     Args:
         population, fitness: the final population ``(N, d)`` and its F (mm).
         lower, upper: the search box.
         names: parameter names.
         sign_twin: parameters whose joint sign flip is a known symmetry (named when found).
-        null_steps: directions the data do not determine (``{name: step}``, from
+        flat_steps: directions along which the data barely or never change F (``{name:
+            step}``, the weak directions of
             :func:`~handeye_jax.identifiability.analyse_jacobian`); members that differ only
-            along them are one optimum (e.g. the DH model's θc1 − γc).
+            along them lie in one valley and are one optimum (e.g. the DH model's θc1 − γc,
+            or the camera's xc–βc trade-off).
+        reference: the reported fit, to which each optimum is compared (by default the
+            population's best member).
     """
     ok = np.isfinite(fitness)
     pop, f = np.asarray(population)[ok], np.asarray(fitness)[ok]
@@ -99,9 +105,9 @@ def population_modes(
     pop, f = pop[order], f[order]
     width = np.asarray(upper) - np.asarray(lower)
     u = (pop - lower) / width
-    if null_steps:
-        V = np.array([[st.get(n, 0.0) for n in names] for st in null_steps]) / width
-        Q, _ = np.linalg.qr(V.T)  # orthonormal basis of the undetermined directions
+    if flat_steps:
+        V = np.array([[st.get(n, 0.0) for n in names] for st in flat_steps]) / width
+        Q, _ = np.linalg.qr(V.T)  # orthonormal basis of the flat directions
         u = u - (u @ Q) @ Q.T
     leaders: list[int] = []
     counts: list[int] = []
@@ -114,7 +120,7 @@ def population_modes(
                 continue
         leaders.append(i)
         counts.append(1)
-    best = pop[leaders[0]]
+    best = pop[leaders[0]] if reference is None else np.asarray(reference, dtype=float)
     twin_idx = [list(names).index(n) for n in sign_twin]
     modes = []
     for lead, count in zip(leaders, counts, strict=True):
@@ -131,7 +137,7 @@ def population_modes(
             and all(abs(pop[lead][k] + best[k]) <= MODE_PARAM_FRACTION * width[k] for k in twin_idx)
             and any(abs(delta[k]) > MODE_PARAM_FRACTION * width[k] for k in twin_idx)
         )
-        modes.append({"F": float(f[lead]), "members": count, "differs_from_best": differ,
+        modes.append({"F": float(f[lead]), "members": count, "differs_from_fit": differ,
                       "sign_twin": twin})  # fmt: skip
     return modes[:MAX_MODES]
 
@@ -230,17 +236,19 @@ def diagnose(
     depth = np.asarray(obs.depth_mm)
     stages = {}
     jacobians = ((out.errors1, out.jacobian1), (out.errors2, out.jacobian2))
-    null: dict[int, list[dict[str, float]]] = {}
+    flat: dict[int, list[dict[str, float]]] = {}
     for k, (cls, (e, J), sr, (pop, fit)) in enumerate(
         zip(classes, jacobians, stage_results, populations, strict=True)
     ):
         lo, hi = cls.search_bounds(search)
         twin = getattr(cls, "sign_twin", ())
         jac = analyse_jacobian(e, J, cls.param_names, cls.param_units, depth)
-        null[k] = [w["step"] for w in jac["weak_directions"] if w["determined"]]
+        flat[k] = [w["step"] for w in jac["weak_directions"]]
         stages[f"stage{k + 1}"] = {
             **jac,
-            "modes": population_modes(pop, fit, lo, hi, cls.param_names, twin, null[k]),
+            "modes": population_modes(
+                pop, fit, lo, hi, cls.param_names, twin, flat[k], np.asarray(x[k])
+            ),
             "bound_hits": bound_hits(sr.params, cls, search),
             "loo": loo[k],
             "outliers": outliers(sr.residuals_mm, threshold),
@@ -248,7 +256,7 @@ def diagnose(
     lo, hi = model_cls.search_bounds(search)
     stages["stage1"]["local_optima"] = population_modes(
         out.declared_params, out.declared_F, lo, hi, model_cls.param_names,
-        getattr(model_cls, "sign_twin", ()), null[0],
+        getattr(model_cls, "sign_twin", ()), flat[0], np.asarray(x[0]),
     )  # fmt: skip
     rig = obs.rig
     declared = (float(rig.angle_zero_deg), int(rig.angle_sign))

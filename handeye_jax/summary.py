@@ -75,7 +75,9 @@ def format_summary(result: CalibrationResult) -> str:
             f"F = {twin['F_flipped']:.6f} mm"
         )
     if diag:
-        lines += diagnostic_lines(diag, "stage1")
+        lines += diagnostic_lines(
+            diag, "stage1", dict(zip(model_cls.param_names, model_cls.param_units, strict=True))
+        )
     lines.append("")
     lines += _stage_lines(
         "stage 2", result.stage2, AffinePair.param_names, AffinePair.param_units, early_stop,
@@ -87,7 +89,9 @@ def format_summary(result: CalibrationResult) -> str:
         f" A2 ({c2[0]:.3f}, {c2[1]:.3f}) mm"
     )
     if diag:
-        lines += diagnostic_lines(diag, "stage2")
+        lines += diagnostic_lines(
+            diag, "stage2", dict(zip(AffinePair.param_names, AffinePair.param_units, strict=True))
+        )
         lines += convention_lines(diag.get("convention", {}))
     for w in result.warnings:
         lines.append(f"warning: {w}")
@@ -103,20 +107,29 @@ def format_summary(result: CalibrationResult) -> str:
     return "\n".join(lines)
 
 
-def _modes_line(label: str, modes: list[dict]) -> list[str]:
+def _modes_line(label: str, modes: list[dict], units: dict[str, str]) -> list[str]:
     if not modes:
         return []
     out = [f"  {label}: {len(modes)}"]
-    for k, m in enumerate(modes):
-        diff = ", ".join(f"{n} {d:+.3g}" for n, d in m["differs_from_best"].items())
-        what = "the best" if k == 0 else (diff or "same parameters within 1 % of range")
+    for m in modes:
+        if "differs_from_fit" in m:
+            diff = ", ".join(
+                f"{n} {d:+.3g}{_unit(units.get(n, '1'))}" for n, d in m["differs_from_fit"].items()
+            )
+            what = f"differs from the fit by {diff}" if diff else "the fit (within 1 % of range)"
+        else:  # results written before 2026-12 compared with the population's best member
+            diff = ", ".join(f"{n} {d:+.3g}" for n, d in m["differs_from_best"].items())
+            what = f"differs from the best by {diff}" if diff else "the best"
         twin = " (the sign twin)" if m.get("sign_twin") else ""
         out.append(f"    F = {m['F']:.6f} mm, {m['members']} member(s): {what}{twin}")
     return out
 
 
-def diagnostic_lines(diag: dict, stage: str) -> list[str]:
-    """The diagnostics of one stage: weak directions, optima, bounds, LOO, outliers."""
+def diagnostic_lines(diag: dict, stage: str, units: dict[str, str]) -> list[str]:
+    """The diagnostics of one stage: weak directions, optima, bounds, LOO, outliers.
+
+    ``units`` maps the stage's parameter names to their units.
+    """
     d = diag.get(stage)
     if not d:
         return []
@@ -128,12 +141,16 @@ def diagnostic_lines(diag: dict, stage: str) -> list[str]:
             lines.append(f"    {w['relative_singular_value']:.1e}: {w['note']}")
     else:
         lines.append("  weak directions: none (every parameter is determined by the data)")
-    lines += _modes_line("distinct optima in the final DE population", d.get("modes", []))
-    lines += _modes_line("local optima of the multi-start LM refits", d.get("local_optima", []))
+    lines += _modes_line("distinct optima in the final DE population", d.get("modes", []), units)
+    lines += _modes_line(
+        "local optima of the multi-start LM refits", d.get("local_optima", []), units
+    )
     hits = d.get("bound_hits", [])
     lines.append(
         "  on a search-range bound: "
-        + (", ".join(f"{h['param']} ({h['side']}; widen to {h['widen_to']})" for h in hits)
+        + (", ".join(f"{h['param']} = {h['value']:.4g}{_unit(h['unit'])} ({h['side']} bound; "
+                     f"widen to [{h['widen_to'][0]:g}, {h['widen_to'][1]:g}]{_unit(h['unit'])})"
+                     for h in hits)
            or "none")
     )  # fmt: skip
     loo = d.get("loo")

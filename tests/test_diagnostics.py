@@ -19,7 +19,9 @@ from handeye_jax.observations import Rig
 from handeye_jax.optim import levenberg_marquardt
 from handeye_jax.optim.batched import levenberg_marquardt_batch, residuals_and_jacobian
 from handeye_jax.refits import CONVENTIONS
+from handeye_jax.simulate import PRESETS, simulate
 from handeye_jax.synthetic import snake_grid_px, synthesize_dataset
+from handeye_jax.twin import draw_truth
 from tests.test_cli import PAPER
 from tests.test_synthetic import TRUTH
 
@@ -108,7 +110,12 @@ def test_population_modes_separate_basins_and_name_the_twin():
     modes = population_modes(pop, f, lo, hi, ["alpha_t", "beta_t", "z"], ("alpha_t", "beta_t"))
     assert [m["members"] for m in modes] == [30, 20, 10]
     assert [m["sign_twin"] for m in modes] == [False, True, False]
-    assert set(modes[1]["differs_from_best"]) == {"alpha_t", "beta_t"}
+    assert set(modes[1]["differs_from_fit"]) == {"alpha_t", "beta_t"}
+    # Compared with a reported fit that is the mirror twin, the roles swap.
+    from_twin = population_modes(pop, f, lo, hi, ["alpha_t", "beta_t", "z"],
+                                 ("alpha_t", "beta_t"), reference=twin)  # fmt: skip
+    assert from_twin[0]["differs_from_fit"]["beta_t"] == pytest.approx(-24.0, abs=0.5)
+    assert from_twin[1]["differs_from_fit"] == {}
 
 
 def test_members_apart_only_along_an_undetermined_direction_are_one_optimum():
@@ -118,7 +125,7 @@ def test_members_apart_only_along_an_undetermined_direction_are_one_optimum():
     f = np.array([1.0, 1.0 + 1e-6, 1.0 + 2e-6, 1.0 + 3e-6])
     names = ["theta", "gamma", "z"]
     assert len(population_modes(pop, f, lo, hi, names)) == 4
-    merged = population_modes(pop, f, lo, hi, names, null_steps=[{"theta": 1.0, "gamma": -1.0}])
+    merged = population_modes(pop, f, lo, hi, names, flat_steps=[{"theta": 1.0, "gamma": -1.0}])
     assert [m["members"] for m in merged] == [4]
 
 
@@ -224,15 +231,31 @@ def test_losses_reject_bad_names_and_scales():
         get_loss("huber", 0.0)
 
 
-def test_robust_fit_flags_a_touch_5mm_off_and_keeps_the_others():
-    """The issue's acceptance: one landmark touched 5 mm off, fitted with a Cauchy loss."""
-    m = 6
-    clean = _synthetic()
+#: The acceptance's losses and scales: the paper's mean length, Huber and Cauchy. Huber at
+#: 1 mm misses it (0.25 mm, ``benchmarks/robust.py``): its quadratic core lets the touch pull.
+ROBUST_CASES = [("l1", 1.0), ("huber", 0.5), ("cauchy", 1.0)]
+
+
+@pytest.fixture(scope="module")
+def twin_clean_and_touched():
+    """A noise-free synthetic twin (exact image points), and the same with touch 6 off 5 mm."""
+    clean = simulate(draw_truth(4), PRESETS["none"], 4, exact=True, n_heldout=1).dataset
     hand = clean.hand_xy_mm.copy()
-    hand[m] += [3.0, 4.0]  # 5 mm
-    robust = Settings(population=200, generations=400, loss="cauchy", loss_scale_mm=1.0)
+    hand[6] += [3.0, 4.0]
+    return clean, clean.replace(hand_xy_mm=hand)
+
+
+@pytest.mark.parametrize(("loss", "scale_mm"), ROBUST_CASES)
+def test_robust_fit_flags_a_touch_5mm_off_and_keeps_the_others(
+    twin_clean_and_touched, loss, scale_mm
+):
+    """The issue's acceptance: the touched landmark is flagged, and F on the other eight
+    stays within 0.2 mm of the clean fit's."""
+    m = 6
+    clean, touched = twin_clean_and_touched
+    robust = Settings(population=200, generations=400, loss=loss, loss_scale_mm=scale_mm)
     r_clean = calibrate(clean, robust)
-    r_bad = calibrate(clean.replace(hand_xy_mm=hand), robust)
+    r_bad = calibrate(touched, robust)
 
     def F_others(r):
         keep = [x for x in r.stage1.residuals_mm if x["m"] != m]
@@ -242,9 +265,9 @@ def test_robust_fit_flags_a_touch_5mm_off_and_keeps_the_others():
 
     assert r_bad.diagnostics["stage1"]["outliers"] == [m]
     assert r_clean.diagnostics["stage1"]["outliers"] == []
-    assert F_others(r_bad) <= F_others(r_clean) + 0.2
-    assert r_bad.diagnostics["loss"] == {"name": "cauchy", "scale_mm": 1.0}
-    assert r_bad.diagnostics["outlier_threshold_mm"] == OUTLIER_FACTOR * 1.0
+    assert abs(F_others(r_bad) - F_others(r_clean)) <= 0.2
+    assert r_bad.diagnostics["loss"] == {"name": loss, "scale_mm": scale_mm}
+    assert r_bad.diagnostics["outlier_threshold_mm"] == OUTLIER_FACTOR * scale_mm
 
 
 # -- the batched LM ----------------------------------------------------------------------
