@@ -30,6 +30,7 @@ from .dataset import load_dataset
 from .errors import InputError
 from .objective import chain_points, stage1_errors, stage2_errors
 from .observations import Observations
+from .optim.de import CHUNK_GENERATIONS
 from .result import CalibrationResult, load_result, observations_to_dict
 
 FIGURES = ("fig3_landmarks", "chains_stage1", "chains_stage2", "residuals", "convergence", "loo")
@@ -37,6 +38,8 @@ FORMATS = ("png", "svg")
 DPI = 120
 #: Residual arrows are drawn this many times their length (the figures say so).
 ARROW_SCALE = {1: 10.0, 2: 20.0}
+#: The length key beside the arrows shows an error of this many mm.
+KEY_MM = 1.0
 
 
 class ChainPlotData:
@@ -148,9 +151,12 @@ def fig_chains(result: CalibrationResult, data: ChainPlotData, stage: int):
         ax.plot(target[:, 0], target[:, 1], "o", mfc="none", color="C1", ms=8, label=names[1])
         ax.plot(pred[:, 0], pred[:, 1], ".", color="C0", ms=7, label=names[0])
         d = pred - target
-        ax.quiver(target[:, 0], target[:, 1], k * d[:, 0], k * d[:, 1], angles="xy",
-                  scale_units="xy", scale=1, color="C3", width=0.004,
-                  label=f"error, drawn ×{k:g}")  # fmt: skip
+        q = ax.quiver(target[:, 0], target[:, 1], k * d[:, 0], k * d[:, 1], angles="xy",
+                      scale_units="xy", scale=1, color="C3", width=0.004,
+                      label=f"error, drawn ×{k:g}")  # fmt: skip
+        # A length key: the arrow an error of KEY_MM would have.
+        ax.quiverkey(q, 0.12, 0.04, k * KEY_MM, f"{KEY_MM:g} mm error", labelpos="E",
+                     coordinates="axes", fontproperties={"size": 8})  # fmt: skip
         _label_points(ax, target, dx=2, dy=-14, color="0.3")
         ax.set_aspect("equal", adjustable="datalim")
         ax.set_xlabel("x, base frame (mm)")
@@ -206,10 +212,15 @@ def fig_convergence(result: CalibrationResult):
             ax.plot(np.arange(1, best.size + 1), best, color="C0", label="best F")
         med = np.asarray(c.get("median_F", []), dtype=float)
         if med.size:
+            every = f"every {CHUNK_GENERATIONS} generations"
             ax.plot(c["median_generation"], med, "o-", color="C1", ms=4,
-                    label="median F of the population")  # fmt: skip
+                    label=f"median F of the population ({every})")  # fmt: skip
         ax.axhline(s.F, color="0.3", ls="--", lw=1, label=f"after LM polish: {s.F:.4f} mm")
+        from matplotlib.ticker import ScalarFormatter
+
         ax.set_yscale("log")
+        ax.yaxis.set_major_formatter(ScalarFormatter())
+        ax.yaxis.set_minor_formatter(ScalarFormatter())
         ax.set_xlabel("DE generation")
         ax.set_ylabel("F (mm)")
         ax.set_title(f"{name}: {s.de.get('generations', '?')} generations")
