@@ -14,7 +14,7 @@ from jaxtyping import Float
 
 from ._atomic import write_bytes_atomic
 from .cli import _output_path, _positive_int
-from .dataset import save_dataset
+from .dataset import backup_path, save_dataset, update_dataset
 from .detect import DetectSettings, overlay_image, read_image
 from .errors import InputError
 from .simulate import encode_png
@@ -89,10 +89,13 @@ def _cmd_detect(args: argparse.Namespace) -> int:
     if overlay is not None:
         write_overlay(args.capture, found.image_px, found.depth_mm, overlay)
     new = fill_dataset(dataset, found)
-    if out is None:
-        save_dataset(new, args.dataset, keep_backup=True)
-        print(f"{dataset.n_landmarks} landmarks found; {args.dataset} updated "
-              f"(previous file kept as {args.dataset}.bak)")  # fmt: skip
+    if out is None or out.resolve() == Path(args.dataset).resolve():
+        # In place: only image_px and depth change; the file's comments and layout stay.
+        if update_dataset(args.dataset, new, keep_backup=True):
+            print(f"{dataset.n_landmarks} landmarks found; {args.dataset} updated "
+                  f"(previous file kept as {backup_path(args.dataset)})")  # fmt: skip
+        else:
+            print(f"{dataset.n_landmarks} landmarks found; {args.dataset} already holds them")
     else:
         save_dataset(new, out)
         print(f"{dataset.n_landmarks} landmarks found; dataset written to {out}")

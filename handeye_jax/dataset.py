@@ -39,7 +39,9 @@ errors, so a typo never goes unnoticed::
 Numbers may be written as integers or floats (booleans are not numbers); NaN and infinities
 are rejected. :func:`load_dataset` raises :class:`~handeye_jax.errors.InputError` naming the
 file and the field (``landmarks[3].depth``, ``camera.fx``, ``search.xt``…) for any violation.
-:func:`save_dataset` writes atomically and only what :func:`load_dataset` accepts.
+:func:`save_dataset` writes atomically and only what :func:`load_dataset` accepts;
+:func:`update_dataset` changes an existing file's values in place, keeping its comments, key
+order and layout, and keeps the previous file as ``DATASET.bak``.
 """
 
 from __future__ import annotations
@@ -48,6 +50,7 @@ import dataclasses
 import difflib
 import math
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -55,6 +58,9 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 import tomli_w
+import tomlkit
+import tomlkit.exceptions
+import tomlkit.items
 
 from . import geometry as geo
 from ._atomic import write_bytes_atomic, write_text_atomic
@@ -470,3 +476,127 @@ def save_dataset(ds: Dataset, path: str | Path, *, keep_backup: bool = False) ->
         write_text_atomic(path, text)
     except OSError as e:
         raise InputError(path, "", f"cannot write: {e}") from None
+
+
+# -- updating a file in place ------------------------------------------------------------------
+
+_BOM = b"\xef\xbb\xbf"
+_TABLES = (tomlkit.items.Table, tomlkit.items.InlineTable, tomlkit.TOMLDocument)
+_ARRAYS = (tomlkit.items.Array, tomlkit.items.AoT)
+
+
+def _plain(item: Any) -> Any:
+    """A tomlkit item as plain Python values (what tomllib would give)."""
+    return item.unwrap() if hasattr(item, "unwrap") else item
+
+
+def _same(old: Any, new: Any) -> bool:
+    """Equal values, numbers compared by value (``168`` is ``168.0``), booleans apart."""
+    old = _plain(old)
+    if isinstance(new, list):
+        return (isinstance(old, list) and len(old) == len(new)
+                and all(_same(a, b) for a, b in zip(old, new, strict=True)))  # fmt: skip
+    if isinstance(new, dict):
+        return (
+            isinstance(old, dict)
+            and old.keys() == new.keys()
+            and all(_same(old[k], new[k]) for k in new)
+        )
+    if isinstance(old, bool) or isinstance(new, bool):
+        return type(old) is type(new) and old == new
+    return old == new and type(old) in (int, float, str) and type(new) in (int, float, str)
+
+
+def _sync_table(node: Any, new: dict[str, Any]) -> None:
+    """Make the tomlkit table ``node`` hold ``new``, changing only the values that differ."""
+    for key in [k for k in node if k not in new]:
+        del node[key]
+    for key, value in new.items():
+        if key not in node:
+            node[key] = value
+        else:
+            _sync_entry(node, key, value)
+
+
+def _sync_entry(container: Any, key: Any, new: Any) -> None:
+    """Set ``container[key]`` to ``new`` in place: unchanged values keep their text."""
+    old = container[key]
+    if isinstance(new, dict) and isinstance(old, _TABLES):
+        _sync_table(old, new)
+    elif isinstance(new, list) and isinstance(old, _ARRAYS):
+        for i in range(min(len(old), len(new))):
+            _sync_entry(old, i, new[i])
+        while len(old) > len(new):
+            del old[len(old) - 1]
+        for value in new[len(old) :]:
+            old.append(value)
+    elif not _same(old, new):
+        container[key] = new  # tomlkit keeps the old value's indent and trailing comment
+
+
+def _edited_text(text: str, ds: Dataset) -> str:
+    """``text`` (a dataset's TOML) with its values changed to ``ds``'s, layout and comments kept."""
+    doc = tomlkit.parse(text)
+    new = _to_document(ds)
+    if "search" not in new and "search" in doc:
+        new["search"] = {}  # keep the (now empty) table and its comments
+    _sync_table(doc, new)
+    return tomlkit.dumps(doc)
+
+
+def update_dataset(
+    path: str | Path,
+    new: Dataset | Callable[[Dataset], Dataset],
+    *,
+    keep_backup: bool = True,
+) -> bool:
+    """Change the values of the dataset file at ``path`` to ``new``'s, keeping the file's text.
+
+    Only the values that differ are rewritten (with tomlkit), so the user's comments, key order
+    and layout survive. ``new`` may be a function of the dataset on disk (read once, so an edit
+    made since the caller loaded it is not undone). The current file must be a valid dataset;
+    the edited text is validated as :func:`load_dataset` would and must read back equal to
+    ``new`` before anything is written; then the previous bytes go to :func:`backup_path`
+    (with ``keep_backup``) and the file is replaced atomically, so a failure at any point
+    leaves it byte-identical. Raises :class:`InputError` naming the file and field.
+
+    Returns ``True`` if the file was written, ``False`` if it already held these values (then
+    nothing, not even the backup, is written).
+    """
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+        text = raw.decode("utf-8-sig")
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(path, "", f"cannot read file: {e}") from None
+    try:
+        current = _parse(tomllib.loads(text), path)
+    except tomllib.TOMLDecodeError as e:
+        raise InputError(path, "", f"not valid TOML: {e}") from None
+    ds = new(current) if callable(new) else new
+    if ds == current:
+        return False
+    try:
+        edited = _edited_text(text, ds)
+    except (tomlkit.exceptions.TOMLKitError, KeyError, TypeError, ValueError) as e:
+        why = f"cannot edit the file in place ({e}); nothing written"
+        raise InputError(path, "", why) from None
+    try:
+        check = _parse(tomllib.loads(edited), path)
+    except tomllib.TOMLDecodeError as e:
+        why = f"editing would not give valid TOML ({e}); nothing written"
+        raise InputError(path, "", why) from None
+    if check != ds:
+        raise InputError(path, "", "editing in place does not read back equal; nothing written")
+    data = (_BOM if raw.startswith(_BOM) else b"") + edited.encode("utf-8")
+    if keep_backup:
+        backup = backup_path(path)
+        try:
+            write_bytes_atomic(backup, raw)
+        except OSError as e:
+            raise InputError(backup, "", f"cannot keep the previous dataset: {e}") from None
+    try:
+        write_bytes_atomic(path, data)
+    except OSError as e:
+        raise InputError(path, "", f"cannot write: {e}") from None
+    return True

@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -189,3 +190,38 @@ def test_compilation_cache_goes_where_asked_and_can_be_turned_off(tmp_path):
     p = subprocess.run(base, capture_output=True, text=True, env=env)
     assert p.returncode == 0, p.stderr[-2000:]
     assert not (home / ".cache" / "handeye-jax").exists()
+
+
+def test_detect_in_place_keeps_the_users_comments(tmp_path, capsys):
+    from handeye_jax.dataset import load_dataset
+    from handeye_jax.simulate import PRESETS, simulate, write_twin
+    from handeye_jax.twin import draw_truth
+
+    write_twin(simulate(draw_truth(4), PRESETS["paper"], 4, n_heldout=1), tmp_path)
+    detected = load_dataset(tmp_path / "dataset.toml")
+    text = (tmp_path / "dataset.toml").read_text()
+    # The user's file: comments of every kind, and image_px and depth not measured yet.
+    text = re.sub(r"image_px = \[[^]]*\]", "image_px = [0.0, 0.0]  # to be detected", text)
+    text = re.sub(r"depth = [0-9.]+", "depth = 1  # to be detected", text)
+    text = "# rig of the lab, 3rd floor\n" + text.replace("[tablet]", "# measured\n[tablet]")
+    text = text.replace("[camera]", "[camera]  # from the factory", 1) + "# the end\n"
+    ds_path = tmp_path / "mine.toml"
+    ds_path.write_text(text)
+    capture, depth = str(tmp_path / "capture.png"), str(tmp_path / "depth.png")
+    assert main(["detect", capture, depth, "--dataset", str(ds_path)]) == 0
+    assert "previous file kept as" in capsys.readouterr().out
+    after = ds_path.read_text()
+    comment_lines = [line for line in text.splitlines() if "#" in line]
+    assert len(comment_lines) >= 2 * 9 + 4
+    for line in text.splitlines():  # every line is there, with a new value where detected
+        if "# to be detected" not in line:
+            assert line in after.splitlines(), line
+    assert after.count("# to be detected") == 2 * 9
+    assert load_dataset(ds_path) == detected
+    assert (tmp_path / "mine.toml.bak").read_text() == text
+    # Detected again: the file already holds these values, nothing is written.
+    before = ds_path.read_bytes()
+    assert main(["detect", capture, depth, "--dataset", str(ds_path)]) == 0
+    assert "already holds them" in capsys.readouterr().out
+    assert ds_path.read_bytes() == before
+    assert (tmp_path / "mine.toml.bak").read_text() == text

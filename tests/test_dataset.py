@@ -28,6 +28,7 @@ from handeye_jax.dataset import (
     known_search_names,
     load_dataset,
     save_dataset,
+    update_dataset,
 )
 from handeye_jax.errors import InputError
 from handeye_jax.models import AffinePair, model_registry
@@ -605,6 +606,144 @@ def test_saved_file_has_ordinary_permissions(paper: Dataset, tmp_path: Path):
     save_dataset(paper.replace(name="again"), target)
     assert stat.S_IMODE(target.stat().st_mode) == 0o640
     assert load_dataset(target).name == "again"
+
+
+# -- updating a user's file in place -------------------------------------------------------------
+
+
+def commented_paper_text() -> str:
+    """The paper's file as a user might keep it: comments everywhere, integers, a long array."""
+    text = PAPER.read_text(encoding="utf-8")
+    text = "# my rig: SR300 on the UR5, measured by A. N. Other\n" + text
+    text = text.replace("fx = 617.7", "fx = 617.7      # from the factory calibration")
+    text = text.replace(
+        "hand_position = [320.0, -70.0, 290.0]",
+        "hand_position = [\n  320,  # x\n  -70,  # y\n  290,  # z\n]",
+    )
+    text = text.replace("\n[tablet]", "\n# the Surface Pro 7\n[tablet]")
+    text = text.replace("depth = 168.2", "depth = 168.2  # re-read by hand")
+    text = text.replace("touch_error_px = [-3.0, 1.0]", "touch_error_px = [-3.0, 1.0]  # first try")
+    text = text.replace("hand_angle = 45.0\n", "hand_angle = 45.0\n# landmark 2 was retaken\n")
+    text += "\n# end of file: keep this note\n"
+    return text
+
+
+def comments_of(text: str) -> list[str]:
+    """Every comment (from ``#`` to the line's end) in a dataset's text, in order."""
+    return [line[line.index("#") :] for line in text.splitlines() if "#" in line]
+
+
+@pytest.fixture
+def commented(tmp_path: Path) -> Path:
+    path = tmp_path / "rig.toml"
+    path.write_text(commented_paper_text(), encoding="utf-8")
+    return path
+
+
+def test_update_keeps_every_comment_and_the_layout(commented: Path, paper: Dataset):
+    before = commented.read_bytes()
+    text = before.decode()
+    assert len(comments_of(text)) >= 20 and load_dataset(commented) == paper
+    rng = np.random.default_rng(3)
+    touched = paper.replace(touch_error_px=np.round(rng.uniform(-5, 5, (9, 2)), 3))
+    assert update_dataset(commented, touched) is True  # what the tablet writes
+    detected = touched.replace(image_px=paper.image_px + 0.125, depth_mm=paper.depth_mm - 0.5)
+    assert update_dataset(commented, detected) is True  # what detect writes
+    after = commented.read_text(encoding="utf-8")
+    assert comments_of(after) == comments_of(text)
+    assert load_dataset(commented) == detected
+    # Unchanged values keep their text: the integers, the multi-line array, the key order.
+    assert "hand_position = [\n  320,  # x\n  -70,  # y\n  290,  # z\n]" in after
+    assert after.splitlines()[:12] == text.splitlines()[:12]
+    assert "depth = 167.7  # re-read by hand" in after  # 168.2 - 0.5, comment kept
+    changed = [a for a, b in zip(text.splitlines(), after.splitlines(), strict=True) if a != b]
+    assert len(changed) == 9 * 3  # image_px, depth, touch_error_px of each landmark
+    assert (commented.parent / "rig.toml.bak").read_bytes() != before  # the previous version
+    assert load_dataset(commented.parent / "rig.toml.bak") == touched
+
+
+def test_update_with_the_same_values_writes_nothing(commented: Path, paper: Dataset):
+    before = commented.read_bytes()
+    assert update_dataset(commented, paper) is False
+    assert update_dataset(commented, lambda ds: ds.replace(name="paper2023")) is False
+    assert commented.read_bytes() == before
+    assert os.listdir(commented.parent) == ["rig.toml"]
+
+
+def test_update_from_a_function_of_the_file(commented: Path, paper: Dataset):
+    # An edit made on disk after the caller loaded the dataset survives the update.
+    edited = commented.read_text().replace("ppi = 267.0", "ppi = 270.0  # re-measured")
+    commented.write_text(edited)
+    assert update_dataset(commented, lambda ds: ds.replace(depth_mm=ds.depth_mm + 1.0))
+    again = load_dataset(commented)
+    assert again.tablet_ppi == 270.0 and np.allclose(again.depth_mm, paper.depth_mm + 1.0)
+    assert "ppi = 270.0  # re-measured" in commented.read_text()
+
+
+def test_update_changes_structure_too(commented: Path, paper: Dataset):
+    new = _first(paper, 7).replace(name="trimmed", search={"xt": (100.0, 250.0)})
+    assert update_dataset(commented, new)
+    assert load_dataset(commented) == new
+    assert "# my rig: SR300 on the UR5" in commented.read_text()
+    more = paper.replace(search={})
+    assert update_dataset(commented, more)
+    assert load_dataset(commented) == more
+    assert "# from the factory calibration" in commented.read_text()
+
+
+def test_update_keeps_a_byte_order_mark_and_crlf(tmp_path: Path, paper: Dataset):
+    path = tmp_path / "win.toml"
+    path.write_bytes(b"\xef\xbb\xbf" + commented_paper_text().replace("\n", "\r\n").encode())
+    new = paper.replace(touch_error_px=paper.touch_error_px + 1.0)
+    assert update_dataset(path, new)
+    raw = path.read_bytes()
+    assert raw.startswith(b"\xef\xbb\xbf") and b"\n" not in raw.replace(b"\r\n", b"")
+    assert load_dataset(path) == new
+
+
+def test_a_failed_update_leaves_the_file_byte_identical(
+    commented: Path, paper: Dataset, monkeypatch
+):
+    before = commented.read_bytes()
+    with pytest.raises(InputError, match=r"rig\.toml: landmarks\[2\]\.depth: must be > 0"):
+        update_dataset(commented, paper.replace(depth_mm=paper.depth_mm * [1, 1, -1, *[1] * 6]))
+    with pytest.raises(InputError, match=r"landmarks\[0\]\.image_px\[1\]: must be finite"):
+        update_dataset(commented, paper.replace(image_px=paper.image_px * [[1, np.nan]]))
+    assert commented.read_bytes() == before
+    assert os.listdir(commented.parent) == ["rig.toml"]
+
+    def full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(atomic_mod.os, "fsync", full)
+    with pytest.raises(InputError, match="cannot keep the previous dataset: .*No space left"):
+        update_dataset(commented, paper.replace(name="other"))
+    monkeypatch.undo()
+    assert commented.read_bytes() == before
+    assert os.listdir(commented.parent) == ["rig.toml"]  # no temporary file left
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(atomic_mod.os, "replace", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        update_dataset(commented, paper.replace(name="other"), keep_backup=False)
+    monkeypatch.undo()
+    assert commented.read_bytes() == before
+    assert os.listdir(commented.parent) == ["rig.toml"]
+
+
+def test_update_refuses_a_file_that_is_not_a_valid_dataset(commented: Path, paper: Dataset):
+    broken = commented.read_text().replace("scale = 2.0", "scale = -2.0")
+    commented.write_text(broken)
+    with pytest.raises(InputError, match=r"rig\.toml: tablet\.scale"):
+        update_dataset(commented, paper)
+    commented.write_text("not = [toml")
+    with pytest.raises(InputError, match="not valid TOML"):
+        update_dataset(commented, paper)
+    with pytest.raises(InputError, match="cannot read"):
+        update_dataset(commented.parent / "missing.toml", paper)
+    assert commented.read_text() == "not = [toml"
 
 
 # -- the error type -------------------------------------------------------------------------------
