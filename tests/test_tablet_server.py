@@ -1,5 +1,6 @@
 """The tablet server without a browser: strict posts, files never corrupted, one-line errors."""
 
+import errno
 import json
 import os
 import shutil
@@ -8,19 +9,35 @@ import socket
 import subprocess
 import sys
 import threading
+import time
 import urllib.error
 import urllib.request
 from pathlib import Path
 
 import numpy as np
 import pytest
+from test_dataset import commented_paper_text, comments_of
 
 from handeye_jax import load_dataset
 from handeye_jax.cli import main
-from handeye_jax.tablet import grid_targets, load_targets, make_server
+from handeye_jax.tablet import grid_targets, load_targets, make_server, serve
+from handeye_jax.tablet import server as server_mod
 from handeye_jax.tablet.posts import MAX_BODY_BYTES
+from handeye_jax.tablet.trials import format_summary
 
 PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
+
+
+def start(ds, **kwargs):
+    """A running server over ``ds`` on a free port (unless ``port`` is given)."""
+    server = make_server(ds, **{"port": 0, "quiet": True, **kwargs})
+    threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True).start()
+    return server
+
+
+def stop(server):
+    server.shutdown()
+    server.server_close()
 
 
 @pytest.fixture
@@ -28,12 +45,9 @@ def served(tmp_path):
     """A server on a free port over a copy of the paper's dataset; yields (url, dataset path)."""
     ds = tmp_path / "rig.toml"
     shutil.copy(PAPER, ds)
-    server = make_server(ds, port=0, quiet=True)
-    thread = threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True)
-    thread.start()
+    server = start(ds)
     yield server.url, ds
-    server.shutdown()
-    server.server_close()
+    stop(server)
 
 
 def request(url, body=None, headers=None, method=None):
@@ -105,6 +119,45 @@ def _bad_bodies(tablet_px):
     ]
 
 
+def test_a_calibration_post_keeps_the_users_comments(tmp_path):
+    ds = tmp_path / "rig.toml"
+    ds.write_text(commented_paper_text())
+    before = ds.read_bytes()
+    old = load_dataset(ds)
+    server = start(ds)
+    try:
+        tablet_px = old.tablet_px.tolist()
+        moved = calibration_body([[1.0, 1.0], *tablet_px[1:]], [[0.0, 0.0]] * 9)
+        status, _ = request(server.url + "api/calibration", moved)
+        assert status == 409 and ds.read_bytes() == before  # refused: byte-identical
+        errors = np.round(np.random.default_rng(5).uniform(-6, 6, (9, 2)), 3)
+        status, doc = request(server.url + "api/calibration", calibration_body(tablet_px, errors))
+        assert status == 200 and doc["written"] is True
+    finally:
+        stop(server)
+    after = ds.read_text()
+    assert comments_of(after) == comments_of(before.decode())
+    assert "# end of file: keep this note" in after and "  -70,  # y" in after
+    assert load_dataset(ds) == old.replace(touch_error_px=errors)
+    assert (tmp_path / "rig.toml.bak").read_bytes() == before
+
+
+def test_touches_of_another_datasets_landmarks_are_refused(served):
+    url, ds = served
+    before = ds.read_bytes()
+    status, session = request(url + "api/session")
+    tablet_px = session["dataset"]["tablet_px"]
+    body = calibration_body(tablet_px, [[1.0, 2.0]] * 9)
+    status, doc = request(url + "api/calibration", {**body, "key": "0123456789abcdef"})
+    assert status == 409 and doc["field"] == "key" and "another dataset" in doc["error"]
+    assert ds.read_bytes() == before
+    status, doc = request(url + "api/calibration", {**body, "key": ""})
+    assert status == 400 and doc["field"] == "key"
+    status, doc = request(url + "api/calibration", {**body, "key": session["dataset"]["key"]})
+    assert status == 200 and doc["written"] is True
+    np.testing.assert_array_equal(load_dataset(ds).touch_error_px, [[1.0, 2.0]] * 9)
+
+
 def test_bad_posts_get_4xx_and_leave_the_dataset_byte_identical(served):
     url, ds = served
     before = ds.read_bytes()
@@ -162,6 +215,126 @@ def test_evaluation_trials_saved_once_with_px_and_mm(served):
     assert status == 409
 
 
+def test_malformed_evaluation_posts_leave_the_trials_file_byte_identical(served):
+    url, ds = served
+    touch = {"m": 0, "target_px": [10.0, 20.0], "touch_px": [13.0, 24.0], "pointer_type": "pen"}
+    good = {"run_id": "t-1", "label": "stage 2", "targets": "grid", "touches": [touch]}
+    assert request(url + "api/evaluation", good)[0] == 200
+    trials = ds.parent / "rig.trials.json"
+    before = trials.read_bytes()
+    bad = [
+        (400, b"{not json"),
+        (400, {**good, "run_id": "t-2", "extra": 1}),
+        (400, {**good, "run_id": "t-2", "label": ""}),
+        (400, {**good, "run_id": "t-2", "label": "x" * 201}),
+        (400, {**good, "run_id": "t-2", "targets": "elsewhere"}),
+        (400, {**good, "run_id": "t-2", "touches": []}),
+        (400, {**good, "run_id": "t-2", "touches": [{**touch, "m": 1}]}),
+        (400, {**good, "run_id": "t-2", "touches": [{**touch, "touch_px": [1e9, 0.0]}]}),
+        (400, {**good, "run_id": "t-2", "touches": [{**touch, "pointer_type": None}]}),
+        (400, {**good, "run_id": "t-2", "touches": [{**touch, "target_px": [1.0, None]}]}),
+        (409, {**good, "run_id": "t-2", "targets": "file"}),  # no targets file was given
+        (413, {**good, "run_id": "t-2", "touches": [touch] * 1001}),
+    ]
+    for status, body in bad:
+        got, doc = request(url + "api/evaluation", body)
+        assert got == status, (body, doc)
+        assert doc["error"]
+    assert trials.read_bytes() == before
+    assert sorted(p.name for p in ds.parent.iterdir()) == ["rig.toml", "rig.trials.json"]
+
+
+def test_a_short_body_cannot_hold_a_thread(tmp_path):
+    ds = tmp_path / "rig.toml"
+    shutil.copy(PAPER, ds)
+    before = ds.read_bytes()
+    server = start(ds, request_timeout_s=0.5)
+    try:
+        port = server.server_address[1]
+        with socket.create_connection(("127.0.0.1", port), timeout=10) as raw:
+            raw.sendall(b"POST /api/calibration HTTP/1.1\r\nHost: x\r\n"
+                        b"Content-Type: application/json\r\nContent-Length: 100\r\n\r\n"
+                        b'{"run_id":')  # fmt: skip
+            t0 = time.monotonic()
+            answer = b""
+            while chunk := raw.recv(65536):  # until the server closes the connection
+                answer += chunk
+            waited = time.monotonic() - t0
+        assert answer.startswith(b"HTTP/1.0 408") or answer.startswith(b"HTTP/1.1 408"), answer
+        assert b"Content-Length" in answer and 0.4 < waited < 5
+        with socket.create_connection(("127.0.0.1", port), timeout=10) as idle:
+            t0 = time.monotonic()
+            assert idle.recv(100) == b""  # a connection that says nothing is closed too
+            assert time.monotonic() - t0 < 5
+        assert request(server.url + "api/session")[0] == 200  # and the server still serves
+    finally:
+        stop(server)
+    assert ds.read_bytes() == before
+
+
+def test_bind_failures_name_the_option_to_change(tmp_path, monkeypatch):
+    with pytest.raises(Exception, match=r"^--host: '192\.0\.2\.1' is not an address of this"):
+        make_server(PAPER, host="192.0.2.1", port=0, trials_path=tmp_path / "t.json")
+    for number, option, text in [
+        (errno.EACCES, "--port", "no permission to listen on 127.0.0.1:80"),
+        (errno.EADDRINUSE, "--port", "127.0.0.1:80 is in use"),
+        (errno.EADDRNOTAVAIL, "--host", "not an address of this PC"),
+    ]:
+
+        def refuse(*args, number=number, **kwargs):
+            raise OSError(number, os.strerror(number))
+
+        monkeypatch.setattr(server_mod.TabletServer, "__init__", refuse)
+        with pytest.raises(Exception, match=rf"^{option}: .*{text}") as e:
+            make_server(PAPER, port=80, trials_path=tmp_path / "t.json")
+        assert "\n" not in str(e.value)
+
+    def unknown(*args, **kwargs):
+        raise socket.gaierror(socket.EAI_NONAME, "Name or service not known")
+
+    monkeypatch.setattr(server_mod.TabletServer, "__init__", unknown)
+    with pytest.raises(Exception, match=r"^--host: cannot use 'tablet-pc\.lan'"):
+        make_server(PAPER, host="tablet-pc.lan", port=80, trials_path=tmp_path / "t.json")
+    assert not (tmp_path / "t.json").exists()
+
+
+def test_the_page_url_for_every_address_is_one_a_tablet_can_open(tmp_path, monkeypatch, capsys):
+    assert server_mod.page_urls("0.0.0.0", 8765, ["192.168.1.20", "10.0.0.7"]) == [
+        "http://192.168.1.20:8765/", "http://10.0.0.7:8765/",
+    ]  # fmt: skip
+    assert server_mod.page_urls("127.0.0.1", 8765) == ["http://127.0.0.1:8765/"]
+    assert server_mod.page_urls("::", 80, ["fe80::1"]) == ["http://[fe80::1]:80/"]
+    found = server_mod.lan_addresses()  # sends nothing; whatever this machine has
+    assert all(socket.inet_aton(a) and not a.startswith("127.") for a in found)
+
+    def interrupted(self, *args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(server_mod.TabletServer, "serve_forever", interrupted)
+    trials = tmp_path / "t.json"
+    monkeypatch.setattr(server_mod, "lan_addresses", lambda: ["192.168.1.20"])
+    assert serve(PAPER, host="0.0.0.0", port=0, quiet=True, trials_path=trials) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("tablet page: http://192.168.1.20:") and "0.0.0.0" not in lines[0]
+    assert "every address of this PC (0.0.0.0)" in lines[1] and "firewall" in lines[1]
+    monkeypatch.setattr(server_mod, "lan_addresses", lambda: [])
+    assert serve(PAPER, host="0.0.0.0", port=0, quiet=True, trials_path=trials) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert "http://THIS-PC:" in first and "no LAN address found" in first
+
+
+def test_the_trials_summary_gives_max_in_px_and_mm():
+    doc = {"trials": [
+        {"trial": 1, "label": "stage 2", "mean_px": 3.0, "max_px": 5.0, "mean_mm": 0.57,
+         "max_mm": 0.95},
+        {"trial": 2, "label": "stage 2", "mean_px": 2.0, "max_px": 4.0, "mean_mm": 0.38,
+         "max_mm": 0.76},
+    ]}  # fmt: skip
+    lines = format_summary(doc).splitlines()
+    assert lines[-2].split() == ["max", "in", "px", "5.00", "4.00", "4.50"]
+    assert lines[-1].split() == ["max", "in", "mm", "0.95", "0.76", "0.85"]
+
+
 def test_grid_endpoint_and_its_errors(served):
     url, _ = served
     status, doc = request(url + "api/grid?cols=3&rows=3&left=400&top=150&right=1040&bottom=550")
@@ -214,6 +387,32 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
         port = busy.getsockname()[1]
         assert main(["tablet", "--dataset", str(PAPER), "--port", str(port)]) == 2
     _one_error_line(capsys, "--port", str(port), "in use")
+
+    missing = tmp_path / "nope.toml"
+    assert main(["tablet", "--dataset", str(missing), "--port", "0"]) == 2
+    _one_error_line(capsys, "nope.toml", "cannot read")
+
+    for port, why in (("abc", "not a port number"), ("70000", "0 to 65535"), ("-1", "0 to")):
+        with pytest.raises(SystemExit) as e:
+            main(["tablet", "--dataset", str(PAPER), "--port", port])
+        assert e.value.code == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "--port" in err[0] and why in err[0], err
+
+    targets = tmp_path / "held_out.json"
+    for text, field in (
+        ("{not json", "cannot read targets"),
+        ('{"tablet_px": [[1, 2], [3]]}', "tablet_px[1]"),
+        ('{"tablet_px": [[1, 2], [-3, 4]]}', "tablet_px[1]"),
+        ('{"format": "x", "tablet_px": [[1, 2]]}', "format"),
+    ):
+        targets.write_text(text)
+        argv = ["tablet", "--dataset", str(PAPER), "--targets", str(targets), "--port", "0"]
+        assert main(argv) == 2
+        _one_error_line(capsys, "held_out.json", field)
+    assert main(["tablet", "--dataset", str(PAPER), "--targets", str(missing), "--port", "0"]) == 2
+    _one_error_line(capsys, "nope.toml")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["broken.toml", "held_out.json", "t.json"]
 
 
 def paper_result(path, dataset_name="paper2023"):

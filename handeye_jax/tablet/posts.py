@@ -22,6 +22,7 @@ MAX_SCREEN_PX = 16384.0
 POINTER_TYPES = ("pen", "touch", "mouse")
 TARGET_SOURCES = ("dataset", "file", "grid")
 MAX_LABEL_CHARS = 200
+MAX_KEY_CHARS = 64
 
 
 class PostError(ValueError):
@@ -43,12 +44,15 @@ class CalibrationPost:
         tablet_px: where the page drew each landmark, CSS px, ``(n, 2)``.
         touch_error_px: touched minus drawn position, CSS px, ``(n, 2)``.
         pointer_types: ``"pen"``, ``"touch"`` or ``"mouse"`` for each touch.
+        key: the fingerprint of the dataset the page drew (``/api/session``'s
+            ``dataset.key``), or ``None`` if the page did not send one.
     """
 
     run_id: str
     tablet_px: np.ndarray
     touch_error_px: np.ndarray
     pointer_types: tuple[str, ...]
+    key: str | None = None
 
 
 @dataclass(frozen=True)
@@ -84,12 +88,15 @@ def parse_json_body(body: bytes) -> Any:
         raise PostError(400, "", f"body is not valid UTF-8 JSON: {e}") from None
 
 
-def _object(x: Any, where: str, keys: tuple[str, ...]) -> dict[str, Any]:
+def _object(
+    x: Any, where: str, keys: tuple[str, ...], optional: tuple[str, ...] = ()
+) -> dict[str, Any]:
     if not isinstance(x, dict):
         raise PostError(400, where, f"must be a JSON object with keys {', '.join(keys)}")
     for k in x:
-        if k not in keys:
-            raise PostError(400, _join(where, k), f"unknown key; expected {', '.join(keys)}")
+        if k not in keys and k not in optional:
+            known = ", ".join((*keys, *optional))
+            raise PostError(400, _join(where, k), f"unknown key; expected {known}")
     for k in keys:
         if k not in x:
             raise PostError(400, _join(where, k), "missing")
@@ -138,8 +145,9 @@ def _index(x: Any, where: str, want: int) -> None:
 
 def parse_calibration(doc: Any, n_landmarks: int) -> CalibrationPost:
     """Validate a calibration post against a dataset of ``n_landmarks`` landmarks."""
-    doc = _object(doc, "", ("run_id", "touches"))
+    doc = _object(doc, "", ("run_id", "touches"), optional=("key",))
     run_id = _string(doc["run_id"], "run_id")
+    key = _string(doc["key"], "key", MAX_KEY_CHARS) if "key" in doc else None
     touches = _touches(doc["touches"], "touches", n_landmarks)
     drawn, errors, kinds = [], [], []
     for i, t in enumerate(touches):
@@ -156,7 +164,7 @@ def parse_calibration(doc: Any, n_landmarks: int) -> CalibrationPost:
         kinds.append(_choice(t["pointer_type"], f"{where}.pointer_type", POINTER_TYPES))
         drawn.append(xy)
         errors.append(d)
-    return CalibrationPost(run_id, np.array(drawn), np.array(errors), tuple(kinds))
+    return CalibrationPost(run_id, np.array(drawn), np.array(errors), tuple(kinds), key)
 
 
 def parse_evaluation(doc: Any) -> EvaluationPost:

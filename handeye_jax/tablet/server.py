@@ -8,10 +8,12 @@ Built on the standard library's :class:`http.server.ThreadingHTTPServer`. Routes
 * ``GET /api/grid?cols=3&rows=3&left=400&top=150&right=1040&bottom=550``: a new grid of
   targets, CSS px, snake order.
 * ``POST /api/calibration``: every landmark's ``touch_error_px``; written into the dataset
-  (atomic, previous file kept as ``DATASET.bak``).
+  in place, its comments and layout kept (atomic, previous file kept as ``DATASET.bak``).
 * ``POST /api/evaluation``: one trial of touches; appended to the trials file (atomic).
 
 A refused post gets a 4xx JSON answer ``{"error": ..., "field": ...}`` and changes no file.
+A connection that sends nothing, or less body than its ``Content-Length``, for
+``request_timeout_s`` (30 s) is answered 408 or closed, so it cannot hold a thread forever.
 """
 
 from __future__ import annotations
@@ -41,6 +43,12 @@ from .targets import grid_targets, load_targets
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
+DEFAULT_REQUEST_TIMEOUT_S = 30.0
+# Hosts that mean "every address of this PC": the page's URL needs one of its LAN addresses.
+_WILDCARD_HOSTS = ("", "0.0.0.0", "::")
+# Private addresses a UDP socket is "connected" to (nothing is sent) to learn which local
+# address the PC would use to reach each private network: its LAN address(es).
+_PROBE_ADDRESSES = ("10.254.254.254", "172.31.254.254", "192.168.254.254")
 _STATIC = {
     "/": ("index.html", "text/html; charset=utf-8"),
     "/index.html": ("index.html", "text/html; charset=utf-8"),
@@ -96,7 +104,7 @@ class TabletApp:
                 "name": ds.name,
                 "tablet_px": ds.tablet_px.tolist(),
                 "touch_error_px": ds.touch_error_px.tolist(),
-                "key": _key(str(self.dataset_path.resolve()), ds.tablet_px.tolist()),
+                "key": self._dataset_key(ds.tablet_px),
             }
         if self.targets_px is not None:
             out["targets_file"] = {
@@ -112,8 +120,14 @@ class TabletApp:
         if self.dataset_path is None:
             raise posts.PostError(404, "", "no dataset: start the server with --dataset")
         with self.lock:
-            n = load_dataset(self.dataset_path).n_landmarks
-            post = posts.parse_calibration(doc, n)
+            ds = load_dataset(self.dataset_path)
+            post = posts.parse_calibration(doc, ds.n_landmarks)
+            if post.key is not None and post.key != self._dataset_key(ds.tablet_px):
+                raise posts.PostError(
+                    409, "key",
+                    f"these touches were measured on another dataset's landmarks, not on "
+                    f"{self.dataset_path}'s; discard them, or serve that dataset again",
+                )  # fmt: skip
             written = apply_touch_errors(self.dataset_path, post)
         dist = np.linalg.norm(post.touch_error_px, axis=1)
         mm = mm_per_tablet_px(self.ppi, self.scale)
@@ -148,6 +162,10 @@ class TabletApp:
         keep = ("trial", "label", "mean_px", "max_px", "mean_mm", "max_mm")
         return {"saved": str(self.trials_path), **{k: trial[k] for k in keep}, "summary": summary}
 
+    def _dataset_key(self, tablet_px: np.ndarray) -> str:
+        assert self.dataset_path is not None
+        return _key(str(self.dataset_path.resolve()), tablet_px.tolist())
+
     def _dataset_points(self) -> np.ndarray | None:
         if self.dataset_path is None:
             return None
@@ -164,9 +182,18 @@ class TabletServer(ThreadingHTTPServer):
 
     daemon_threads = True
 
-    def __init__(self, address: tuple[str, int], app: TabletApp, quiet: bool = False):
+    def __init__(
+        self,
+        address: tuple[str, int],
+        app: TabletApp,
+        quiet: bool = False,
+        request_timeout_s: float = DEFAULT_REQUEST_TIMEOUT_S,
+    ):
         self.app = app
         self.quiet = quiet
+        self.request_timeout_s = request_timeout_s
+        if ":" in address[0]:
+            self.address_family = socket.AF_INET6
         super().__init__(address, _Handler)
 
     @property
@@ -179,9 +206,46 @@ def _url_host(host: str) -> str:
     return f"[{host}]" if ":" in host else host
 
 
+def lan_addresses() -> list[str]:
+    """This PC's IPv4 addresses on its local networks, found without sending anything.
+
+    A UDP socket ``connect`` only asks the routing table which local address would reach a
+    private network; no packet leaves the PC. Loopback addresses are left out.
+    """
+    found: list[str] = []
+    for probe in _PROBE_ADDRESSES:
+        try:
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+                s.connect((probe, 9))
+                found.append(s.getsockname()[0])
+        except OSError:
+            continue
+    if not found:  # no route to any private network: the name in /etc/hosts, if any
+        try:
+            found.append(socket.gethostbyname(socket.gethostname()))
+        except OSError:
+            pass
+    return [a for a in dict.fromkeys(found) if not a.startswith("127.") and a != "0.0.0.0"]
+
+
+def page_urls(host: str, port: int, addresses: list[str] | None = None) -> list[str]:
+    """URLs a tablet can open for a server on ``host:port``; a wildcard host gives one per LAN
+    address (``addresses``, found by :func:`lan_addresses` when not given), maybe none."""
+    if host not in _WILDCARD_HOSTS:
+        return [f"http://{_url_host(host)}:{port}/"]
+    addresses = lan_addresses() if addresses is None else addresses
+    return [f"http://{_url_host(a)}:{port}/" for a in addresses]
+
+
 class _Handler(BaseHTTPRequestHandler):
     server: TabletServer
     server_version = "handeye-jax-tablet"
+
+    def setup(self) -> None:
+        # Every read and write on the connection times out: a client that stops sending
+        # (a short body, a half-open link) frees its thread after request_timeout_s.
+        self.timeout = self.server.request_timeout_s
+        super().setup()
 
     def log_message(self, format: str, *args: Any) -> None:
         if not self.server.quiet:
@@ -258,7 +322,17 @@ class _Handler(BaseHTTPRequestHandler):
             raise posts.PostError(
                 413, "", f"body of {length} bytes is over the limit of {posts.MAX_BODY_BYTES}"
             )
-        body = self.rfile.read(length)
+        try:
+            body = self.rfile.read(length)
+        except TimeoutError:
+            self.close_connection = True
+            raise posts.PostError(
+                408, "", f"the body stopped short of its Content-Length ({length} bytes) for "
+                f"{self.server.request_timeout_s:g} s",
+            ) from None  # fmt: skip
+        if len(body) < length:
+            self.close_connection = True
+            raise posts.PostError(400, "", f"body of {len(body)} bytes, not {length}")
         if kind != "application/json":
             raise posts.PostError(415, "", f"Content-Type must be application/json (got {kind!r})")
         return body
@@ -305,6 +379,7 @@ def make_server(
     ppi: float | None = None,
     scale: float | None = None,
     quiet: bool = False,
+    request_timeout_s: float = DEFAULT_REQUEST_TIMEOUT_S,
 ) -> TabletServer:
     """Check the inputs and bind the tablet server; call ``serve_forever()`` on it to run.
 
@@ -320,8 +395,11 @@ def make_server(
         ppi, scale: the tablet's px per inch and display scale; taken from the dataset when
             not given, required without one.
         quiet: do not log requests to standard error.
+        request_timeout_s: how long a connection may stay silent (no request, or a body
+            shorter than its Content-Length) before the server answers 408 or closes it.
 
-    Raises :class:`InputError` naming the file or option for bad input, a port in use included.
+    Raises :class:`InputError` naming the file or option for bad input: ``--port`` for a port
+    in use or not allowed, ``--host`` for an address that is not this PC's.
     """
     ds_path = Path(dataset) if dataset is not None else None
     ds = load_dataset(ds_path) if ds_path is not None else None
@@ -359,16 +437,30 @@ def make_server(
     )
     if not 0 <= port <= 65535:
         raise InputError(None, "--port", f"must be 0 to 65535 (got {port})")
+    if not request_timeout_s > 0:
+        raise InputError(None, "request_timeout_s", f"must be > 0 s (got {request_timeout_s})")
     try:
-        return TabletServer((host, port), app, quiet=quiet)
+        return TabletServer((host, port), app, quiet=quiet, request_timeout_s=request_timeout_s)
     except socket.gaierror as e:
         raise InputError(None, "--host", f"cannot use {host!r}: {e.strerror}") from None
     except OSError as e:
-        if e.errno == errno.EADDRINUSE:
-            msg = f"{host}:{port} is in use by another program; choose another --port"
-        else:
-            msg = f"cannot listen on {host}:{port}: {e.strerror or e}"
-        raise InputError(None, "--port" if e.errno == errno.EADDRINUSE else "--host", msg) from None
+        raise _bind_error(e, host, port) from None
+
+
+def _bind_error(e: OSError, host: str, port: int) -> InputError:
+    """The one-line error for a failed bind, naming the option to change."""
+    where = f"{_url_host(host)}:{port}"
+    if e.errno == errno.EADDRINUSE:
+        return InputError(None, "--port", f"{where} is in use by another program; choose "
+                          "another --port")  # fmt: skip
+    if e.errno in (errno.EACCES, errno.EPERM):
+        return InputError(None, "--port", f"no permission to listen on {where} (ports below "
+                          f"1024 need administrator rights); choose another --port, e.g. "
+                          f"{DEFAULT_PORT}")  # fmt: skip
+    if e.errno == errno.EADDRNOTAVAIL:
+        return InputError(None, "--host", f"{host!r} is not an address of this PC; use "
+                          "127.0.0.1, 0.0.0.0 or one of its LAN addresses")  # fmt: skip
+    return InputError(None, "--host", f"cannot listen on {where}: {e.strerror or e}")
 
 
 def _result_info(path: str | Path) -> dict[str, Any]:
@@ -382,7 +474,22 @@ def serve(dataset: str | Path | None = None, **kwargs: Any) -> int:
     """Run the tablet server until Ctrl-C; arguments as for :func:`make_server`. Returns 0."""
     server = make_server(dataset, **kwargs)
     app = server.app
-    print(f"tablet page: {server.url}  (open it on the tablet, full screen, zoom 100%)")
+    host, port = server.server_address[:2]
+    requested = kwargs.get("host", DEFAULT_HOST)
+    urls = page_urls(requested, port) if requested in _WILDCARD_HOSTS else [server.url]
+    if urls:
+        print(f"tablet page: {urls[0]}  (open it on the tablet, full screen, zoom 100%)")
+        for url in urls[1:]:
+            print(f"  or: {url}  (this PC's address on another network)")
+    else:
+        print(f"tablet page: http://THIS-PC:{port}/  (no LAN address found: use this PC's "
+              "address from `ip addr` or `ipconfig`)")  # fmt: skip
+    if requested in _WILDCARD_HOSTS:
+        print(f"  listening on every address of this PC ({requested or 'all'}), port {port}: "
+              "the tablet must be on the same network, and a firewall must let TCP port "
+              f"{port} in; on this PC itself, http://127.0.0.1:{port}/")  # fmt: skip
+    elif host.startswith("127.") or host == "::1":
+        print("  only this PC can open it; to let a tablet in, start with --host 0.0.0.0")
     print(
         f"tablet: {app.ppi:g} ppi, scale {app.scale:g}: "
         f"1 tablet px = {mm_per_tablet_px(app.ppi, app.scale):.4f} mm"

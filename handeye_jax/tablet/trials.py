@@ -155,6 +155,8 @@ def format_summary(doc: dict[str, Any]) -> str:
             cells = [f"{t[f'mean_{unit}']:6.2f}" for t in s["trials"]]
             avg = s["average"][f"mean_{unit}"]
             lines.append(f"mean in {unit}   " + " ".join(cells) + f"  {avg:7.2f}")
-        worst = max(t["max_mm"] for t in s["trials"])
-        lines.append(f"max over all touches: {worst:.2f} mm")
+        for unit in ("px", "mm"):
+            cells = [f"{t[f'max_{unit}']:6.2f}" for t in s["trials"]]
+            avg = s["average"][f"max_{unit}"]
+            lines.append(f"max in {unit}    " + " ".join(cells) + f"  {avg:7.2f}")
     return "\n".join(lines)
