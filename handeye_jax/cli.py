@@ -202,13 +202,15 @@ def build_parser() -> argparse.ArgumentParser:
         "tablet",
         help="serve the tablet page: draw landmarks, record touches, measure touching errors",
         description="Serve the page the tablet shows. Calibration mode writes each landmark's "
-        "touch_error_px (tablet px) into the dataset (previous file kept as DATASET.bak); "
-        "evaluation mode saves trials of touches with their mean and max error in px and mm.",
+        "touch_error_px (tablet px) into the dataset, changing only those values so its "
+        "comments stay (previous file kept as DATASET.bak); evaluation mode saves trials of "
+        "touches with their mean and max error in px and mm.",
     )
     tab.add_argument("--dataset", help="dataset whose landmarks to draw and touch errors to write")
     tab.add_argument(
         "--host", default="127.0.0.1",
-        help="address to listen on (default 127.0.0.1; 0.0.0.0 lets a tablet on the LAN in)",
+        help="address to listen on (default 127.0.0.1; 0.0.0.0 lets a tablet on the LAN in, "
+        "and the page's URL is printed with this PC's LAN address)",
     )  # fmt: skip
     tab.add_argument("--port", type=_port, default=8765, help="TCP port (default 8765)")
     tab.add_argument("--targets", metavar="TARGETS.json", help="evaluation targets, tablet px")

@@ -214,6 +214,11 @@ def test_evaluation_trials_report_mean_and_max_in_px_and_mm(page, tablet):
     rows = [r.split("\t") for r in page.inner_text("#summary").splitlines()]
     average_mm = next(r for r in rows if r[0] == "in mm")[-1]
     assert float(average_mm) == pytest.approx(np.mean(means) * mm, abs=0.01)
+    max_px = [float(v) for v in next(r for r in rows if r[0] == "max px")[1:]]
+    max_mm = [float(v) for v in next(r for r in rows if r[0] == "max mm")[1:]]
+    assert max_px[-1] == pytest.approx(np.mean(max_px[:2]), abs=0.01)
+    np.testing.assert_allclose(np.array(max_mm), np.array(max_px) * mm, atol=0.01)
+    assert max_px[0] == pytest.approx(np.hypot(*offsets(len(targets), 9).T).max(), abs=0.01)
 
 
 def test_a_display_scale_other_than_the_datasets_is_warned_about(browser, tablet):
@@ -224,3 +229,147 @@ def test_a_display_scale_other_than_the_datasets_is_warned_about(browser, tablet
         assert "devicePixelRatio is 1.25" in warning and "scale is 2" in warning
     finally:
         page.context.close()
+
+
+def marked_pixels(page):
+    """How many device pixels of the board, outside the panel, are not white."""
+    rgb = np.asarray(Image.open(io.BytesIO(page.screenshot())).convert("RGB"))
+    box = page.locator("#panel").bounding_box()
+    dpr = page.evaluate("devicePixelRatio")
+    marked = rgb.min(axis=2) < 250
+    x0, y0 = int(box["x"] * dpr) - 2, int(box["y"] * dpr) - 2
+    x1, y1 = int((box["x"] + box["width"]) * dpr) + 2, int((box["y"] + box["height"]) * dpr) + 2
+    marked[max(0, y0) : y1, max(0, x0) : x1] = False
+    return int(marked.sum())
+
+
+def test_rings_and_numbers_can_be_turned_off_leaving_only_the_dots(page, tablet):
+    _, ds_path, _ = tablet
+    ds = load_dataset(ds_path)
+    assert page.is_checked("#marks")  # on by default
+    with_marks = marked_pixels(page)
+    page.uncheck("#marks")
+    assert_dots_at(page, ds.tablet_px)
+    dot_side = round(SCALE)  # one tablet px is SCALE x SCALE device px
+    assert marked_pixels(page) == ds.n_landmarks * dot_side**2  # nothing but the dots
+    assert with_marks > 10 * ds.n_landmarks * dot_side**2  # the rings and numbers were there
+    page.click("#start-calibration")  # a run keeps it off: its current ring is not drawn
+    assert marked_pixels(page) == ds.n_landmarks * dot_side**2
+    page.reload()  # remembered in this browser
+    page.wait_for_selector("#tablet-info:not(:empty)")
+    assert not page.is_checked("#marks")
+    assert_dots_at(page, ds.tablet_px)
+    assert marked_pixels(page) == ds.n_landmarks * dot_side**2
+    page.check("#marks")
+    assert marked_pixels(page) > with_marks  # the current landmark's ring is bigger and blue
+
+
+class Restartable:
+    """A tablet server that restarts on the same port (the page's origin) with a dataset."""
+
+    def __init__(self, dataset):
+        self.server = make_server(dataset, port=0, quiet=True)
+        self.port = self.server.server_address[1]
+        threading.Thread(target=self.server.serve_forever, args=(0.05,), daemon=True).start()
+
+    def restart(self, dataset, page):
+        self.stop()
+        self.server = make_server(dataset, port=self.port, quiet=True)
+        threading.Thread(target=self.server.serve_forever, args=(0.05,), daemon=True).start()
+        page.reload()
+        page.wait_for_selector("#tablet-info:not(:empty)")
+        page.wait_for_function(
+            "p => (JSON.parse(localStorage.getItem('handeye-jax.tablet/1:session')) || {})"
+            ".dataset.path === p", arg=str(dataset))  # fmt: skip
+
+    def stop(self):
+        self.server.shutdown()
+        self.server.server_close()
+
+
+def two_datasets(tmp_path):
+    """Two dataset files with the same landmarks (the paper's), and their bytes."""
+    a, b = tmp_path / "a" / "rig.toml", tmp_path / "b" / "rig.toml"
+    for path in (a, b):
+        path.parent.mkdir()
+        shutil.copy(PAPER, path)
+    return a, b, {path: path.read_bytes() for path in (a, b)}
+
+
+def test_a_run_of_another_dataset_is_not_resumed_silently(browser, tmp_path):
+    """The server restarted on another dataset: the stored run is shown, kept or discarded."""
+    a, b, originals = two_datasets(tmp_path)
+    server = Restartable(a)
+    page = open_page(browser, server.server.url)
+    page.on("dialog", lambda dialog: dialog.accept())
+
+    def restart(dataset):
+        server.restart(dataset, page)
+
+    try:
+        ds = load_dataset(a)
+        page.click("#start-calibration")
+        for m in range(3):
+            pen(page, ds.tablet_px[m] + 1.0)
+        assert "landmark 3 (3 of 9 done)" in prompt(page)
+
+        restart(b)  # another dataset: the run is not resumed
+        page.wait_for_selector("#stale:not([hidden])")
+        text = page.inner_text("#stale")
+        assert "calibration of paper2023, 3 of 9 touched" in text and str(b) in text
+        assert page.is_hidden("#run") and page.is_hidden("#menu")
+        pen(page, ds.tablet_px[3])  # touches go nowhere while the operator decides
+        page.click("#stale-keep")
+        assert page.is_hidden("#stale") and page.is_visible("#menu")
+        assert page.evaluate("localStorage.getItem('handeye-jax.tablet/1:run')") is None
+
+        restart(a)  # its own dataset again: the kept run resumes where it was
+        page.wait_for_selector("#run:not([hidden])")
+        assert "landmark 3 (3 of 9 done)" in prompt(page) and page.is_hidden("#stale")
+        assert "resumed the calibration run" in page.inner_text("#status")
+
+        restart(b)
+        page.wait_for_selector("#stale:not([hidden])")
+        page.click("#stale-discard")
+        assert page.is_hidden("#stale") and page.is_visible("#menu")
+        page.click("#start-calibration")  # a fresh run on b's dataset
+        assert "landmark 0 (0 of 9 done)" in prompt(page)
+        assert page.evaluate("localStorage.getItem('handeye-jax.tablet/1:parked')") == "[]"
+        restart(a)  # the run of a was discarded: nothing resumes, b's new run is the stranger
+        page.wait_for_selector("#stale:not([hidden])")
+        assert "0 of 9 touched" in page.inner_text("#stale")
+        assert page.errors == []
+    finally:
+        page.context.close()
+        server.stop()
+    assert {path: path.read_bytes() for path in (a, b)} == originals
+
+
+def test_touches_waiting_for_another_dataset_are_held_not_sent(browser, tmp_path):
+    a, b, originals = two_datasets(tmp_path)
+    server = Restartable(a)
+    page = open_page(browser, server.server.url)
+    try:
+        ds = load_dataset(a)
+        d = offsets(ds.n_landmarks, seed=11)
+        page.route("**/api/**", lambda route: route.abort())  # the Wi-Fi drops
+        page.click("#start-calibration")
+        for m in range(ds.n_landmarks):
+            pen(page, ds.tablet_px[m] + d[m])
+        page.click("#send")
+        page.wait_for_selector("#status.error")
+        page.unroute("**/api/**")
+        server.restart(b, page)  # back, but serving b: a's touches must not land in b
+        page.wait_for_selector("#outbox li.held")
+        assert "another dataset" in page.inner_text("#outbox")
+        page.wait_for_timeout(500)
+        assert b.read_bytes() == originals[b] and not (b.parent / "rig.toml.bak").exists()
+        server.restart(a, page)  # a again: delivered
+        wait_saved(page)
+        assert np.abs(load_dataset(a).touch_error_px - d).max() <= 0.5
+        assert page.locator("#outbox li").count() == 0
+        assert page.errors == []
+    finally:
+        page.context.close()
+        server.stop()
+    assert b.read_bytes() == originals[b]

@@ -11,6 +11,9 @@ const app = {
   session: load("session", null), // last session seen, so a reload works with the server down
   run: load("run", null),         // the run in progress
   outbox: load("outbox", []),     // finished runs the server has not acknowledged yet
+  parked: load("parked", []),     // runs kept for a dataset the server does not serve now
+  marks: load("marks", true),     // draw the faint rings and numbers beside the dots
+  stale: false,                   // app.run belongs to another dataset: the operator decides
   summary: null,
   flushing: false,
   retryTimer: null,
@@ -47,10 +50,64 @@ function mmPerPx() {
   return app.session ? app.session.tablet.mm_per_px : NaN;
 }
 
+// -- which dataset a run belongs to ---------------------------------------------------------
+
+// The fingerprint of the landmarks a run or outbox item was measured on, as the current
+// session names them: the dataset's key, the targets file's key, or undefined (a grid, or no
+// session yet), in which case there is nothing to compare.
+function currentKey(what) {
+  const s = app.session;
+  if (!s) return undefined;
+  if (what.kind === "calibration" || what.source === "dataset") return s.dataset ? s.dataset.key : null;
+  if (what.source === "file") return s.targets_file ? s.targets_file.key : null;
+  return undefined;
+}
+
+function belongsElsewhere(what) {
+  const key = currentKey(what);
+  return !!what.key && key !== undefined && key !== what.key;
+}
+
+// After a session arrives: a stored run of another dataset is not resumed silently, and a
+// run kept for this session's dataset comes back.
+function checkRunKeys() {
+  app.stale = !!app.run && belongsElsewhere(app.run);
+  if (app.run) return;
+  const i = app.parked.findIndex((r) => r.key && currentKey(r) === r.key);
+  if (i < 0) return;
+  app.run = app.parked[i];
+  app.parked.splice(i, 1);
+  store("run", app.run); // first into the run, then out of the parked list: never in neither
+  store("parked", app.parked);
+  showOutbox(`resumed the ${app.run.kind} run kept for ${app.run.name || "these targets"}`, "ok");
+}
+
+function describeRun(run) {
+  const done = run.touches.filter(Boolean).length;
+  const what = run.kind === "calibration" ? `calibration of ${run.name}` : `${run.label} trial`;
+  return `${what}, ${done} of ${run.targets.length} touched, started ${run.started}`;
+}
+
+function discardStale() {
+  if (!confirm("Discard this run? Its touches are lost.")) return;
+  app.run = null;
+  app.stale = false;
+  save();
+}
+
+function parkStale() {
+  app.parked.push(app.run);
+  store("parked", app.parked); // first into the parked list, then out of the run
+  app.run = null;
+  app.stale = false;
+  save();
+  showOutbox("run kept in this browser: it resumes when the server serves its dataset again", "ok");
+}
+
 // -- drawing --------------------------------------------------------------------------------
 
 function targetsOnScreen() {
-  if (app.run) return app.run.targets;
+  if (app.run && !app.stale) return app.run.targets;
   const ds = app.session && app.session.dataset;
   return ds ? ds.tablet_px : [];
 }
@@ -68,19 +125,21 @@ function draw() {
   ctx.fillStyle = "#fff";
   ctx.fillRect(0, 0, canvas.width, canvas.height);
   const targets = targetsOnScreen();
-  const run = app.run;
+  const run = app.stale ? null : app.run;
   ctx.font = `${Math.round(12 * dpr)}px system-ui, sans-serif`;
   targets.forEach(([x, y], m) => {
     const cx = x * dpr, cy = y * dpr;
     const current = run && run.current === m;
     ctx.lineWidth = Math.max(1, dpr);
-    ctx.strokeStyle = current ? "#2a6fdb" : "#e0e0e0";
-    ctx.beginPath();
-    ctx.arc(cx, cy, (current ? 22 : 12) * dpr, 0, 2 * Math.PI);
-    ctx.stroke();
-    ctx.fillStyle = current ? "#2a6fdb" : "#9a9a9a";
-    const off = (current ? 18 : 10) * dpr;
-    ctx.fillText(String(m), cx + off, cy - off);
+    if (app.marks) { // the faint ring and the number; off, only the one-pixel dot is left
+      ctx.strokeStyle = current ? "#2a6fdb" : "#e0e0e0";
+      ctx.beginPath();
+      ctx.arc(cx, cy, (current ? 22 : 12) * dpr, 0, 2 * Math.PI);
+      ctx.stroke();
+      ctx.fillStyle = current ? "#2a6fdb" : "#9a9a9a";
+      const off = (current ? 18 : 10) * dpr;
+      ctx.fillText(String(m), cx + off, cy - off);
+    }
     const t = run && run.touches[m];
     if (t) {
       ctx.strokeStyle = "#e0301e"; // where the pen landed
@@ -142,11 +201,21 @@ function showWarnings() {
       "use full screen, or draw the landmarks inside the page.");
   }
   if (s && s.result && s.result.note) notes.push(`Result: ${s.result.note}.`);
+  const box2 = $("stale");
+  box2.hidden = !app.stale;
+  if (app.stale) {
+    const ds = s && s.dataset;
+    $("stale-text").textContent =
+      `The run stored in this browser (${describeRun(app.run)}) was measured on other ` +
+      `landmarks than the server's now (${ds ? ds.name + ", " + ds.path : "no dataset"}): ` +
+      "the server was restarted with another dataset. It is not resumed here. Discard it, or " +
+      "keep it for its own dataset (it resumes when the server serves that dataset again).";
+  }
   const box = $("warning");
   box.hidden = notes.length === 0;
   box.textContent = notes.join(" ");
   box.dataset.mismatch = s && Math.abs(dpr - s.tablet.scale) > 0.005 ? "1" : "0";
-  if (notes.length) $("panel").classList.remove("folded");
+  if (notes.length || app.stale) $("panel").classList.remove("folded");
 }
 
 function showInfo() {
@@ -170,9 +239,10 @@ function showInfo() {
 }
 
 function showRun() {
-  const run = app.run;
-  $("menu").hidden = !!run;
+  const run = app.stale ? null : app.run;
+  $("menu").hidden = !!app.run;
   $("run").hidden = !run;
+  $("marks").checked = app.marks;
   if (!run) return;
   const n = run.targets.length;
   const done = run.touches.filter(Boolean).length;
@@ -227,14 +297,22 @@ function showOutbox(message, kind) {
   }
   const items = app.outbox.map((item) => {
     const li = document.createElement("li");
+    const elsewhere = !item.rejected && belongsElsewhere(item);
     li.textContent = `${item.what}: ` +
-      (item.rejected ? `refused (${item.rejected.status}): ${item.rejected.error}` : "waiting for the server");
-    if (item.rejected) {
-      li.className = "rejected";
+      (item.rejected ? `refused (${item.rejected.status}): ${item.rejected.error}`
+        : elsewhere ? "measured on another dataset's landmarks: kept until the server serves it again"
+          : "waiting for the server");
+    if (item.rejected || elsewhere) {
+      li.className = item.rejected ? "rejected" : "held";
       const b = document.createElement("button");
       b.type = "button";
       b.textContent = "discard";
-      b.onclick = () => { app.outbox = app.outbox.filter((o) => o !== item); store("outbox", app.outbox); showOutbox(); };
+      b.onclick = () => {
+        if (elsewhere && !confirm("Discard these touches? They are lost.")) return;
+        app.outbox = app.outbox.filter((o) => o !== item);
+        store("outbox", app.outbox);
+        showOutbox();
+      };
       li.appendChild(b);
     }
     return li;
@@ -252,13 +330,15 @@ function showSummary(summary) {
     const head = table.insertRow();
     const th = document.createElement("th");
     th.colSpan = b.trials.length + 2;
-    th.textContent = `${b.label}: mean touching error`;
+    th.textContent = `${b.label}: touching error`;
     head.appendChild(th);
     const rows = [["trial", ...b.trials.map((t) => t.trial), "average"]];
     for (const u of ["px", "mm"]) {
       rows.push([`in ${u}`, ...b.trials.map((t) => fmt(t[`mean_${u}`])), fmt(b.average[`mean_${u}`])]);
     }
-    rows.push(["max mm", ...b.trials.map((t) => fmt(t.max_mm)), fmt(b.average.max_mm)]);
+    for (const u of ["px", "mm"]) {
+      rows.push([`max ${u}`, ...b.trials.map((t) => fmt(t[`max_${u}`])), fmt(b.average[`max_${u}`])]);
+    }
     for (const r of rows) {
       const tr = table.insertRow();
       tr.className = "summary-row";
@@ -309,12 +389,15 @@ async function startEvaluation() {
       return showOutbox("cannot reach the server to make the grid", "error");
     }
   }
-  startRun("evaluation", targets, { source, label: $("trial-label").value.trim() || "trial" });
+  const key = source === "dataset" ? s.dataset.key : source === "file" ? s.targets_file.key : null;
+  startRun("evaluation", targets, {
+    source, key, name: `${source} targets`, label: $("trial-label").value.trim() || "trial",
+  });
 }
 
 function onPointerDown(ev) {
   const run = app.run;
-  if (!run || run.current < 0) return;
+  if (!run || app.stale || run.current < 0) return;
   const type = ev.pointerType;
   if (!["pen", "touch", "mouse"].includes(type)) return;
   if (type === "pen") run.penSeen = true;
@@ -332,13 +415,15 @@ function onPointerDown(ev) {
 
 function finishRun() {
   const run = app.run;
-  if (!run || run.current >= 0) return;
+  if (!run || app.stale || run.current >= 0) return;
   let item;
   if (run.kind === "calibration") {
     item = {
       id: run.id, url: "api/calibration", what: `calibration of ${run.name}`,
+      kind: run.kind, key: run.key,
       body: {
         run_id: run.id,
+        ...(run.key ? { key: run.key } : {}), // the server refuses touches of other landmarks
         touches: run.targets.map(([x, y], m) => ({
           m, tablet_px: [x, y], pointer_type: run.touches[m].pointer_type,
           touch_error_px: [round3(run.touches[m].touch_px[0] - x), round3(run.touches[m].touch_px[1] - y)],
@@ -348,6 +433,7 @@ function finishRun() {
   } else {
     item = {
       id: run.id, url: "api/evaluation", what: `${run.label} trial (${run.source} targets)`,
+      kind: run.kind, source: run.source, key: run.key,
       body: {
         run_id: run.id, label: run.label, targets: run.source,
         touches: run.targets.map((xy, m) => ({
@@ -373,7 +459,7 @@ async function flush() {
   clearTimeout(app.retryTimer);
   let retry = false;
   for (const item of [...app.outbox]) {
-    if (item.rejected) continue;
+    if (item.rejected || belongsElsewhere(item)) continue;
     let r, doc;
     try {
       r = await fetch(item.url, {
@@ -426,6 +512,7 @@ async function refreshSession() {
     app.session = doc;
     store("session", doc);
     app.summary = doc.trials.summary;
+    checkRunKeys();
   } catch (e) {
     showOutbox(`cannot load the session (${e.message}); using the last one seen`, "error");
     setTimeout(refreshSession, RETRY_MS);
@@ -447,8 +534,16 @@ function init() {
   $("abandon").onclick = () => {
     if (confirm("Abandon this run? Its touches are lost.")) { app.run = null; save(); }
   };
+  $("stale-discard").onclick = discardStale;
+  $("stale-keep").onclick = parkStale;
+  $("marks").onchange = () => {
+    app.marks = $("marks").checked;
+    store("marks", app.marks);
+    render();
+  };
   window.addEventListener("resize", render);
   window.addEventListener("online", flush);
+  checkRunKeys(); // against the last session seen, until the server answers
   render();
   refreshSession().then(flush);
 }
