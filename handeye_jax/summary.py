@@ -134,6 +134,14 @@ def diagnostic_lines(diag: dict, stage: str, units: dict[str, str]) -> list[str]
     if not d:
         return []
     lines = [f"  diagnostics (residual std {d['sigma_mm']:.4f} mm, {d['dof']} dof):"]
+    sv = d.get("singular_values", [])
+    if sv and sv[0] > 0:
+        rel = " ".join(f"{v / sv[0]:.2g}" for v in sv)
+        lines.append(
+            lines.append(
+                f"  singular values of the column-scaled Jacobian, relative to the largest: {rel}"
+            )
+        )
     weak = d.get("weak_directions", [])
     if weak:
         lines.append("  weak directions (singular value relative to the largest):")
