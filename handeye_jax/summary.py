@@ -138,9 +138,7 @@ def diagnostic_lines(diag: dict, stage: str, units: dict[str, str]) -> list[str]
     if sv and sv[0] > 0:
         rel = " ".join(f"{v / sv[0]:.2g}" for v in sv)
         lines.append(
-            lines.append(
-                f"  singular values of the column-scaled Jacobian, relative to the largest: {rel}"
-            )
+            f"  singular values of the column-scaled Jacobian, relative to the largest: {rel}"
         )
     weak = d.get("weak_directions", [])
     if weak:
