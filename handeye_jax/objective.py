@@ -84,18 +84,33 @@ def stage2_errors(
     return errors, jnp.stack([centre1, centre2])
 
 
+#: Up to this many landmarks, a stage's mean error length is written as a sum of single terms.
+UNROLL_LANDMARKS = 64
+
+
+def _length(e: Float[Array, "n 2"]) -> Float[Array, " n"]:
+    return jnp.sqrt(e[:, 0] ** 2 + e[:, 1] ** 2)
+
+
+def _mean(x: Float[Array, " n"]) -> Float[Array, ""]:
+    # Under vmap over a population, a reduction inside a fused loop runs as a scalar inner loop;
+    # a sum of n separate terms fuses into one elementwise, vectorised loop over the members
+    # instead (one DE generation at N = 10,000 about 9 % faster, benchmarks/de_throughput.py).
+    n = x.shape[0]
+    if n > UNROLL_LANDMARKS:
+        return jnp.mean(x)
+    return sum(x[m] for m in range(n)) / n
+
+
 def norms(errors: Errors) -> tuple[Float[Array, " n"], Float[Array, " n"]]:
     """Per-landmark Euclidean error lengths ``(|e1|, |e2|)``, mm."""
-    return (
-        jnp.linalg.norm(errors.image_vs_tablet, axis=-1),
-        jnp.linalg.norm(errors.hand, axis=-1),
-    )
+    return _length(errors.image_vs_tablet), _length(errors.hand)
 
 
 def fitness(errors: Errors) -> tuple[Float[Array, ""], Float[Array, ""], Float[Array, ""]]:
     """``(F, f1, f2)``: the mean error lengths and their sum, eqs. (17) and (21), mm."""
     n1, n2 = norms(errors)
-    f1, f2 = jnp.mean(n1), jnp.mean(n2)
+    f1, f2 = _mean(n1), _mean(n2)
     return f1 + f2, f1, f2
 
 

@@ -4,6 +4,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -31,6 +32,17 @@ def test_index_draws_are_distinct_and_exclude_the_target(n, seed):
     i = np.arange(n)
     assert r.min() >= 0 and r.max() < n
     assert np.all(r[0] != i) and np.all(r[1] != i) and np.all(r[2] != i)
+    assert np.all(r[0] != r[1]) and np.all(r[0] != r[2]) and np.all(r[1] != r[2])
+
+
+@pytest.mark.parametrize("n", [10_000, 65_537, 2**20 + 3, 3 * 2**20 + 1])
+def test_index_draws_stay_in_range_for_uniforms_next_to_one(n):
+    """The gather has no bounds handling, so no draw may reach n, however u rounds."""
+    u = jnp.full((3, n), 1.0 - 2.0**-53, dtype=jnp.float64)
+    r = np.asarray(distinct_indices(u))
+    assert r.min() >= 0 and r.max() < n
+    i = np.arange(n)
+    assert np.all(r != i)
     assert np.all(r[0] != r[1]) and np.all(r[0] != r[2]) and np.all(r[1] != r[2])
 
 

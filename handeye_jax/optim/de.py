@@ -105,17 +105,22 @@ def distinct_indices(u: Float[Array, "3 n"]) -> Int[Array, "3 n"]:
         u: three uniforms in [0, 1) per member.
     """
     n = u.shape[1]
-    i = jnp.arange(n)
-    r1 = jnp.floor(u[0] * (n - 1)).astype(i.dtype)
+    # int32 throughout (a population never nears 2^31): cheaper than int64 here.
+    i = jnp.arange(n, dtype=jnp.int32)
+
+    def below(v, m):  # floor(v·m) < m for every float64 v < 1 (round to nearest)
+        return jnp.floor(v * m).astype(i.dtype)
+
+    r1 = below(u[0], n - 1)
     r1 = r1 + (r1 >= i)
     lo, hi = jnp.minimum(i, r1), jnp.maximum(i, r1)
-    r2 = jnp.floor(u[1] * (n - 2)).astype(i.dtype)
+    r2 = below(u[1], n - 2)
     r2 = r2 + (r2 >= lo)
     r2 = r2 + (r2 >= hi)
     first = jnp.minimum(lo, r2)
     last = jnp.maximum(hi, r2)
     middle = i + r1 + r2 - first - last
-    r3 = jnp.floor(u[2] * (n - 3)).astype(i.dtype)
+    r3 = below(u[2], n - 3)
     for s in (first, middle, last):
         r3 = r3 + (r3 >= s)
     return jnp.stack([r1, r2, r3])
@@ -133,10 +138,10 @@ def _generation(
     n, d = pop.shape
     u = _rng.uniforms(state.seed, state.generation, (n, d + 4))
     r1, r2, r3 = distinct_indices(u[:, :3].T)
-    # One gather for all three donors. The indices are always in range; "fill" mode is simply
-    # XLA's fastest gather here (0.2 ms against 0.45 ms at N = 10,000, measured), and a NaN
-    # fill would make any stray index's trial lose rather than corrupt the population.
-    donors = pop.at[jnp.concatenate([r1, r2, r3])].get(mode="fill", fill_value=jnp.nan)
+    # One gather for all three donors. The indices are in [0, N) by construction (a property
+    # test checks it), so the gather needs no bounds handling: about 5 % faster a generation
+    # than "fill" mode at N = 10,000 (interleaved A/B, benchmarks/de_throughput.py's harness).
+    donors = pop.at[jnp.concatenate([r1, r2, r3])].get(mode="promise_in_bounds")
     base, b, c = donors.reshape(3, n, d)
     mutant = base + mutation * (b - c)
     j_rand = jnp.floor(u[:, 3] * d).astype(r1.dtype)
