@@ -72,14 +72,16 @@ class Settings:
 
 
 @eqx.filter_jit
-def _value(objective: AbstractObjective, x):
-    return objective(x)
-
-
-@eqx.filter_jit
 def _report(objective: AbstractObjective, x):
+    # Every evaluation of a stage's objective outside the optimisers goes through this one
+    # program, so each stage compiles one (not one for F and one for the residuals).
     errors = objective.errors(x)
-    return errors, fitness(errors), norms(errors)
+    return errors, fitness(errors), norms(errors), objective(x)
+
+
+def _value(objective: AbstractObjective, x) -> float:
+    """The value the optimisers minimise at ``x`` (with the default loss, F in mm)."""
+    return float(_report(objective, jnp.asarray(x))[3])
 
 
 @eqx.filter_jit
@@ -121,7 +123,7 @@ def _optimise(
     polish: dict[str, Any] = {"ran": settings.polish, "accepted": False, "F_before": de.f}
     if settings.polish:
         lm = levenberg_marquardt(objective.residuals, de.x, lower, upper)
-        f_lm = float(_value(objective, jnp.asarray(lm.x)))
+        f_lm = _value(objective, lm.x)
         accepted = bool(np.isfinite(f_lm) and f_lm < de.f)
         polish.update(
             accepted=accepted, F_after=f_lm, steps=lm.steps, solver_converged=lm.solver_ok,
@@ -143,7 +145,7 @@ def _optimise(
 
 
 def _stage_result(objective, x, cls, de_info, polish, convergence) -> StageResult:
-    errors, (F, f1, f2), (n1, n2) = _report(objective, jnp.asarray(x))
+    errors, (F, f1, f2), (n1, n2), _ = _report(objective, jnp.asarray(x))
     F, f1, f2 = float(F), float(f1), float(f2)
     n1, n2 = np.asarray(n1), np.asarray(n2)
     e1, e2 = np.asarray(errors.image_vs_tablet), np.asarray(errors.hand)
@@ -187,8 +189,8 @@ def _sign_twin(objective, cls, x) -> dict[str, Any]:
     return {
         "params": list(names),
         "found": {n: float(x[i]) for n, i in zip(names, idx, strict=True)},
-        "F_found": float(_value(objective, jnp.asarray(x))),
-        "F_flipped": float(_value(objective, jnp.asarray(flipped))),
+        "F_found": _value(objective, x),
+        "F_flipped": _value(objective, flipped),
         "note": "flipping the signs of " + " and ".join(names) + " together mirrors the "
         "tablet through its own plane and gives the same F",
     }

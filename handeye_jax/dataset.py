@@ -450,28 +450,22 @@ def dataset_to_toml(ds: Dataset) -> str:
 
 
 def backup_path(path: str | Path) -> Path:
-    """Where :func:`save_dataset` keeps the previous version of a dataset: ``DATASET.bak``."""
+    """Where :func:`update_dataset` keeps the previous version of a dataset: ``DATASET.bak``."""
     path = Path(path)
     return path.with_name(path.name + ".bak")
 
 
-def save_dataset(ds: Dataset, path: str | Path, *, keep_backup: bool = False) -> None:
-    """Write ``ds`` to ``path`` atomically: the file is either complete or untouched.
+def save_dataset(ds: Dataset, path: str | Path) -> None:
+    """Write ``ds`` to ``path`` atomically, in the canonical layout: complete or untouched.
 
     The text is validated as :func:`load_dataset` would before anything is written, so a
     saved file always loads; raises :class:`InputError` for an invalid dataset or an
-    unwritable path. With ``keep_backup``, the file's previous bytes are first written
-    (atomically too) to :func:`backup_path`, so a failure at any point loses nothing.
+    unwritable path. To change a user's existing file (keeping its comments and a backup),
+    use :func:`update_dataset`.
     """
     path = Path(path)
     text = dataset_to_toml(ds)
     _parse(tomllib.loads(text), path)
-    if keep_backup:
-        backup = backup_path(path)
-        try:
-            write_bytes_atomic(backup, path.read_bytes())
-        except OSError as e:
-            raise InputError(backup, "", f"cannot keep the previous dataset: {e}") from None
     try:
         write_text_atomic(path, text)
     except OSError as e:

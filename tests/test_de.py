@@ -57,12 +57,19 @@ def test_index_draws_are_uniform_over_the_allowed_values():
         assert np.all(np.abs(counts[1:] - expected) < 5 * np.sqrt(expected))
 
 
-def test_latin_hypercube_fills_every_stratum():
-    lo, hi = jnp.array([-1.0, 10.0]), jnp.array([1.0, 30.0])
-    pop = np.asarray(latin_hypercube(jax.random.PRNGKey(3), 50, lo, hi))
-    for d in range(2):
-        strata = np.floor((pop[:, d] - lo[d]) / (hi[d] - lo[d]) * 50).astype(int)
-        assert sorted(strata) == list(range(50))
+@settings(max_examples=20, deadline=None)
+@given(st.integers(2, 300), st.integers(0, 2**31 - 1))
+def test_latin_hypercube_fills_every_stratum(n, seed):
+    lo, hi = jnp.array([-1.0, 10.0, 0.0]), jnp.array([1.0, 30.0, 1e-3])
+    pop = np.asarray(latin_hypercube(jax.random.PRNGKey(seed), n, lo, hi))
+    assert pop.shape == (n, 3)
+    strata = np.floor((pop - np.asarray(lo)) / np.asarray(hi - lo) * n).astype(int)
+    for d in range(3):
+        assert sorted(strata[:, d]) == list(range(n))
+    if n >= 20:  # each dimension is shuffled on its own
+        assert not np.array_equal(strata[:, 0], strata[:, 1])
+    again = np.asarray(latin_hypercube(jax.random.PRNGKey(seed), n, lo, hi))
+    np.testing.assert_array_equal(pop, again)
 
 
 def test_de_finds_a_sphere_minimum():

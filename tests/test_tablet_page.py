@@ -160,16 +160,21 @@ def test_a_reload_mid_run_keeps_the_progress(page, tablet):
     assert np.abs(load_dataset(ds_path).touch_error_px - d).max() <= 0.5
 
 
-def test_a_dropped_connection_loses_nothing(page, tablet):
-    _, ds_path, original = tablet
-    ds = load_dataset(ds_path)
-    d = offsets(ds.n_landmarks, seed=8)
-    page.route("**/api/**", lambda route: route.abort())  # the Wi-Fi drops
+def calibrate_offline(page, ds, d):
+    """Touch every landmark at offsets ``d`` and press Send while the Wi-Fi is down."""
+    page.route("**/api/**", lambda route: route.abort())
     page.click("#start-calibration")
     for m in range(ds.n_landmarks):
         pen(page, ds.tablet_px[m] + d[m])
     page.click("#send")
     page.wait_for_selector("#status.error")
+
+
+def test_a_dropped_connection_loses_nothing(page, tablet):
+    _, ds_path, original = tablet
+    ds = load_dataset(ds_path)
+    d = offsets(ds.n_landmarks, seed=8)
+    calibrate_offline(page, ds, d)
     assert "unreachable" in page.inner_text("#status")
     page.reload()  # still offline: the page comes back from the last session it saw
     page.wait_for_selector("#outbox li")
@@ -352,12 +357,7 @@ def test_touches_waiting_for_another_dataset_are_held_not_sent(browser, tmp_path
     try:
         ds = load_dataset(a)
         d = offsets(ds.n_landmarks, seed=11)
-        page.route("**/api/**", lambda route: route.abort())  # the Wi-Fi drops
-        page.click("#start-calibration")
-        for m in range(ds.n_landmarks):
-            pen(page, ds.tablet_px[m] + d[m])
-        page.click("#send")
-        page.wait_for_selector("#status.error")
+        calibrate_offline(page, ds, d)
         page.unroute("**/api/**")
         server.restart(b, page)  # back, but serving b: a's touches must not land in b
         page.wait_for_selector("#outbox li.held")
