@@ -252,10 +252,13 @@ def plot(groups: dict[str, list[Run]], de_stop: str, de_full: str, lm_labels: li
     """Best F1st − optimum against evaluations, log-log. The early-stopped DE is a prefix of
     the full one (same key, same random stream per generation): its curve is the full one's,
     and a cross marks where the early stop ends it."""
-    floor = 1e-8
+    # Distances are taken from the best F1st that any run found (F_OPT is rounded), and drawn
+    # at the floor when a run reached it.
+    floor = 1e-9
+    f_best = min(r.f for runs in groups.values() for r in runs)
 
     def gap(f):
-        return np.maximum(np.asarray(f, dtype=float) - F_OPT, floor)
+        return np.maximum(np.asarray(f, dtype=float) - f_best, floor)
 
     fig = Figure(figsize=(11, 7.5), layout="constrained")
     FigureCanvasAgg(fig)
@@ -288,16 +291,16 @@ def plot(groups: dict[str, list[Run]], de_stop: str, de_full: str, lm_labels: li
             ev, f = np.array(firsts).T
             ax.plot(ev, gap(f), mk, color=color, mec="k", mew=0.6, ms=10, ls="none", zorder=5,
                     label=f"{label}: first start at the target")  # fmt: skip
-    ax.axhline(TARGET - F_OPT, color="0.3", ls="--", lw=1.2,
+    ax.axhline(TARGET - f_best, color="0.3", ls="--", lw=1.2,
                label=f"target: F1st = {TARGET} mm")  # fmt: skip
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("objective evaluations (LM / BFGS step = 1 + D = 13 evaluations)")
-    ax.set_ylabel(f"best F1st − {F_OPT} (mm)")
+    ax.set_ylabel(f"best F1st − {f_best:.7f} mm (mm; {floor:g} = reached it)")
     n_seeds = len(groups[de_full])
     ax.set_title(
         f"Stage-1 F1st on the paper's data (HTM, D = 12, {n_seeds} seeds): best F1st against "
-        f"cost\ny axis: distance of best F1st above the known optimum {F_OPT} mm"
+        f"cost\ny axis: distance above the best F1st any run found, {f_best:.7f} mm"
     )
     ax.grid(True, which="major", alpha=0.35)
     fig.legend(loc="outside lower center", ncols=3, fontsize=9)
