@@ -350,14 +350,24 @@ def _check_distinct(tablet_px: Any, path: str | Path | None) -> None:
 def load_dataset(path: str | Path) -> Dataset:
     """Read and validate a ``handeye-jax.dataset/1`` file; raises :class:`InputError`."""
     path = Path(path)
+    return _parse_text(_read(path)[1], path)
+
+
+def _read(path: Path) -> tuple[bytes, str]:
+    """The file's bytes and its text (UTF-8, a BOM allowed); :class:`InputError` if unreadable."""
     try:
-        text = path.read_bytes().decode("utf-8-sig")
+        raw = path.read_bytes()
+        return raw, raw.decode("utf-8-sig")
     except (OSError, UnicodeDecodeError) as e:
         raise InputError(path, "", f"cannot read file: {e}") from None
+
+
+def _parse_text(text: str, path: Path, context: str = "") -> Dataset:
+    """Validate a dataset's TOML text; ``context`` is added to a TOML syntax error."""
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
-        raise InputError(path, "", f"not valid TOML: {e}") from None
+        raise InputError(path, "", f"not valid TOML{context}: {e}") from None
     return _parse(doc, path)
 
 
@@ -558,15 +568,8 @@ def update_dataset(
     nothing, not even the backup, is written).
     """
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-        text = raw.decode("utf-8-sig")
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(path, "", f"cannot read file: {e}") from None
-    try:
-        current = _parse(tomllib.loads(text), path)
-    except tomllib.TOMLDecodeError as e:
-        raise InputError(path, "", f"not valid TOML: {e}") from None
+    raw, text = _read(path)
+    current = _parse_text(text, path)
     ds = new(current) if callable(new) else new
     if ds == current:
         return False
@@ -575,11 +578,7 @@ def update_dataset(
     except (tomlkit.exceptions.TOMLKitError, KeyError, TypeError, ValueError) as e:
         why = f"cannot edit the file in place ({e}); nothing written"
         raise InputError(path, "", why) from None
-    try:
-        check = _parse(tomllib.loads(edited), path)
-    except tomllib.TOMLDecodeError as e:
-        why = f"editing would not give valid TOML ({e}); nothing written"
-        raise InputError(path, "", why) from None
+    check = _parse_text(edited, path, " after editing in place; nothing written")
     if check != ds:
         raise InputError(path, "", "editing in place does not read back equal; nothing written")
     data = (_BOM if raw.startswith(_BOM) else b"") + edited.encode("utf-8")

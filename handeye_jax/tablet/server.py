@@ -476,7 +476,7 @@ def serve(dataset: str | Path | None = None, **kwargs: Any) -> int:
     app = server.app
     host, port = server.server_address[:2]
     requested = kwargs.get("host", DEFAULT_HOST)
-    urls = page_urls(requested, port) if requested in _WILDCARD_HOSTS else [server.url]
+    urls = page_urls(requested, port)
     if urls:
         print(f"tablet page: {urls[0]}  (open it on the tablet, full screen, zoom 100%)")
         for url in urls[1:]:
