@@ -202,6 +202,8 @@ def fig_residuals(result: CalibrationResult):
 
 def fig_convergence(result: CalibrationResult):
     """DE's best and median F against generation, for each stage."""
+    from matplotlib.ticker import ScalarFormatter
+
     fig = _figure(figsize=(11, 4.5))
     axes = fig.subplots(1, 2)
     for ax, s, name in zip(axes, (result.stage1, result.stage2), ("stage 1", "stage 2"),
@@ -216,8 +218,6 @@ def fig_convergence(result: CalibrationResult):
             ax.plot(c["median_generation"], med, "o-", color="C1", ms=4,
                     label=f"median F of the population ({every})")  # fmt: skip
         ax.axhline(s.F, color="0.3", ls="--", lw=1, label=f"after LM polish: {s.F:.4f} mm")
-        from matplotlib.ticker import ScalarFormatter
-
         ax.set_yscale("log")
         ax.yaxis.set_major_formatter(ScalarFormatter())
         ax.yaxis.set_minor_formatter(ScalarFormatter())
