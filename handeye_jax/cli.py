@@ -39,6 +39,16 @@ def _population(text: str) -> int:
     return v
 
 
+def _seed(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if not -(2**63) <= v < 2**63:
+        raise argparse.ArgumentTypeError(f"must fit in 64 bits, -2^63 to 2^63 - 1 (got {v})")
+    return v
+
+
 def _output_path(path: str | None) -> Path | None:
     if path is None:
         return None
@@ -152,7 +162,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cal.add_argument("dataset", help="dataset file (handeye-jax.dataset/1 TOML; mm, deg, px)")
     cal.add_argument("--model", choices=sorted(model_registry()), default=d.model)
-    cal.add_argument("--seed", type=int, default=d.seed, help=f"PRNG seed (default {d.seed})")
+    cal.add_argument("--seed", type=_seed, default=d.seed, help=f"PRNG seed (default {d.seed})")
     cal.add_argument(
         "--population", type=_population, default=d.population,
         help=f"DE population N, both stages (default {d.population})",

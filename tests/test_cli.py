@@ -151,7 +151,8 @@ def test_bad_result_and_points_files(result_file, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("args", [["--population", "2"], ["--generations", "0"],
-                                  ["--model", "nope"], ["--seed", "x"]])  # fmt: skip
+                                  ["--model", "nope"], ["--seed", "x"],
+                                  ["--seed", str(2**63)]])  # fmt: skip
 def test_bad_arguments_are_one_line(args, capsys):
     with pytest.raises(SystemExit) as e:
         main(["calibrate", str(PAPER), *args])
