@@ -30,6 +30,6 @@ def de_generation_ms(objective, n: int, reps: int, key: int = 0) -> tuple[float,
     """ms per DE generation at population ``n`` (HTM box), timed over chunks of generations."""
     lower, upper = (jnp.asarray(b) for b in HTMModel.search_bounds())
     state = de._init(objective, jax.random.PRNGKey(key), lower, upper, n)
-    settings = [jnp.asarray(v) for v in (10**9, 0.9, 0.5, 0.0, 0.0, False)]
+    settings = [np.asarray(v) for v in (10**9, 0.9, 0.5, 0.0, 0.0, False)]
     ms = median_ms(lambda: de._chunk(objective, state, lower, upper, *settings), reps)
     return ms / de.CHUNK_GENERATIONS, state

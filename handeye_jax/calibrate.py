@@ -10,11 +10,11 @@ import time
 from dataclasses import asdict, dataclass
 from typing import Any
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import _xla
 from ._x64 import in_float64
 from .dataset import Dataset, check_min_landmarks
 from .diagnostics import bound_hits, diagnose
@@ -71,7 +71,7 @@ class Settings:
     diagnostics: bool = True
 
 
-@eqx.filter_jit
+@_xla.fast_compile
 def _report(objective: AbstractObjective, x):
     # Every evaluation of a stage's objective outside the optimisers goes through this one
     # program, so each stage compiles one (not one for F and one for the residuals).
@@ -81,15 +81,22 @@ def _report(objective: AbstractObjective, x):
 
 def _value(objective: AbstractObjective, x) -> float:
     """The value the optimisers minimise at ``x`` (with the default loss, F in mm)."""
-    return float(_report(objective, jnp.asarray(x))[3])
+    return float(_report(objective, np.asarray(x))[3])
 
 
-@eqx.filter_jit
+@_xla.fast_compile
+def _stage_keys(seed):
+    # One small program, where PRNGKey, split and unpacking the pair would compile three.
+    key1, key2 = jax.random.split(jax.random.PRNGKey(seed))
+    return key1, key2
+
+
+@_xla.fast_compile
 def _points(model_cls, x, obs):
     return chain_points(model_cls.from_vector(x), obs)
 
 
-@eqx.filter_jit
+@_xla.fast_compile
 def _centres(x, points, centre_index: int):
     return stage2_errors(AffinePair.from_vector(x), points, centre_index)[1]
 
@@ -145,7 +152,7 @@ def _optimise(
 
 
 def _stage_result(objective, x, cls, de_info, polish, convergence) -> StageResult:
-    errors, (F, f1, f2), (n1, n2), _ = _report(objective, jnp.asarray(x))
+    errors, (F, f1, f2), (n1, n2), _ = _report(objective, np.asarray(x))
     F, f1, f2 = float(F), float(f1), float(f2)
     n1, n2 = np.asarray(n1), np.asarray(n2)
     e1, e2 = np.asarray(errors.image_vs_tablet), np.asarray(errors.hand)
@@ -212,7 +219,7 @@ def calibrate(
     n_params = max(len(model_cls.param_names), len(AffinePair.param_names))
     check_min_landmarks(dataset, n_params, dataset.source)
     obs = dataset.observations()
-    key1, key2 = jax.random.split(jax.random.PRNGKey(settings.seed))
+    key1, key2 = _stage_keys(np.int64(settings.seed))
 
     loss = get_loss(settings.loss, settings.loss_scale_mm)
 
@@ -228,14 +235,14 @@ def calibrate(
     )
     stage1 = _stage_result(paper1, x1, model_cls, de1, pol1, conv1)
 
-    points = _points(model_cls, jnp.asarray(x1), obs)
+    points = _points(model_cls, np.asarray(x1), obs)
     paper2 = Stage2Objective(AffinePair, points, obs.centre_index)
     obj2 = with_loss(paper2)
     x2, de2, pol2, conv2, t2, pop2 = _optimise(
         obj2, AffinePair, dataset.search, key2, settings, progress, "stage 2 DE"
     )
     stage2 = _stage_result(paper2, x2, AffinePair, de2, pol2, conv2)
-    centres = _centres(jnp.asarray(x2), points, obs.centre_index)
+    centres = _centres(np.asarray(x2), points, obs.centre_index)
 
     warnings = bound_warnings(stage1.params, model_cls, dataset.search) + bound_warnings(
         stage2.params, AffinePair, dataset.search
@@ -288,9 +295,9 @@ def fit_correction(
         The fitted correction and its centres of rotation (rows: A1, A2), mm.
     """
     obs = dataset.observations()
-    _, key2 = jax.random.split(jax.random.PRNGKey(settings.seed))
+    _, key2 = _stage_keys(np.int64(settings.seed))
     points = _points(type(model), model.to_vector(), obs)
     objective = Stage2Objective(AffinePair, points, obs.centre_index)
     x2, *_ = _optimise(objective, AffinePair, dataset.search, key2, settings, False, "stage 2")
-    centres = _centres(jnp.asarray(x2), points, obs.centre_index)
+    centres = _centres(np.asarray(x2), points, obs.centre_index)
     return AffinePair.from_vector(jnp.asarray(x2)), np.asarray(centres)

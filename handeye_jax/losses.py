@@ -118,7 +118,11 @@ class LossObjective(AbstractObjective):
 
     def residuals(self, theta: Float[Array, " d"]) -> Float[Array, " r"]:
         """Residuals whose sum of squares is the (smoothed) value: ``e·sqrt(w·ρ(|e|))/|e|``."""
-        errors = self.errors(theta)
+        return self.residuals_of(self.errors(theta))
+
+    def residuals_of(self, errors: Errors) -> Float[Array, " r"]:
+        """:meth:`residuals` from error vectors already computed (one pass of the chain for a
+        caller that needs both)."""
         w = self.weights / jnp.sum(self.weights)
 
         def scaled(e):

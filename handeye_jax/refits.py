@@ -23,7 +23,6 @@ All stage-1 refits (n leave-one-out + 8 × starts + 1) are one batch of
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import equinox as eqx
@@ -32,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from . import _xla
 from .losses import AbstractLoss, LossObjective
 from .models import AbstractCorrection, AbstractModel
 from .objective import Stage1Objective, Stage2Objective, chain_points, fitness, norms
@@ -86,41 +86,42 @@ def _flat(errors) -> Float[Array, " r"]:
 
 
 def _two_jacobians(objective: LossObjective, x):
-    """LM residuals and the raw error vectors at ``x``, each with its Jacobian: one pass."""
+    """LM residuals and the raw error vectors at ``x``, each with its Jacobian, and the error
+    vectors themselves: one forward-mode pass, and one trace of the transform chain."""
 
     def f(x):
-        out = (objective.residuals(x), _flat(objective.errors(x)))
-        return out, out
+        errors = objective.errors(x)
+        out = (objective.residuals_of(errors), _flat(errors))
+        return out, (out, errors)
 
-    (J_r, J_e), (r, e) = jax.jacfwd(f, has_aux=True)(x)
-    return r, J_r, e, J_e
+    (J_r, J_e), ((r, e), errors) = jax.jacfwd(f, has_aux=True)(x)
+    return r, J_r, e, J_e, errors
 
 
 # jax.jit rather than eqx.filter_jit: these are called once per LM iteration, and jax.jit's
 # dispatch is the cheaper one (every argument but the classes is a pytree of arrays).
-@functools.partial(jax.jit, static_argnums=0)
+@_xla.fast_compile(jit=jax.jit, llvm_opt_level=1, static_argnums=0)
 def _stage1_batch(model_cls, obs, loss, zero, sign, weights, X):
     """Per problem: LM residuals and Jacobian, error vectors and Jacobian, error lengths and
     the paper's F1st at ``X``."""
 
     def one(zero_deg, sgn, w, x):
         base = Stage1Objective(model_cls, _with_convention(obs, zero_deg, sgn))
-        r, J_r, e, J_e = _two_jacobians(LossObjective(base, loss, w), x)
-        errors = base.errors(x)
+        r, J_r, e, J_e, errors = _two_jacobians(LossObjective(base, loss, w), x)
         return r, J_r, e, J_e, norms(errors), fitness(errors)[0]
 
     return jax.vmap(one)(zero, sign, weights, X)
 
 
-@functools.partial(jax.jit, static_argnums=(0, 1))
+@_xla.fast_compile(jit=jax.jit, llvm_opt_level=1, static_argnums=(0, 1))
 def _stage2_batch(model_cls, correction_cls, obs, loss, X1, weights, X2):
     """Per problem: stage 2 on the points of stage-1 parameters ``X1``; as above."""
 
     def one(x1, w, x2):
         points = chain_points(model_cls.from_vector(x1), obs)
         base = Stage2Objective(correction_cls, points, obs.centre_index)
-        r, J_r, e, J_e = _two_jacobians(LossObjective(base, loss, w), x2)
-        return r, J_r, e, J_e, norms(base.errors(x2))
+        r, J_r, e, J_e, errors = _two_jacobians(LossObjective(base, loss, w), x2)
+        return r, J_r, e, J_e, norms(errors)
 
     return jax.vmap(one)(X1, weights, X2)
 
@@ -163,14 +164,15 @@ def refits(
     leave_out = 1.0 - np.eye(n)
     conv_of = np.concatenate([np.repeat(np.arange(n_conv), starts), [declared]])
     x_random = np.random.default_rng(seed).uniform(lo1, hi1, size=(n_conv * starts, d1))
-    all_zero = jnp.asarray(np.concatenate([np.full(n, float(obs.rig.angle_zero_deg)),
-                                           zero[conv_of]]))  # fmt: skip
-    all_sign = jnp.asarray(np.concatenate([np.full(n, float(obs.rig.angle_sign)), sign[conv_of]]))
-    all_w = jnp.asarray(np.concatenate([leave_out, np.ones((conv_of.shape[0], n))]))
+    # NumPy arrays throughout: the jitted batches take them as they are, while jnp.asarray
+    # would compile a small program per shape.
+    all_zero = np.concatenate([np.full(n, float(obs.rig.angle_zero_deg)), zero[conv_of]])
+    all_sign = np.concatenate([np.full(n, float(obs.rig.angle_sign)), sign[conv_of]])
+    all_w = np.concatenate([leave_out, np.ones((conv_of.shape[0], n))])
     all_x0 = np.concatenate([np.broadcast_to(x1, (n, d1)), x_random, x1[None]])
 
     def stage1(X):
-        return _stage1_batch(model_cls, obs, loss, all_zero, all_sign, all_w, jnp.asarray(X))
+        return _stage1_batch(model_cls, obs, loss, all_zero, all_sign, all_w, np.asarray(X))
 
     xs, _ = levenberg_marquardt_batch(lambda X: stage1(X)[:2], all_x0, lo1, hi1,
                                       max_steps=max_steps)  # fmt: skip
@@ -185,18 +187,18 @@ def refits(
     best = np.array([np.flatnonzero(conv_of == c)[np.argmin(F_conv[conv_of == c])]
                      for c in range(n_conv)])  # fmt: skip
 
-    X1, W = jnp.asarray(xs[:n]), jnp.asarray(leave_out)
+    X1, W = xs[:n], leave_out
 
     def stage2(X, X1=X1):
-        return _stage2_batch(model_cls, correction_cls, obs, loss, X1, W, jnp.asarray(X))
+        return _stage2_batch(model_cls, correction_cls, obs, loss, X1, W, np.asarray(X))
 
     x2s, _ = levenberg_marquardt_batch(lambda X: stage2(X)[:2], np.broadcast_to(x2, (n, x2.size)),
                                        *bounds2, max_steps=max_steps)  # fmt: skip
     m1, m2 = (np.asarray(v) for v in stage2(x2s)[4])
     # Row 0 at the full fit (x1, x2) gives stage 2's error vectors and Jacobian there.
     x2_fit = np.concatenate([x2[None], x2s[1:]])
-    _, _, e2, J2, _ = stage2(x2_fit, jnp.asarray(np.concatenate([x1[None], xs[1:n]])))
-    e2, J2 = np.asarray(e2[0]), np.asarray(J2[0])
+    _, _, e2, J2, _ = stage2(x2_fit, np.concatenate([x1[None], xs[1:n]]))
+    e2, J2 = np.asarray(e2)[0], np.asarray(J2)[0]
     mine = n + np.flatnonzero(conv_of == declared)
     diag = np.arange(n)
     return Refits(

@@ -152,7 +152,7 @@ def rig_to_dict(rig: Rig) -> dict[str, Any]:
             "fx": float(rig.fx_px), "fy": float(rig.fy_px),
             "cx": float(rig.cx_px), "cy": float(rig.cy_px),
         },
-        "capture_hand_position_mm": [float(x) for x in rig.capture_position_mm],
+        "capture_hand_position_mm": np.asarray(rig.capture_position_mm).tolist(),
         "hand_angle": {"zero_deg": float(rig.angle_zero_deg), "sign": int(rig.angle_sign)},
     }  # fmt: skip
 

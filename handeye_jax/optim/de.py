@@ -39,9 +39,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray, UInt
 
+from .. import _xla
 from .._x64 import in_float64
 from ..progress import progress_bar
-from . import _rng, _xla
+from . import _rng
 
 #: Generations run per jitted call; the progress bar advances once per chunk.
 CHUNK_GENERATIONS = 64
@@ -169,7 +170,7 @@ def _spread_converged(f: Float[Array, " n"], tol: float, atol: float) -> Bool[Ar
     return jnp.std(f) <= atol + tol * jnp.abs(jnp.mean(f))
 
 
-@eqx.filter_jit
+@_xla.fast_compile
 def _init(fn, key, lower, upper, n):
     k_pop, k_seed = jax.random.split(key)
     pop = latin_hypercube(k_pop, n, lower, upper)
@@ -244,8 +245,9 @@ def differential_evolution(
     lower = jnp.asarray(lower, dtype=float)
     upper = jnp.asarray(upper, dtype=float)
     state = _init(fn, key, lower, upper, population)
-    # Arrays, not Python numbers, so that new settings reuse the compiled program.
-    dynamic = [jnp.asarray(v) for v in (generations, crossover, mutation, tol, atol, early_stop)]
+    # Arrays, not Python numbers, so that new settings reuse the compiled program (NumPy's:
+    # jnp.asarray would compile a small program for each).
+    dynamic = [np.asarray(v) for v in (generations, crossover, mutation, tol, atol, early_stop)]
     best, median = [], []
     with progress_bar(total=generations, desc=desc, enabled=progress, unit="gen") as bar:
         while True:
@@ -257,13 +259,14 @@ def differential_evolution(
             if bool(state.converged) or int(state.generation) >= generations:
                 break
     fitness = np.asarray(state.fitness)
+    final = np.asarray(state.population)
     best = np.concatenate(best)
     i_best = int(np.argmin(fitness))
     n_gen = int(state.generation)
     return DEResult(
-        x=np.asarray(state.population[i_best]),
+        x=final[i_best],
         f=float(fitness[i_best]),
-        population=np.asarray(state.population),
+        population=final,
         fitness=fitness,
         generations=n_gen,
         evaluations=population * (n_gen + 1),

@@ -1,0 +1,97 @@
+"""XLA compiler options for this package's compiled programs on the CPU.
+
+Two kinds of program, two sets of options. Each set applies only to the programs compiled
+with it, never to the user's own JAX code. The options are probed once: one this XLA does not
+know (or any, on a backend that is not the CPU) is left out, and JAX's default applies.
+
+* **The DE's loop** runs thousands of times, so it is compiled for speed. XLA's CPU backend
+  hands some fused reductions to YNNPACK; for the objectives here (a few hundred float64
+  operations per member, reduced over a handful of landmarks) that is slower than XLA's own
+  loops, because it stores every intermediate array of the reduction and reads it back.
+  Turning it off made a DE generation at N = 10,000 about 1.4× faster on the 2-core CPU this
+  was tuned on (``benchmarks/de_throughput.py`` measures it).
+* **Everything else** (the LM polish, the DE's initial population, the diagnostics' batched
+  Jacobians, the stage reports) runs a handful of times per calibration, so its compile time
+  is what a user waits for. These are compiled with XLA's classic loop emitters and without
+  LLVM's optimisation passes: on the diagnostics' stage-1 Jacobians that cut compilation
+  from 0.94 s to 0.30 s, and a whole first calibration from about 12 s to about 9 s
+  (``benchmarks/first_call.py``). Their run time is negligible either way.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from typing import Any
+
+import equinox as eqx
+import jax
+
+_NO_YNN_FUSION: dict[str, Any] = {"xla_cpu_experimental_ynn_fusion_type": ""}
+_CLASSIC_EMITTERS: dict[str, Any] = {"xla_cpu_use_fusion_emitters": False}
+_LLVM_OPT_LEVEL = "xla_backend_optimization_level"
+
+
+def _accepts(options: dict[str, Any]) -> bool:
+    try:
+        jax.jit(lambda x: x + 1, compiler_options=options).lower(1.0).compile()
+    except Exception:  # an XLA without an option rejects it by name
+        return False
+    return True
+
+
+@functools.cache
+def _supported() -> frozenset[str]:
+    """The options this XLA accepts: one small compilation, unless some are rejected."""
+    if jax.default_backend() != "cpu":
+        return frozenset()
+    every = {**_NO_YNN_FUSION, **_CLASSIC_EMITTERS, _LLVM_OPT_LEVEL: 0}
+    if _accepts(every):
+        return frozenset(every)
+    return frozenset(k for k, v in every.items() if _accepts({k: v}))
+
+
+def _keep(options: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in options.items() if k in _supported()}
+
+
+def loop_compiler_options() -> dict[str, Any]:
+    """Options for a hot loop (the DE's generations): those this XLA has."""
+    return _keep(_NO_YNN_FUSION)
+
+
+def fast_compile_options(llvm_opt_level: int = 0) -> dict[str, Any]:
+    """Options for a program run a few times per calibration: those this XLA has.
+
+    Args:
+        llvm_opt_level: LLVM's optimisation level, 0–3. 0 compiles fastest; a program called
+            hundreds of times (the diagnostics' batched Jacobians, once per LM iteration) is
+            better off at 1, which runs it about 2.4× faster for about 0.2 s more compilation.
+    """
+    return _keep({**_CLASSIC_EMITTERS, _LLVM_OPT_LEVEL: llvm_opt_level})
+
+
+def fast_compile(
+    fn: Callable | None = None,
+    *,
+    jit: Callable = eqx.filter_jit,
+    llvm_opt_level: int = 0,
+    **jit_kwargs,
+):
+    """Decorator: ``jit(fn, **jit_kwargs)`` with :func:`fast_compile_options`.
+
+    The jitted function is built at the first call, when JAX has chosen its backend (the
+    options are probed against it), and reused afterwards.
+    """
+    if fn is None:
+        return functools.partial(fast_compile, jit=jit, llvm_opt_level=llvm_opt_level, **jit_kwargs)
+
+    @functools.cache
+    def jitted():
+        return jit(fn, compiler_options=fast_compile_options(llvm_opt_level), **jit_kwargs)
+
+    @functools.wraps(fn)
+    def call(*args, **kwargs):
+        return jitted()(*args, **kwargs)
+
+    return call
