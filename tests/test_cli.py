@@ -160,6 +160,21 @@ def test_bad_arguments_are_one_line(args, capsys):
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
 
 
+def test_console_script_exit_keeps_every_output(tmp_path):
+    # The console script leaves by os._exit: its streams and the result must be complete.
+    out = tmp_path / "r.json"
+    env = dict(os.environ, JAX_PLATFORMS="cpu", HANDEYE_JAX_CACHE_DIR="off")
+    for name in ("HANDEYE_JAX_DEBUG", "PYTHONUNBUFFERED"):  # block-buffered, as for most users
+        env.pop(name, None)
+    p = subprocess.run([sys.executable, "-m", "handeye_jax.cli", "calibrate", str(PAPER),
+                        "--population", "40", "--generations", "5", "--no-diagnostics",
+                        "--out", str(out)], capture_output=True, text=True, env=env)  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.rstrip().endswith(f"result written to {out}")
+    assert "stage 1 DE" in p.stderr  # the progress bars
+    assert load_result(out).stage1.F > 0
+
+
 def test_console_script_runs_without_traceback(tmp_path):
     bad = _bad_dataset(tmp_path, "scale = 2.0", "scale = -2.0")
     env = dict(os.environ, JAX_PLATFORMS="cpu")
