@@ -13,9 +13,11 @@ know (or any, on a backend that is not the CPU) is left out, and JAX's default a
 * **Everything else** (the LM polish, the DE's initial population, the diagnostics' batched
   Jacobians, the stage reports) runs a handful of times per calibration, so its compile time
   is what a user waits for. These are compiled with XLA's classic loop emitters and without
-  LLVM's optimisation passes: on the diagnostics' stage-1 Jacobians that cut compilation
-  from 0.94 s to 0.30 s, and a whole first calibration from about 12 s to about 9 s
-  (``benchmarks/first_call.py``). Their run time is negligible either way.
+  LLVM's optimisation passes (level 0), or at level 1 for a program called once per
+  iteration of a host loop. On the diagnostics' stage-1 Jacobians, compilation takes 0.94 s
+  at full optimisation, 0.59 s at level 1 and 0.30 s at level 0, and a call 0.57, 0.58 and
+  1.39 ms. With the other changes of ``benchmarks/RESULTS.md``, a first calibration from the
+  shell went from 12.7 s to under 9 s (``benchmarks/first_call.py``).
 """
 
 from __future__ import annotations
