@@ -38,3 +38,5 @@ def test_reproduce_paper_runs(seeds):
 def test_first_call_reports_cold_and_warm():
     out = _run("first_call.py", "--quick")
     assert "| cold |" in out and "| warm |" in out
+    # the per-program table parsed JAX's compile log: the DE loop and the LM polish are in it
+    assert "| _chunk_scan | 2 |" in out and "| _lm | 2 |" in out and "| all |" in out
