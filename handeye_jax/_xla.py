@@ -17,7 +17,7 @@ know (or any, on a backend that is not the CPU) is left out, and JAX's default a
   iteration of a host loop. On the diagnostics' stage-1 Jacobians, compilation takes 0.94 s
   at full optimisation, 0.59 s at level 1 and 0.30 s at level 0, and a call 0.57, 0.58 and
   1.39 ms. With the other changes of ``benchmarks/RESULTS.md``, a first calibration from the
-  shell went from 12.7 s to under 9 s (``benchmarks/first_call.py``).
+  shell went from 12.7 s to 7.7–9.3 s (``benchmarks/first_call.py``).
 """
 
 from __future__ import annotations
@@ -68,7 +68,7 @@ def fast_compile_options(llvm_opt_level: int = 0) -> dict[str, Any]:
     Args:
         llvm_opt_level: LLVM's optimisation level, 0–3. 0 compiles fastest; a program called
             hundreds of times (the diagnostics' batched Jacobians, once per LM iteration) is
-            better off at 1, which runs it about 2.4× faster for about 0.2 s more compilation.
+            better off at 1, which runs it about 2.4× faster for about 0.3 s more compilation.
     """
     return _keep({**_CLASSIC_EMITTERS, _LLVM_OPT_LEVEL: llvm_opt_level})
 

@@ -22,11 +22,15 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
 
 
-def _positive_int(text: str) -> int:
+def _whole_number(text: str) -> int:
     try:
-        v = int(text)
+        return int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+
+
+def _positive_int(text: str) -> int:
+    v = _whole_number(text)
     if v < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1 (got {v})")
     return v
@@ -40,10 +44,7 @@ def _population(text: str) -> int:
 
 
 def _seed(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    v = _whole_number(text)
     if not -(2**63) <= v < 2**63:
         raise argparse.ArgumentTypeError(f"must fit in 64 bits, -2^63 to 2^63 - 1 (got {v})")
     return v
