@@ -73,6 +73,25 @@ def fast_compile_options(llvm_opt_level: int = 0) -> dict[str, Any]:
     return _keep({**_CLASSIC_EMITTERS, _LLVM_OPT_LEVEL: llvm_opt_level})
 
 
+def _built_at_first_call(fn: Callable, options: Callable[[], dict], jit: Callable, jit_kwargs):
+    # JAX chooses its backend at the first computation, and the options are probed against
+    # it, so the jitted function is built then, once, and reused afterwards.
+    @functools.cache
+    def jitted():
+        return jit(fn, compiler_options=options(), **jit_kwargs)
+
+    @functools.wraps(fn)
+    def call(*args, **kwargs):
+        return jitted()(*args, **kwargs)
+
+    return call
+
+
+def hot_loop(fn: Callable) -> Callable:
+    """``eqx.filter_jit(fn)`` with :func:`loop_compiler_options`."""
+    return _built_at_first_call(fn, loop_compiler_options, eqx.filter_jit, {})
+
+
 def fast_compile(
     fn: Callable | None = None,
     *,
@@ -80,20 +99,9 @@ def fast_compile(
     llvm_opt_level: int = 0,
     **jit_kwargs,
 ):
-    """Decorator: ``jit(fn, **jit_kwargs)`` with :func:`fast_compile_options`.
-
-    The jitted function is built at the first call, when JAX has chosen its backend (the
-    options are probed against it), and reused afterwards.
-    """
+    """Decorator: ``jit(fn, **jit_kwargs)`` with :func:`fast_compile_options`."""
     if fn is None:
         return functools.partial(fast_compile, jit=jit, llvm_opt_level=llvm_opt_level, **jit_kwargs)
-
-    @functools.cache
-    def jitted():
-        return jit(fn, compiler_options=fast_compile_options(llvm_opt_level), **jit_kwargs)
-
-    @functools.wraps(fn)
-    def call(*args, **kwargs):
-        return jitted()(*args, **kwargs)
-
-    return call
+    return _built_at_first_call(
+        fn, functools.partial(fast_compile_options, llvm_opt_level), jit, jit_kwargs
+    )

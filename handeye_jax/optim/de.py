@@ -29,7 +29,6 @@ nothing about what ``fn`` computes. Choices, each documented where a user could 
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -183,18 +182,6 @@ def _init(fn, key, lower, upper, n):
     )
 
 
-def _chunk(fn, state, lower, upper, max_generations, crossover, mutation, tol, atol, stop):
-    """``CHUNK_GENERATIONS`` generations in one compiled ``lax.scan``."""
-    return _compiled_chunk()(
-        fn, state, lower, upper, max_generations, crossover, mutation, tol, atol, stop
-    )
-
-
-@functools.cache
-def _compiled_chunk():
-    return eqx.filter_jit(_chunk_scan, compiler_options=_xla.loop_compiler_options())
-
-
 def _chunk_scan(fn, state, lower, upper, max_generations, crossover, mutation, tol, atol, stop):
     def step(state, _):
         active = (~state.converged) & (state.generation < max_generations)
@@ -205,6 +192,10 @@ def _chunk_scan(fn, state, lower, upper, max_generations, crossover, mutation, t
         return state, (jnp.min(state.fitness), active)
 
     return jax.lax.scan(step, state, None, length=CHUNK_GENERATIONS)
+
+
+#: ``CHUNK_GENERATIONS`` generations in one compiled ``lax.scan``.
+_chunk = _xla.hot_loop(_chunk_scan)
 
 
 @in_float64
