@@ -26,6 +26,24 @@ def median_ms(fn, reps: int) -> float:
     return float(np.median(times)) * 1e3
 
 
+def interleaved_ms(fns: dict, rounds: int) -> dict[str, list[float]]:
+    """Wall times in ms of each ``fns[name]()``, called in turn, round after round.
+
+    Each function is called once first, to compile. Timing the candidates alternately, rather
+    than one after the other, lets the machine's slow phases hit all of them alike, so their
+    ratios hold even when the absolute times drift.
+    """
+    for fn in fns.values():
+        jax.block_until_ready(fn())
+    times = {name: [] for name in fns}
+    for _ in range(rounds):
+        for name, fn in fns.items():
+            t0 = time.perf_counter()
+            jax.block_until_ready(fn())
+            times[name].append((time.perf_counter() - t0) * 1e3)
+    return times
+
+
 def de_generation_ms(objective, n: int, reps: int, key: int = 0) -> tuple[float, de.DEState]:
     """ms per DE generation at population ``n`` (HTM box), timed over chunks of generations."""
     lower, upper = (jnp.asarray(b) for b in HTMModel.search_bounds())

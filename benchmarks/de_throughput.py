@@ -17,7 +17,9 @@ every DE gets the same fast objective; the objective with JAX's default options 
 
 Times are medians per generation after compilation. The slow ones run only a few generations
 (``--slow-generations``), as the output says. "Objective alone" evaluates the same population
-in the same kind of jitted ``lax.scan`` as our DE, so the DE's own cost is the difference.
+in the same kind of jitted ``lax.scan`` as our DE, so the DE's own cost is the difference;
+the two are timed alternately, chunk by chunk, so the ratio is not skewed by the machine
+getting faster or slower between them.
 """
 
 from __future__ import annotations
@@ -43,7 +45,7 @@ from handeye_jax.objective import Stage1Objective
 from handeye_jax.optim import de, differential_evolution
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import PAPER, de_generation_ms, median_ms  # noqa: E402
+from _common import PAPER, interleaved_ms  # noqa: E402
 
 
 def _objective_scan(objective, pop, steps: int):
@@ -57,14 +59,18 @@ def _objective_scan(objective, pop, steps: int):
 
 def ours(objective, n: int, reps: int) -> tuple[float, float, float]:
     """ms per DE generation, and ms per objective evaluation of the same population compiled
-    with the DE's XLA options and with JAX's defaults."""
-    gen_ms, state = de_generation_ms(objective, n, reps)
+    with the DE's XLA options and with JAX's defaults; all three timed in turn, round after
+    round, so that the ratios hold while the machine's speed drifts."""
+    lower, upper = (jnp.asarray(b) for b in HTMModel.search_bounds())
+    state = de._init(objective, jax.random.PRNGKey(0), lower, upper, n)
+    settings = [np.asarray(v) for v in (10**9, 0.9, 0.5, 0.0, 0.0, False)]
     k = de.CHUNK_GENERATIONS
-    obj_ms = []
-    for options in (loop_compiler_options(), None):
+    fns = {"de": lambda: de._chunk(objective, state, lower, upper, *settings)}
+    for name, options in (("tuned", loop_compiler_options()), ("default", None)):
         scan = eqx.filter_jit(_objective_scan, compiler_options=options)
-        obj_ms.append(median_ms(lambda s=scan: s(objective, state.population, k), reps) / k)
-    return gen_ms, *obj_ms
+        fns[name] = lambda s=scan: s(objective, state.population, k)
+    ms = {name: float(np.median(t)) / k for name, t in interleaved_ms(fns, reps).items()}
+    return ms["de"], ms["tuned"], ms["default"]
 
 
 def scipy_de(objective, lower, upper, n: int, generations: int) -> float:
@@ -159,7 +165,8 @@ def peak_memory_mib(n: int, generations: int) -> float:
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--population", type=int, default=10_000)
-    ap.add_argument("--reps", type=int, default=7, help="timed chunks of 64 generations")
+    ap.add_argument("--reps", type=int, default=15,
+                    help="timed rounds of 64 generations of each")  # fmt: skip
     ap.add_argument("--slow-generations", type=int, default=3,
                     help="generations timed for scipy and evosax")  # fmt: skip
     ap.add_argument("--budget-generations", type=int, default=10_000,
