@@ -1,5 +1,6 @@
 """Every benchmark runs at a tiny size, so none can rot. No timing is asserted."""
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -40,3 +41,14 @@ def test_first_call_reports_cold_and_warm():
     assert "| cold |" in out and "| warm |" in out
     # the per-program table parsed JAX's compile log: the DE loop and the LM polish are in it
     assert "| _chunk_scan | 2 |" in out and "| _lm | 2 |" in out and "| all |" in out
+
+
+def test_de_overhead_times_every_ablation_and_reads_xla_ir():
+    out = _run("de_overhead.py", "--quick", "--vectors")
+    names = ("as shipped", "x·(1+ε) trial", "fixed donors", "crossover draws only",
+             "no random gather", "objective alone")  # fmt: skip
+    for name in names:
+        assert f"| {name} |" in out
+    # the vector report read the DE loop's fusions from XLA's dump, population-shaped ones too
+    assert re.search(r"^\| \S+ \| f64\[64,12\]\S* \| \d+ \|$", out, re.M)
+    assert re.search(r"\d+ of these \d+ fusions are scalar code", out)
