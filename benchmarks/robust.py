@@ -1,6 +1,7 @@
 """The robust option on a noise-free twin dataset with one touch 5 mm off.
 
     python benchmarks/robust.py [--population N] [--generations G] [--twin-seed S]
+    python benchmarks/robust.py --quick    # tiny sizes and two losses, for the test suite
 
 The twin is ``simulate(draw_truth(S), PRESETS["none"], exact=True)``: noise-free, with exact
 image points. For each loss and scale it fits the clean twin and the one with landmark 6's hand
@@ -12,6 +13,7 @@ is flagged, and the other eight stay within 0.2 mm of the clean fit's F.
 from __future__ import annotations
 
 import argparse
+import sys
 
 import numpy as np
 
@@ -37,20 +39,26 @@ def main() -> None:
     ap.add_argument("--generations", type=int, default=400)
     ap.add_argument("--seed", type=int, default=3)
     ap.add_argument("--twin-seed", type=int, default=4)
+    ap.add_argument("--quick", action="store_true", help="tiny sizes, two losses, for the tests")
     args = ap.parse_args()
+    cases = CASES
+    if args.quick:
+        args.population, args.generations = 40, 30
+        cases = [CASES[0], CASES[3]]
     twin = simulate(draw_truth(args.twin_seed), PRESETS["none"], args.twin_seed, exact=True)
     clean = twin.dataset
     hand = clean.hand_xy_mm.copy()
     hand[M] += OFF_MM
     touched = clean.replace(hand_xy_mm=hand)
-    print(f"command: python benchmarks/robust.py; twin seed {args.twin_seed} (preset none, "
+    command = " ".join(["python benchmarks/robust.py", *sys.argv[1:]])
+    print(f"command: {command}; twin seed {args.twin_seed} (preset none, "
           f"exact); landmark {M} touched {np.hypot(*OFF_MM):g} mm off; N = {args.population}, "
           f"G <= {args.generations}, seed {args.seed}\n")  # fmt: skip
     print(
         "| loss | scale (mm) | flagged | F1st others, clean (mm) | F1st others, touched (mm) "
         "| difference (mm) | within 0.2 mm |\n|---|---|---|---|---|---|---|"
     )
-    for loss, scale_mm in CASES:
+    for loss, scale_mm in cases:
         s = Settings(population=args.population, generations=args.generations, seed=args.seed,
                      loss=loss, loss_scale_mm=scale_mm)  # fmt: skip
         a, b = calibrate(clean, s), calibrate(touched, s)

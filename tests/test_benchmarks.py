@@ -52,3 +52,11 @@ def test_de_overhead_times_every_ablation_and_reads_xla_ir():
     # the vector report read the DE loop's fusions from XLA's dump, population-shaped ones too
     assert re.search(r"^\| \S+ \| f64\[64,12\]\S* \| \d+ \|$", out, re.M)
     assert re.search(r"\d+ of these \d+ fusions are scalar code", out)
+
+
+def test_robust_flags_the_touched_landmark():
+    out = _run("robust.py", "--quick")
+    rows = [line for line in out.splitlines() if line.startswith(("| l1 |", "| cauchy |"))]
+    assert len(rows) == 2
+    # landmark 6 was touched 5 mm off: both losses flag it, and only it
+    assert all(row.split(" | ")[2] == "[6]" for row in rows), rows
