@@ -55,20 +55,8 @@ from _common import PAPER, interleaved_ms  # noqa: E402
 from de_throughput import _objective_scan  # noqa: E402
 
 
-def _select(fn, state, trial):
-    f_trial = de._safe(jax.vmap(fn)(trial))
-    better = f_trial <= state.fitness
-    return de.DEState(
-        seed=state.seed,
-        population=jnp.where(better[:, None], trial, state.population),
-        fitness=jnp.where(better, f_trial, state.fitness),
-        generation=state.generation + 1,
-        converged=state.converged,
-    )
-
-
 def _scaled(fn, state, lower, upper, crossover, mutation):
-    return _select(fn, state, state.population * (1.0 + 1e-12 * mutation))
+    return de._select(fn, state, state.population * (1.0 + 1e-12 * mutation))
 
 
 def _fixed_donors(fn, state, lower, upper, crossover, mutation):
@@ -77,7 +65,7 @@ def _fixed_donors(fn, state, lower, upper, crossover, mutation):
     trial = jnp.where(pop > 0.5 * (lower + upper), base + mutation * (b - c), pop)
     trial = jnp.where(trial < lower, 0.5 * (base + lower), trial)
     trial = jnp.where(trial > upper, 0.5 * (base + upper), trial)
-    return _select(fn, state, trial)
+    return de._select(fn, state, trial)
 
 
 def _draws_only(fn, state, lower, upper, crossover, mutation):
@@ -86,7 +74,7 @@ def _draws_only(fn, state, lower, upper, crossover, mutation):
     u = _rng.uniforms(state.seed, state.generation, (n, d + 4))
     j_rand = jnp.floor(u[:, 3] * d).astype(jnp.int32)
     cross = (u[:, 4:] < crossover) | (jnp.arange(d)[None, :] == j_rand[:, None])
-    return _select(fn, state, jnp.where(cross, pop * (1.0 + 1e-12 * mutation), pop))
+    return de._select(fn, state, jnp.where(cross, pop * (1.0 + 1e-12 * mutation), pop))
 
 
 def _no_random_gather(fn, state, lower, upper, crossover, mutation):
@@ -94,12 +82,7 @@ def _no_random_gather(fn, state, lower, upper, crossover, mutation):
     n, d = pop.shape
     u = _rng.uniforms(state.seed, state.generation, (n, d + 4))
     base, b, c = (jnp.roll(pop, k, axis=0) for k in (1, 2, 3))
-    j_rand = jnp.floor(u[:, 3] * d).astype(jnp.int32)
-    cross = (u[:, 4:] < crossover) | (jnp.arange(d)[None, :] == j_rand[:, None])
-    trial = jnp.where(cross, base + mutation * (b - c), pop)
-    trial = jnp.where(trial < lower, 0.5 * (base + lower), trial)
-    trial = jnp.where(trial > upper, 0.5 * (base + upper), trial)
-    return _select(fn, state, trial)
+    return de._select(fn, state, de._trial(pop, base, b, c, u, lower, upper, crossover, mutation))
 
 
 def _loop_with(generation, name: str):

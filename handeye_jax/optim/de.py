@@ -131,6 +131,46 @@ def distinct_indices(u: Float[Array, "3 n"]) -> Int[Array, "3 n"]:
     return jnp.stack([r1, r2, r3])
 
 
+def _trial(
+    pop: Float[Array, "n d"],
+    base: Float[Array, "n d"],
+    b: Float[Array, "n d"],
+    c: Float[Array, "n d"],
+    u: Float[Array, "n d+4"],
+    lower: Float[Array, " d"],
+    upper: Float[Array, " d"],
+    crossover: float,
+    mutation: float,
+) -> Float[Array, "n d"]:
+    """Mutation ``base + F·(b − c)``, binomial crossover and the bounds rule.
+
+    Args:
+        pop: the current members (targets).
+        base, b, c: each member's donors ``x_r1``, ``x_r2``, ``x_r3``.
+        u: each member's uniforms; column 3 picks ``j_rand``, columns 4… the crossover tests.
+    """
+    d = pop.shape[1]
+    mutant = base + mutation * (b - c)
+    j_rand = jnp.floor(u[:, 3] * d).astype(jnp.int32)
+    cross = (u[:, 4:] < crossover) | (jnp.arange(d)[None, :] == j_rand[:, None])
+    trial = jnp.where(cross, mutant, pop)
+    trial = jnp.where(trial < lower, 0.5 * (base + lower), trial)
+    return jnp.where(trial > upper, 0.5 * (base + upper), trial)
+
+
+def _select(fn: Callable, state: DEState, trial: Float[Array, "n d"]) -> DEState:
+    """Evaluate the trials and keep each one that is no worse than its target."""
+    f_trial = _safe(jax.vmap(fn)(trial))
+    better = f_trial <= state.fitness
+    return DEState(
+        seed=state.seed,
+        population=jnp.where(better[:, None], trial, state.population),
+        fitness=jnp.where(better, f_trial, state.fitness),
+        generation=state.generation + 1,
+        converged=state.converged,
+    )
+
+
 def _generation(
     fn: Callable,
     state: DEState,
@@ -148,21 +188,7 @@ def _generation(
     # than "fill" mode at N = 10,000 (interleaved A/B, benchmarks/de_throughput.py's harness).
     donors = pop.at[jnp.concatenate([r1, r2, r3])].get(mode="promise_in_bounds")
     base, b, c = donors.reshape(3, n, d)
-    mutant = base + mutation * (b - c)
-    j_rand = jnp.floor(u[:, 3] * d).astype(r1.dtype)
-    cross = (u[:, 4:] < crossover) | (jnp.arange(d)[None, :] == j_rand[:, None])
-    trial = jnp.where(cross, mutant, pop)
-    trial = jnp.where(trial < lower, 0.5 * (base + lower), trial)
-    trial = jnp.where(trial > upper, 0.5 * (base + upper), trial)
-    f_trial = _safe(jax.vmap(fn)(trial))
-    better = f_trial <= state.fitness
-    return DEState(
-        seed=state.seed,
-        population=jnp.where(better[:, None], trial, pop),
-        fitness=jnp.where(better, f_trial, state.fitness),
-        generation=state.generation + 1,
-        converged=state.converged,
-    )
+    return _select(fn, state, _trial(pop, base, b, c, u, lower, upper, crossover, mutation))
 
 
 def _spread_converged(f: Float[Array, " n"], tol: float, atol: float) -> Bool[Array, ""]:
