@@ -44,10 +44,17 @@ def interleaved_ms(fns: dict, rounds: int) -> dict[str, list[float]]:
     return times
 
 
-def de_generation_ms(objective, n: int, reps: int, key: int = 0) -> tuple[float, de.DEState]:
-    """ms per DE generation at population ``n`` (HTM box), timed over chunks of generations."""
+def de_start(objective, n: int, key: int = 0):
+    """A DE run's initial state at population ``n`` in the HTM box, the box, and the settings
+    ``optim.de._chunk`` takes (no generation limit, CR 0.9, F 0.5, early stop off)."""
     lower, upper = (jnp.asarray(b) for b in HTMModel.search_bounds())
     state = de._init(objective, jax.random.PRNGKey(key), lower, upper, n)
     settings = [np.asarray(v) for v in (10**9, 0.9, 0.5, 0.0, 0.0, False)]
+    return state, lower, upper, settings
+
+
+def de_generation_ms(objective, n: int, reps: int, key: int = 0) -> tuple[float, de.DEState]:
+    """ms per DE generation at population ``n`` (HTM box), timed over chunks of generations."""
+    state, lower, upper, settings = de_start(objective, n, key)
     ms = median_ms(lambda: de._chunk(objective, state, lower, upper, *settings), reps)
     return ms / de.CHUNK_GENERATIONS, state

@@ -24,10 +24,12 @@ slow phases hit each alike; the table gives the median and the 10th percentile.
 from __future__ import annotations
 
 import argparse
+import atexit
 import functools
 import glob
 import os
 import re
+import shutil
 import sys
 import tempfile
 import time
@@ -37,6 +39,7 @@ from pathlib import Path
 # XLA reads its dump flags once, at start-up, so --vectors must set them before JAX loads.
 if "--vectors" in sys.argv:
     _DUMP = tempfile.mkdtemp(prefix="handeye-xla-")
+    atexit.register(shutil.rmtree, _DUMP, ignore_errors=True)
     _FLAGS = f" --xla_dump_to={_DUMP} --xla_dump_hlo_module_re=.*_chunk_scan.*"
     os.environ["XLA_FLAGS"] = os.environ.get("XLA_FLAGS", "") + _FLAGS
 
@@ -51,7 +54,7 @@ from handeye_jax.objective import Stage1Objective  # noqa: E402
 from handeye_jax.optim import _rng, de  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import PAPER, interleaved_ms  # noqa: E402
+from _common import PAPER, de_start, interleaved_ms  # noqa: E402
 from de_throughput import _objective_scan  # noqa: E402
 
 
@@ -124,10 +127,8 @@ def main(argv=None) -> None:
 
     with jax.enable_x64(True):
         objective = Stage1Objective(HTMModel, load_dataset(PAPER).observations())
-        lower, upper = (jnp.asarray(b) for b in HTMModel.search_bounds())
         n = args.population
-        state = de._init(objective, jax.random.PRNGKey(0), lower, upper, n)
-        settings = [np.asarray(v) for v in (10**9, 0.9, 0.5, 0.0, 0.0, False)]
+        state, lower, upper, settings = de_start(objective, n)
         k = de.CHUNK_GENERATIONS
         loops = {
             "as shipped": de._chunk,

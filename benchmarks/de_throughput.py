@@ -45,7 +45,7 @@ from handeye_jax.objective import Stage1Objective
 from handeye_jax.optim import de, differential_evolution
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import PAPER, interleaved_ms  # noqa: E402
+from _common import PAPER, de_start, interleaved_ms  # noqa: E402
 
 
 def _objective_scan(objective, pop, steps: int):
@@ -61,9 +61,7 @@ def ours(objective, n: int, reps: int) -> tuple[float, float, float]:
     """ms per DE generation, and ms per objective evaluation of the same population compiled
     with the DE's XLA options and with JAX's defaults; all three timed in turn, round after
     round, so that the ratios hold while the machine's speed drifts."""
-    lower, upper = (jnp.asarray(b) for b in HTMModel.search_bounds())
-    state = de._init(objective, jax.random.PRNGKey(0), lower, upper, n)
-    settings = [np.asarray(v) for v in (10**9, 0.9, 0.5, 0.0, 0.0, False)]
+    state, lower, upper, settings = de_start(objective, n)
     k = de.CHUNK_GENERATIONS
     fns = {"de": lambda: de._chunk(objective, state, lower, upper, *settings)}
     for name, options in (("tuned", loop_compiler_options()), ("default", None)):
