@@ -447,6 +447,7 @@ function finishRun() {
   store("outbox", app.outbox); // first into the outbox, then out of the run: never in neither
   app.run = null;
   save();
+  showOutbox(`sending ${item.what}…`); // not "ok": the last run's "saved" must not linger
   flush();
 }
 
