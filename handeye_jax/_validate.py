@@ -26,6 +26,13 @@ def _describe(x: Any) -> str:
     return f"a {type(x).__name__}"
 
 
+#: Largest magnitudes a field may have: far beyond any rig, but small enough that nothing
+#: derived from them (products, squares, a fit's residuals) overflows float64.
+MAX_PX = 1e6
+MAX_MM = 1e5
+MAX_DEG = 3600.0
+
+
 class _Reader:
     """Pulls typed fields out of a parsed TOML document, naming the field on failure."""
 
@@ -49,19 +56,28 @@ class _Reader:
             self.fail(_join(where, missing[0]), "missing")
         return value
 
-    def number(self, x: Any, where: str, positive: bool = False) -> float:
+    def number(
+        self, x: Any, where: str, positive: bool = False, limit: float | None = None
+    ) -> float:
+        """A finite float; ``positive``: > 0; ``limit``: at most this in magnitude."""
         if isinstance(x, bool) or not isinstance(x, int | float):
             self.fail(where, f"must be a number (got {_describe(x)})")
-        if not math.isfinite(x):
+        try:
+            value = float(x)
+        except OverflowError:  # an integer beyond float64's range
+            self.fail(where, f"must be finite (got an integer of {len(str(abs(x)))} digits)")
+        if not math.isfinite(value):
             self.fail(where, f"must be finite (got {x})")
-        if positive and x <= 0:
+        if positive and value <= 0:
             self.fail(where, f"must be > 0 (got {x})")
-        return float(x)
+        if limit is not None and abs(value) > limit:
+            self.fail(where, f"must be at most {limit:g} in magnitude (got {x})")
+        return value
 
-    def vector(self, x: Any, where: str, n: int) -> list[float]:
+    def vector(self, x: Any, where: str, n: int, limit: float | None = None) -> list[float]:
         if not isinstance(x, list) or len(x) != n:
             self.fail(where, f"must be an array of {n} numbers (got {_describe(x)})")
-        return [self.number(v, f"{where}[{i}]") for i, v in enumerate(x)]
+        return [self.number(v, f"{where}[{i}]", limit=limit) for i, v in enumerate(x)]
 
 
 def _join(where: str, key: str) -> str:

@@ -18,6 +18,7 @@ from . import _xla
 from ._x64 import in_float64
 from .dataset import Dataset, check_min_landmarks
 from .diagnostics import bound_hits, diagnose
+from .errors import InputError
 from .losses import L1Loss, LossObjective, get_loss
 from .models import AbstractModel, AbstractParametric, AffinePair, get_model
 from .objective import (
@@ -170,6 +171,14 @@ def _stage_result(objective, x, cls, de_info, polish, convergence) -> StageResul
     return StageResult(F, f1, f2, params, residuals, de_info, polish, convergence)
 
 
+def _check_finite(stage: StageResult, name: str, source) -> None:
+    """A fit whose F is NaN or infinite says the data are not a rig's: stop, do not report."""
+    if not np.isfinite([stage.F, *stage.params.values()]).all():
+        raise InputError(
+            source, "", f"{name}'s fit is not finite (F = {stage.F} mm): check the data's values"
+        )
+
+
 def bound_warnings(
     params: dict[str, float], cls: type[AbstractParametric], search: dict
 ) -> list[str]:
@@ -234,6 +243,7 @@ def calibrate(
         obj1, model_cls, dataset.search, key1, settings, progress, "stage 1 DE"
     )
     stage1 = _stage_result(paper1, x1, model_cls, de1, pol1, conv1)
+    _check_finite(stage1, "stage 1", dataset.source)
 
     points = _points(model_cls, np.asarray(x1), obs)
     paper2 = Stage2Objective(AffinePair, points, obs.centre_index)
@@ -242,6 +252,7 @@ def calibrate(
         obj2, AffinePair, dataset.search, key2, settings, progress, "stage 2 DE"
     )
     stage2 = _stage_result(paper2, x2, AffinePair, de2, pol2, conv2)
+    _check_finite(stage2, "stage 2", dataset.source)
     centres = _centres(np.asarray(x2), points, obs.centre_index)
 
     warnings = bound_warnings(stage1.params, model_cls, dataset.search) + bound_warnings(

@@ -64,7 +64,7 @@ import tomlkit.items
 
 from . import geometry as geo
 from ._atomic import write_bytes_atomic, write_text_atomic
-from ._validate import _describe, _join, _Reader
+from ._validate import MAX_DEG, MAX_MM, MAX_PX, _describe, _join, _Reader
 from ._x64 import in_float64
 from .errors import InputError
 from .observations import Observations, Rig, centre_landmark
@@ -263,18 +263,24 @@ def _parse(doc: dict[str, Any], path: Path | None) -> Dataset:
 
     cam = r.table(doc["camera"], "camera", _CAMERA_KEYS)
     camera = Camera(
-        fx_px=r.number(cam["fx"], "camera.fx", positive=True),
-        fy_px=r.number(cam["fy"], "camera.fy", positive=True),
-        cx_px=r.number(cam["cx"], "camera.cx"),
-        cy_px=r.number(cam["cy"], "camera.cy"),
+        fx_px=r.number(cam["fx"], "camera.fx", positive=True, limit=MAX_PX),
+        fy_px=r.number(cam["fy"], "camera.fy", positive=True, limit=MAX_PX),
+        cx_px=r.number(cam["cx"], "camera.cx", limit=MAX_PX),
+        cy_px=r.number(cam["cy"], "camera.cy", limit=MAX_PX),
     )
+    for key in ("fx", "fy"):
+        if cam[key] < 1:
+            r.fail(f"camera.{key}", f"must be at least 1 px (got {cam[key]:g})")
     capture = r.table(doc["capture"], "capture", _CAPTURE_KEYS)
-    capture_position = r.vector(capture["hand_position"], "capture.hand_position", 3)
+    capture_position = r.vector(capture["hand_position"], "capture.hand_position", 3, MAX_MM)
     tablet = r.table(doc["tablet"], "tablet", _TABLET_KEYS)
-    ppi = r.number(tablet["ppi"], "tablet.ppi", positive=True)
-    scale = r.number(tablet["scale"], "tablet.scale", positive=True)
+    ppi = r.number(tablet["ppi"], "tablet.ppi", positive=True, limit=1e5)
+    scale = r.number(tablet["scale"], "tablet.scale", positive=True, limit=100)
+    for key, low in (("ppi", 1.0), ("scale", 0.01)):
+        if tablet[key] < low:
+            r.fail(f"tablet.{key}", f"must be at least {low:g} (got {tablet[key]:g})")
     angle = r.table(doc["hand_angle"], "hand_angle", _HAND_ANGLE_KEYS)
-    zero = r.number(angle["zero"], "hand_angle.zero")
+    zero = r.number(angle["zero"], "hand_angle.zero", limit=MAX_DEG)
     sign = r.number(angle["sign"], "hand_angle.sign")
     if sign not in (1.0, -1.0):
         r.fail("hand_angle.sign", f"must be 1 or -1 (got {angle['sign']})")
@@ -291,7 +297,7 @@ def _parse(doc: dict[str, Any], path: Path | None) -> Dataset:
                 hint = difflib.get_close_matches(key, sorted(known), n=1)
                 more = f"did you mean {hint[0]!r}?" if hint else "no model has this parameter"
                 r.fail(where, f"unknown parameter name; {more}")
-            lo, hi = r.vector(value, where, 2)
+            lo, hi = r.vector(value, where, 2, 1e6)
             if not lo < hi:
                 r.fail(where, f"must be [lo, hi] with lo < hi (got [{lo}, {hi}])")
             search[key] = (lo, hi)
@@ -305,13 +311,15 @@ def _parse(doc: dict[str, Any], path: Path | None) -> Dataset:
     for i, mark in enumerate(marks):
         where = f"landmarks[{i}]"
         r.table(mark, where, _LANDMARK_KEYS)
-        rows["tablet_px"].append(r.vector(mark["tablet_px"], f"{where}.tablet_px", 2))
-        rows["image_px"].append(r.vector(mark["image_px"], f"{where}.image_px", 2))
-        rows["depth"].append(r.number(mark["depth"], f"{where}.depth", positive=True))
-        rows["hand_xy"].append(r.vector(mark["hand_xy"], f"{where}.hand_xy", 2))
-        rows["hand_angle"].append(r.number(mark["hand_angle"], f"{where}.hand_angle"))
+        rows["tablet_px"].append(r.vector(mark["tablet_px"], f"{where}.tablet_px", 2, MAX_PX))
+        rows["image_px"].append(r.vector(mark["image_px"], f"{where}.image_px", 2, MAX_PX))
+        rows["depth"].append(r.number(mark["depth"], f"{where}.depth", positive=True, limit=MAX_MM))
+        rows["hand_xy"].append(r.vector(mark["hand_xy"], f"{where}.hand_xy", 2, MAX_MM))
+        rows["hand_angle"].append(
+            r.number(mark["hand_angle"], f"{where}.hand_angle", limit=MAX_DEG)
+        )
         rows["touch_error_px"].append(
-            r.vector(mark["touch_error_px"], f"{where}.touch_error_px", 2)
+            r.vector(mark["touch_error_px"], f"{where}.touch_error_px", 2, MAX_PX)
         )
     _check_distinct(rows["tablet_px"], path)
 

@@ -18,12 +18,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Float
 
+from ._validate import MAX_PX
 from ._x64 import in_float64
 from .calibrate import Settings, fit_correction
 from .dataset import Dataset, load_dataset
 from .errors import InputError
 from .models import AbstractModel
-from .predict import hand_command, read_points_csv
+from .predict import csv_number, hand_command, read_points_csv
 from .result import CalibrationResult
 from .twin import TwinTruth, load_truth
 
@@ -54,13 +55,11 @@ def load_heldout(path: str | Path) -> Heldout:
         if name not in header:
             raise InputError(path, "header", f"missing column {name}")
         j = header.index(name)
-        try:
-            col = np.array([float(r[j]) for r in rows])
-        except ValueError:
-            raise InputError(path, name, "not a number in every row") from None
-        if not np.isfinite(col).all():
-            raise InputError(path, name, "must be finite")
-        cols.append(col)
+        cols.append(
+            np.array(
+                [csv_number(path, f"line {i}.{name}", r[j], MAX_PX) for i, r in enumerate(rows, 2)]
+            )
+        )
     return Heldout(values[:, :2], values[:, 2], values[:, 3], np.column_stack(cols))
 
 

@@ -13,12 +13,14 @@ from pathlib import Path
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._validate import MAX_DEG, MAX_MM, MAX_PX
 from .errors import InputError
 from .models import AbstractCorrection, AbstractModel
 from .observations import Rig
 
 POINTS_HEADER = ("u", "v", "depth", "hand_angle")
 OUTPUT_COLUMNS = ("hand_x", "hand_y")
+_LIMITS = {"u": MAX_PX, "v": MAX_PX, "depth": MAX_MM, "hand_angle": MAX_DEG}
 
 
 def hand_command(
@@ -55,7 +57,7 @@ def read_points_csv(path: str | Path) -> tuple[list[str], list[list[str]], np.nd
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # a BOM, as spreadsheets write, is fine
     except (OSError, UnicodeDecodeError) as e:
         raise InputError(path, "", f"cannot read file: {e}") from None
     reader = csv.reader(io.StringIO(text))
@@ -67,6 +69,9 @@ def read_points_csv(path: str | Path) -> tuple[list[str], list[list[str]], np.nd
         raise InputError(
             path, "header", f"expected {','.join(POINTS_HEADER)}, got {','.join(header)}"
         )
+    twice = sorted({h for h in header if header.count(h) > 1})
+    if twice:
+        raise InputError(path, "header", f"column {twice[0]} appears more than once")
     clash = [c for c in OUTPUT_COLUMNS if c in header]
     if clash:
         raise InputError(path, "header", f"already has output column {clash[0]}")
@@ -78,16 +83,25 @@ def read_points_csv(path: str | Path) -> tuple[list[str], list[list[str]], np.nd
         if len(row) != len(header):
             raise InputError(path, f"line {i}", f"has {len(row)} fields, header has {len(header)}")
         for j, name in enumerate(POINTS_HEADER):
-            try:
-                x = float(row[j])
-            except ValueError:
-                raise InputError(path, f"line {i}.{name}", f"not a number: {row[j]!r}") from None
-            if not math.isfinite(x):
-                raise InputError(path, f"line {i}.{name}", f"must be finite (got {row[j]})")
-            if name == "depth" and x <= 0:
+            values[i - 2, j] = csv_number(path, f"line {i}.{name}", row[j], _LIMITS[name])
+            if name == "depth" and values[i - 2, j] <= 0:
                 raise InputError(path, f"line {i}.depth", f"must be > 0 mm (got {row[j]})")
-            values[i - 2, j] = x
     return header, rows, values
+
+
+def csv_number(path: Path, where: str, cell: str, limit: float) -> float:
+    """A CSV cell as a finite float at most ``limit`` in magnitude; :class:`InputError` if not."""
+    try:
+        if "_" in cell:  # Python's float() reads "3_38" as 338; a CSV never means that
+            raise ValueError
+        x = float(cell)
+    except ValueError:
+        raise InputError(path, where, f"not a number: {cell!r}") from None
+    if not math.isfinite(x):
+        raise InputError(path, where, f"must be finite (got {cell})")
+    if abs(x) > limit:
+        raise InputError(path, where, f"must be at most {limit:g} in magnitude (got {cell})")
+    return x
 
 
 def points_csv_text(header: list[str], rows: list[list[str]], hand_xy_mm: np.ndarray) -> str:

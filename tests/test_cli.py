@@ -141,6 +141,9 @@ def test_bad_result_and_points_files(result_file, tmp_path, capsys):
         ("u,v,depth,hand_angle\n1,nan,3,4\n", "line 2.v"),
         ("u,v,depth,hand_angle\n1,2,3\n", "line 2"),
         ("u,v,depth,hand_angle\n", "rows"),
+        ("u,v,depth,hand_angle\n1,2,1e308,4\n", "line 2.depth"),
+        ("u,v,depth,hand_angle\n3_38,2,3,4\n", "line 2.u"),
+        ("u,v,depth,hand_angle,u\n1,2,3,4,5\n", "header"),
     ]:
         pts.write_text(text)
         out = tmp_path / "o.csv"
@@ -148,6 +151,35 @@ def test_bad_result_and_points_files(result_file, tmp_path, capsys):
         err = capsys.readouterr().err
         assert field in err and str(pts) in err and len(err.strip().splitlines()) == 1
         assert not out.exists()
+
+
+def test_a_fit_that_is_not_finite_stops_with_one_line_and_writes_nothing(
+    tmp_path, capsys, monkeypatch
+):
+    import dataclasses
+    import importlib
+
+    cal = importlib.import_module(
+        "handeye_jax.calibrate"
+    )  # the package exports a function of that name
+    fit = cal._stage_result  # the real fit, then its F made NaN: what absurd data would give
+    monkeypatch.setattr(cal, "_stage_result", lambda *a: dataclasses.replace(fit(*a), F=np.nan))
+    out = tmp_path / "r.json"
+    assert main(["calibrate", str(PAPER), *FAST, "--no-diagnostics", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(PAPER) in err
+    assert "stage 1's fit is not finite (F = nan mm)" in err
+    assert not out.exists()
+
+
+def test_a_points_csv_with_a_byte_order_mark_reads_as_without(result_file, tmp_path, capsys):
+    text = "u,v,depth,hand_angle\n338,244,169.2,90\n"
+    outs = []
+    for name, data in (("plain.csv", text.encode()), ("bom.csv", b"\xef\xbb\xbf" + text.encode())):
+        (tmp_path / name).write_bytes(data)
+        assert main(["predict", str(result_file), str(tmp_path / name)]) == 0
+        outs.append(capsys.readouterr().out)
+    assert outs[0] == outs[1] and outs[0].startswith("u,v,depth,hand_angle,hand_x,hand_y\n")
 
 
 @pytest.mark.parametrize("args", [["--population", "2"], ["--generations", "0"],

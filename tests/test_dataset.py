@@ -170,32 +170,35 @@ def test_dataset_to_toml_writes_floats_in_the_documented_order(paper: Dataset):
     assert "tablet_px = [400.0, 150.0]" in text  # pairs on one line
 
 
-finite = st.floats(allow_nan=False, allow_infinity=False)
-positive = st.floats(min_value=0.0, exclude_min=True, allow_nan=False, allow_infinity=False)
-pair = st.tuples(finite, finite)
+def within(lo: float, hi: float, exclude_min: bool = False):
+    return st.floats(min_value=lo, max_value=hi, exclude_min=exclude_min)
+
+
+px, mm, deg = within(-1e6, 1e6), within(-1e5, 1e5), within(-3600.0, 3600.0)  # every valid value
+pair = st.tuples(px, px)
 
 
 @st.composite
 def datasets(draw) -> Dataset:
     tablet = draw(st.lists(pair, min_size=1, max_size=12, unique=True))
     n = len(tablet)
-    search_range = st.tuples(finite, finite).filter(lambda t: t[0] < t[1])
+    search_range = st.tuples(px, px).filter(lambda t: t[0] < t[1])
     return Dataset(
         name=draw(st.text(min_size=1, max_size=30).filter(lambda s: s.strip() != "")),
-        camera=Camera(draw(positive), draw(positive), draw(finite), draw(finite)),
-        capture_position_mm=np.array(draw(st.tuples(finite, finite, finite))),
-        tablet_ppi=draw(positive),
-        tablet_scale=draw(positive),
-        hand_angle_zero_deg=draw(finite),
+        camera=Camera(draw(within(1, 1e6)), draw(within(1, 1e6)), draw(px), draw(px)),
+        capture_position_mm=np.array(draw(st.tuples(mm, mm, mm))),
+        tablet_ppi=draw(within(1, 1e5)),
+        tablet_scale=draw(within(0.01, 100)),
+        hand_angle_zero_deg=draw(deg),
         hand_angle_sign=draw(st.sampled_from([1, -1])),
         search=draw(
             st.dictionaries(st.sampled_from(sorted(known_search_names())), search_range, max_size=4)
         ),  # fmt: skip
         tablet_px=np.array(tablet),
         image_px=np.array(draw(st.lists(pair, min_size=n, max_size=n))),
-        depth_mm=np.array(draw(st.lists(positive, min_size=n, max_size=n))),
-        hand_xy_mm=np.array(draw(st.lists(pair, min_size=n, max_size=n))),
-        hand_angle_deg=np.array(draw(st.lists(finite, min_size=n, max_size=n))),
+        depth_mm=np.array(draw(st.lists(within(0, 1e5, True), min_size=n, max_size=n))),
+        hand_xy_mm=np.array(draw(st.lists(st.tuples(mm, mm), min_size=n, max_size=n))),
+        hand_angle_deg=np.array(draw(st.lists(deg, min_size=n, max_size=n))),
         touch_error_px=np.array(draw(st.lists(pair, min_size=n, max_size=n))),
     )
 
@@ -376,6 +379,47 @@ DOC_CASES = [
     ("landmarks-empty", setting("landmarks", value=[]), "landmarks", "at least 1 landmark"),
     ("landmarks-not-tables", setting("landmarks", value=[1, 2]), "landmarks", "array of tables"),
     ("landmarks-duplicate", _dup_tablet, "landmarks[7].tablet_px", "duplicates landmarks[1]"),
+    # Finite but beyond any rig: each would overflow or give NaN later in the fit.
+    (
+        "integer-beyond-float64",
+        setting("landmarks", 0, "depth", value=10**400),
+        "landmarks[0].depth",
+        "must be finite (got an integer of 401 digits)",
+    ),
+    (
+        "depth-huge",
+        setting("landmarks", 0, "depth", value=1e308),
+        "landmarks[0].depth",
+        "must be at most 100000 in magnitude (got 1e+308)",
+    ),
+    (
+        "image-px-huge",
+        setting("landmarks", 2, "image_px", value=[1e308, 1.0]),
+        "landmarks[2].image_px[0]",
+        "at most 1e+06",
+    ),
+    (
+        "hand-angle-huge",
+        setting("landmarks", 1, "hand_angle", value=-4e3),
+        "landmarks[1].hand_angle",
+        "at most 3600",
+    ),
+    (
+        "hand-xy-huge",
+        setting("landmarks", 0, "hand_xy", value=[1e200, 0.0]),
+        "landmarks[0].hand_xy[0]",
+        "at most 100000",
+    ),
+    ("fx-tiny", setting("camera", "fx", value=1e-300), "camera.fx", "at least 1 px"),
+    ("ppi-subnormal", setting("tablet", "ppi", value=5e-324), "tablet.ppi", "at least 1"),
+    ("scale-tiny", setting("tablet", "scale", value=1e-3), "tablet.scale", "at least 0.01"),
+    ("scale-huge", setting("tablet", "scale", value=1e308), "tablet.scale", "at most 100"),
+    (
+        "search-huge",
+        setting("search", value={"xt": [-1e308, 1e308]}),
+        "search.xt[0]",
+        "at most 1e+06",
+    ),
 ]
 
 
