@@ -12,6 +12,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from ._atomic import check_output, write_output
 from .errors import InputError
 
 PROG = "handeye-jax"
@@ -50,16 +51,12 @@ def _seed(text: str) -> int:
     return v
 
 
-def _output_path(path: str | None) -> Path | None:
-    if path is None:
-        return None
-    p = Path(path)
-    parent = p.parent if str(p.parent) else Path(".")
-    if not parent.is_dir():
-        raise InputError(p, "", f"cannot write: folder {str(parent)!r} does not exist")
-    if p.is_dir():
-        raise InputError(p, "", "cannot write: is a folder")
-    return p
+def _output_path(
+    path: str | Path | None, option: str = "--out", inputs: Sequence[str | Path | None] = ()
+) -> Path | None:
+    """The output file of ``option``, checked before the work: its folder exists and can be
+    written, and it is not a folder nor one of the command's ``inputs``."""
+    return None if path is None else check_output(path, option, inputs)
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
@@ -67,7 +64,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     from .dataset import load_dataset
     from .summary import format_summary
 
-    out = _output_path(args.out)
+    out = _output_path(args.out, "--out", [args.dataset])
     dataset = load_dataset(args.dataset)
     settings = Settings(
         model=args.model,
@@ -82,17 +79,16 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     result = calibrate(dataset, settings, progress=not args.quiet)
     print(format_summary(result))
     if out is not None:
-        result.save(out)
+        write_output(out, result.to_json(), "--out")
         print(f"result written to {out}")
     return 0
 
 
 def _cmd_predict(args: argparse.Namespace) -> int:
-    from ._atomic import write_text_atomic
     from .predict import points_csv_text, read_points_csv
     from .result import load_result
 
-    out = _output_path(args.out)
+    out = _output_path(args.out, "--out", [args.result, args.points])
     result = load_result(args.result)
     header, rows, values = read_points_csv(args.points)
     hand_xy = result.predict(values[:, :2], values[:, 2], values[:, 3], stage=args.stage)
@@ -100,7 +96,7 @@ def _cmd_predict(args: argparse.Namespace) -> int:
     if out is None:
         sys.stdout.write(text)
     else:
-        write_text_atomic(out, text)
+        write_output(out, text, "--out")
         print(f"{len(rows)} hand commands (stage {args.stage}, mm) written to {out}")
     return 0
 
@@ -108,6 +104,8 @@ def _cmd_predict(args: argparse.Namespace) -> int:
 def _cmd_tablet(args: argparse.Namespace) -> int:
     from .tablet import serve
 
+    # Trials are saved while serving: refuse an unwritable file now, not at the first save.
+    _output_path(args.trials, "--trials", [args.dataset, args.targets, args.result])
     return serve(
         args.dataset, host=args.host, port=args.port, targets=args.targets,
         result=args.result, trials_path=args.trials, ppi=args.ppi, scale=args.scale,
@@ -137,7 +135,7 @@ def _positive_mm(text: str) -> float:
 def _cmd_report(args: argparse.Namespace) -> int:
     from .report import write_report
 
-    written = write_report(args.result, args.out, args.dataset)
+    written = write_report(args.result, args.out, args.dataset, field="--out")
     folder = written[0].parent if written else args.out
     print(f"{len(written)} figures (PNG and SVG) written to {folder}")
     return 0
@@ -282,8 +280,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as e:  # the user gets one line; developers can ask for the traceback
         if os.environ.get("HANDEYE_JAX_DEBUG"):
             raise
+        what = " ".join(str(e).split())  # one line, even for OpenCV's multi-line messages
         print(
-            f"{PROG}: internal error: {type(e).__name__}: {e} "
+            f"{PROG}: internal error: {type(e).__name__}: {what} "
             "(set HANDEYE_JAX_DEBUG=1 for the traceback)",
             file=sys.stderr,
         )

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from jaxtyping import Float
 
-from ._atomic import write_bytes_atomic
+from ._atomic import StagedFiles, check_folder_output, same_file, write_output
 from .cli import _output_path, _positive_int
 from .dataset import backup_path, save_dataset, update_dataset
 from .detect import DetectSettings, overlay_image, read_image
@@ -30,28 +30,38 @@ def _positive_float(text: str) -> float:
     return v
 
 
+def overlay_png(
+    capture: str | Path,
+    points_px: Float[np.ndarray, "n 2"],
+    depth_mm: Float[np.ndarray, " n"] | None,
+) -> bytes:
+    """The picture with each point circled and numbered (with its depth in mm, if given), PNG."""
+    image = read_image(capture)
+    if depth_mm is None:
+        labels = [f"?{i}" for i in range(len(points_px))]
+    else:
+        labels = [f"{m}: {z:.0f} mm" for m, z in enumerate(depth_mm)]
+    return encode_png(overlay_image(image, points_px, labels))
+
+
 def write_overlay(
     capture: str | Path,
     points_px: Float[np.ndarray, "n 2"],
     depth_mm: Float[np.ndarray, " n"] | None,
     out: Path,
 ) -> None:
-    """The picture with each point circled and numbered (with its depth in mm, if given)."""
-    image = read_image(capture)
-    if depth_mm is None:
-        labels = [f"?{i}" for i in range(len(points_px))]
-    else:
-        labels = [f"{m}: {z:.0f} mm" for m, z in enumerate(depth_mm)]
-    write_bytes_atomic(out, encode_png(overlay_image(image, points_px, labels)))
+    """:func:`overlay_png` written to ``out`` atomically."""
+    write_output(out, overlay_png(capture, points_px, depth_mm), "--overlay")
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from .simulate import PRESETS, simulate, write_twin
+    from .simulate import PRESETS, TWIN_FILES, simulate, write_twin
     from .twin import draw_truth, load_truth
 
     out = Path(args.out_dir)
     if not out.parent.is_dir() or (out.exists() and not out.is_dir()):
         raise InputError(out, "", "cannot write: parent folder missing or not a folder")
+    check_folder_output(out, TWIN_FILES, "", [args.truth])
     if args.truth:
         if args.dot_px is not None:
             raise InputError(None, "--dot-px", "the truth file sets the dot size (dot_px)")
@@ -71,9 +81,15 @@ def _cmd_detect(args: argparse.Namespace) -> int:
     from .dataset import load_dataset
     from .detect import BlobCountError, detect_landmarks, fill_dataset
 
-    out = _output_path(args.out)
-    overlay = _output_path(args.overlay)
+    images = [args.capture, args.depth]
+    out = _output_path(args.out, "--out", images)
+    in_place = out is None or same_file(out, args.dataset)
+    written = [args.dataset, backup_path(args.dataset)] if in_place else [out]
+    overlay = _output_path(args.overlay, "--overlay", [*images, args.dataset, *written])
     dataset = load_dataset(args.dataset)
+    if in_place:
+        for path in written:
+            _output_path(path, "--dataset", images)
     if args.min_area > args.max_area:
         why = f"must be <= --max-area (got {args.min_area} > {args.max_area})"
         raise InputError(None, "--min-area", why)
@@ -86,19 +102,28 @@ def _cmd_detect(args: argparse.Namespace) -> int:
             write_overlay(args.capture, e.blobs.image_px, None, overlay)
             e = BlobCountError(e.path, e.blobs, dataset.n_landmarks, f"; overlay in {overlay}")
         raise e from None
-    if overlay is not None:
-        write_overlay(args.capture, found.image_px, found.depth_mm, overlay)
     new = fill_dataset(dataset, found)
-    if out is None or out.resolve() == Path(args.dataset).resolve():
-        # In place: only image_px and depth change; the file's comments and layout stay.
-        if update_dataset(args.dataset, new, keep_backup=True):
-            print(f"{dataset.n_landmarks} landmarks found; {args.dataset} updated "
-                  f"(previous file kept as {backup_path(args.dataset)})")  # fmt: skip
+    # The overlay waits beside its target and goes in place only once the dataset is written.
+    staged = None
+    if overlay is not None:
+        png = overlay_png(args.capture, found.image_px, found.depth_mm)
+        staged = StagedFiles({overlay: png}, "--overlay")
+    try:
+        if not in_place:
+            save_dataset(new, out)
+            done = f"dataset written to {out}"
+        elif update_dataset(args.dataset, new, keep_backup=True):
+            # In place: only image_px and depth change; the file's comments and layout stay.
+            done = f"{args.dataset} updated (previous file kept as {backup_path(args.dataset)})"
         else:
-            print(f"{dataset.n_landmarks} landmarks found; {args.dataset} already holds them")
-    else:
-        save_dataset(new, out)
-        print(f"{dataset.n_landmarks} landmarks found; dataset written to {out}")
+            done = f"{args.dataset} already holds them"
+    except BaseException:
+        if staged is not None:
+            staged.discard()
+        raise
+    if staged is not None:
+        staged.commit()
+    print(f"{dataset.n_landmarks} landmarks found; {done}")
     return 0
 
 

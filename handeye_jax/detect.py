@@ -24,6 +24,10 @@ centre of pixel ``(row v, column u)`` is ``(u, v)``, as in the dataset's ``image
 from __future__ import annotations
 
 import itertools
+import os
+import struct
+import sys
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -302,9 +306,14 @@ def read_image(path: str | Path, *, depth: bool = False) -> np.ndarray:
         raise InputError(path, "", f"cannot read image: {e.strerror or e}") from None
     if data.size == 0:
         raise InputError(path, "", "image file is empty")
-    image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    try:
+        image, printed = _decode(data)
+    except cv2.error as e:
+        raise InputError(path, "", f"cannot read image: {_refused(data, e)}") from None
     if image is None or image.size == 0:
-        raise InputError(path, "", "cannot read image: not a PNG/JPEG/TIFF OpenCV can decode")
+        why = "not a PNG/JPEG/TIFF OpenCV can decode"
+        said = [line.removeprefix("libpng error: ") for line in printed.splitlines() if line]
+        raise InputError(path, "", f"cannot read image: {why}" + (f" ({said[-1]})" if said else ""))
     if depth:
         if image.dtype != np.uint16 or image.ndim != 2:
             chans = 1 if image.ndim == 2 else image.shape[2]
@@ -313,6 +322,36 @@ def read_image(path: str | Path, *, depth: bool = False) -> np.ndarray:
     elif image.dtype != np.uint8:
         raise InputError(path, "", f"expected an 8-bit picture (got {image.dtype})")
     return image
+
+
+def _decode(data: np.ndarray) -> tuple[np.ndarray | None, str]:
+    """``cv2.imdecode`` and what the codec printed meanwhile (libpng prints its errors to the
+    process's standard error itself): the caller's error message says it once, in one line."""
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):  # no standard error to keep clean
+        return cv2.imdecode(data, cv2.IMREAD_UNCHANGED), ""
+    with tempfile.TemporaryFile() as caught:
+        os.dup2(caught.fileno(), 2)
+        try:
+            image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        caught.seek(0)
+        return image, caught.read().decode("utf-8", "replace")
+
+
+def _refused(data: np.ndarray, e: cv2.error) -> str:
+    """Why OpenCV refused to decode, in one line."""
+    if "CV_IO_MAX_IMAGE_PIXELS" in str(e):
+        size = ""
+        head = data[:24].tobytes()
+        if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+            size = "{}x{} px, ".format(*struct.unpack(">II", head[16:24]))
+        return f"too large ({size}more pixels than OpenCV decodes, CV_IO_MAX_IMAGE_PIXELS)"
+    return " ".join((getattr(e, "err", "") or str(e)).split())
 
 
 @dataclass(frozen=True)

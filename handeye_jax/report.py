@@ -1,6 +1,6 @@
 """Figures of a calibration result for people: ``handeye-jax report RESULT.json [--out DIR]``.
 
-Each figure is saved as PNG and SVG, written atomically once all are drawn:
+Each figure is saved as PNG and SVG, all put in place together once all are drawn:
 
 * ``fig3_landmarks``: the landmarks in the captured image (px) and the hand positions at the
   touches in the base frame (mm), as the paper's Fig. 3;
@@ -24,7 +24,7 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from ._atomic import write_bytes_atomic
+from ._atomic import check_folder_output, write_folder_atomic
 from ._x64 import in_float64
 from .dataset import load_dataset
 from .errors import InputError
@@ -269,7 +269,11 @@ def render(result: CalibrationResult) -> dict[str, Any]:
 
 
 def write_report(
-    result_path: str | Path, out_dir: str | Path | None = None, dataset: str | Path | None = None
+    result_path: str | Path,
+    out_dir: str | Path | None = None,
+    dataset: str | Path | None = None,
+    *,
+    field: str = "",
 ) -> list[Path]:
     """Draw every figure of a result file and write them (PNG and SVG) into ``out_dir``.
 
@@ -279,9 +283,11 @@ def write_report(
             if its parent exists.
         dataset: the dataset the result was fitted on; needed only if the result does not
             carry its observations (older results).
+        field: how errors about ``out_dir`` name it (the command line's ``"--out"``).
 
     Returns:
-        The files written. Nothing is written unless every figure was drawn.
+        The files written. Nothing is written unless every figure was drawn and every file
+        can be put in place; on any failure the folder is as it was.
     """
     result_path = Path(result_path)
     result = load_result(result_path)
@@ -298,20 +304,15 @@ def write_report(
     out = Path(out_dir) if out_dir is not None else result_path.with_name(
         f"{result_path.stem}_report"
     )  # fmt: skip
-    if out.exists() and not out.is_dir():
-        raise InputError(out, "", "cannot write: not a folder")
-    if not out.parent.is_dir():
-        raise InputError(out, "", f"cannot write: folder {str(out.parent)!r} does not exist")
+    names = [f"{name}.{ext}" for name in FIGURES for ext in FORMATS]
+    check_folder_output(out, names, field, [result_path, dataset])
     rendered = {}
     for name, fig in render(result).items():
         for ext in FORMATS:
             buf = io.BytesIO()
             fig.savefig(buf, format=ext, dpi=DPI)
-            rendered[out / f"{name}.{ext}"] = buf.getvalue()
-    out.mkdir(exist_ok=True)
-    for path, data in rendered.items():
-        write_bytes_atomic(path, data)
-    return list(rendered)
+            rendered[f"{name}.{ext}"] = buf.getvalue()
+    return write_folder_atomic(out, rendered, field)
 
 
 def _with_observations(result: CalibrationResult, obs: dict[str, Any]) -> CalibrationResult:

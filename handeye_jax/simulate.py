@@ -23,15 +23,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ._atomic import write_bytes_atomic, write_text_atomic
+from ._atomic import write_folder_atomic
 from .dataset import Dataset, dataset_to_toml
 from .detect import BlobCountError, DetectSettings, depth_at, find_blobs, order_blobs
-from .errors import InputError
 from .render import DepthSensing, Imaging, render_capture, render_depth
 from .synthetic import synthesize_dataset
 from .twin import TwinTruth
 
 HELDOUT_HEADER = ("u", "v", "depth", "hand_angle", "tablet_x", "tablet_y")
+#: The files :func:`write_twin` writes.
+TWIN_FILES = ("dataset.toml", "truth.json", "heldout.csv", "capture.png", "depth.png")
 
 
 @dataclass(frozen=True)
@@ -204,26 +205,15 @@ def encode_png(image: np.ndarray) -> bytes:
 def write_twin(twin: Twin, out_dir: str | Path) -> list[Path]:
     """Write the twin's files into ``out_dir`` (created if missing); returns their paths.
 
-    Every file is encoded before the first is written, and each is written atomically.
+    Every file is encoded before the first is written, and all are put in place together:
+    on failure (an :class:`~handeye_jax.errors.InputError` naming the file) the folder is as
+    it was.
     """
-    out_dir = Path(out_dir)
     files = {
-        "dataset.toml": dataset_to_toml(twin.dataset),
-        "truth.json": twin.truth.to_json(),
-        "heldout.csv": heldout_csv_text(twin),
+        "dataset.toml": dataset_to_toml(twin.dataset).encode("utf-8"),
+        "truth.json": twin.truth.to_json().encode("utf-8"),
+        "heldout.csv": heldout_csv_text(twin).encode("utf-8"),
         "capture.png": encode_png(twin.capture),
         "depth.png": encode_png(twin.depth),
     }
-    paths = []
-    try:
-        out_dir.mkdir(exist_ok=True)
-        for name, data in files.items():
-            path = out_dir / name
-            if isinstance(data, str):
-                write_text_atomic(path, data)
-            else:
-                write_bytes_atomic(path, data)
-            paths.append(path)
-    except OSError as e:
-        raise InputError(out_dir, "", f"cannot write: {e}") from None
-    return paths
+    return write_folder_atomic(out_dir, files)
