@@ -7,6 +7,7 @@ convention) it predicts hand commands without the dataset.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -16,9 +17,10 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._atomic import write_text_atomic
-from ._validate import _describe, _Reader
+from ._validate import MAX_DEG, MAX_MM, MAX_PX, _describe, _join, _Reader
 from ._x64 import in_float64
 from .errors import InputError
+from .losses import LOSS_NAMES
 from .models import AbstractCorrection, AbstractModel, AffinePair, get_model, model_registry
 from .observations import Rig
 from .predict import hand_command
@@ -181,81 +183,337 @@ def rig_from_dict(d: dict[str, Any]) -> Rig:
 
 # -- loading with validation ---------------------------------------------------------------
 
+#: Stage-2 parameters that are scale factors (> 0: zero collapses the plane, < 0 mirrors it).
+AFFINE_SCALES = ("Sx1", "Sy1", "Sx2", "Sy2")
+#: Largest magnitude of a fitted parameter: the widest search range a dataset admits (DE and
+#: the LM polish stay inside their range).
+MAX_PARAM = 1e6
+#: Largest tablet pixel, mm: 1 ppi at display scale 100, the coarsest a dataset admits.
+MAX_MM_PER_TABLET_PX = 25.4 * 100
+#: Largest magnitude of each landmark array of ``observations``.
+OBSERVATION_LIMITS = {
+    "tablet_px": MAX_PX, "image_px": MAX_PX, "depth_mm": MAX_MM, "hand_xy_mm": MAX_MM,
+    "hand_angle_deg": MAX_DEG, "touch_error_px": MAX_PX,
+}  # fmt: skip
+RESIDUAL_KEYS = ("m", "image_vs_tablet_xy_mm", "image_vs_tablet_mm", "hand_xy_mm", "hand_mm")
+LOO_KEYS = ("held_out_mm", "f1", "f2", "F", "in_sample_F")
+HELD_OUT_KEYS = ("m", "image_vs_tablet_mm", "hand_mm")
+SEED_RANGE = (-(2**63), 2**63 - 1)
+
 
 def load_result(path: str | Path) -> CalibrationResult:
-    """Read and validate a ``handeye-jax.result/1`` file; raises :class:`InputError`."""
+    """Read and validate a ``handeye-jax.result/1`` file; raises :class:`InputError`.
+
+    Every field that prediction, the report and the evaluation use is checked, so a file
+    that loads can be used; unknown top-level keys and the parts of ``diagnostics`` only the
+    calibration summary prints are not.
+    """
     path = Path(path)
     r = _Reader(path)
+    doc = _read_json(path, r)
+    if not isinstance(doc, dict):
+        r.fail("", f"must be a JSON object (got {_what(doc)})")
+    for key in ("format", "model", "seed", "rig", "stage1", "stage2", "centre_index",
+                "centres_mm"):  # fmt: skip
+        _field(r, doc, key, "")
+    if doc["format"] != FORMAT:
+        r.fail("format", f"expected {FORMAT!r} (got {_what(doc['format'])})")
+    model = _model_name(r, doc["model"], "model")
+    seed = _integer(r, doc["seed"], "seed", *SEED_RANGE)
+    rig = _rig(r, doc["rig"])
+    centres = doc["centres_mm"]
+    if not isinstance(centres, list) or len(centres) != 2:
+        r.fail("centres_mm", f"must be a list of two [x, y] points (got {_what(centres)})")
+    centres = [r.vector(c, f"centres_mm[{i}]", 2, MAX_MM) for i, c in enumerate(centres)]
+    observations = _observations(r, doc)
+    stage1 = _stage(r, doc, "stage1", get_model(model).param_names)
+    stage2 = _stage(r, doc, "stage2", AffinePair.param_names)
+    for name in AFFINE_SCALES:
+        if stage2.params[name] <= 0:
+            r.fail(f"stage2.params.{name}", f"must be > 0, a scale (got {stage2.params[name]})")
+    n = len(observations["depth_mm"]) if observations else None
+    for key, s in (("stage1", stage1), ("stage2", stage2)):
+        n = n or len(s.residuals_mm) or None
+        if s.residuals_mm and len(s.residuals_mm) != n:
+            r.fail(f"{key}.residuals_mm", f"must have {n} entries, one per landmark (got "
+                   f"{len(s.residuals_mm)})")  # fmt: skip
+    centre_index = _integer(r, doc["centre_index"], "centre_index", 0, None if n is None else n - 1)
+    settings = _optional_table(r, doc, "settings")
+    for key, check in _SETTINGS.items():
+        if key in settings:
+            check(r, settings[key], f"settings.{key}")
+    dataset = doc.get("dataset", "")
+    if not isinstance(dataset, str):
+        r.fail("dataset", f"must be a string (got {_what(dataset)})")
+    timings = _optional_table(r, doc, "timings_s")
+    for key, value in timings.items():
+        r.number(value, f"timings_s.{key}")
+    warnings = doc.get("warnings", [])
+    if not isinstance(warnings, list):
+        r.fail("warnings", f"must be an array of strings (got {_what(warnings)})")
+    for i, w in enumerate(warnings):
+        if not isinstance(w, str):
+            r.fail(f"warnings[{i}]", f"must be a string (got {_what(w)})")
+    return CalibrationResult(
+        model=model,
+        seed=seed,
+        settings=settings,
+        dataset=dataset,
+        rig=rig,
+        stage1=stage1,
+        stage2=stage2,
+        centre_index=centre_index,
+        centres_mm=centres,
+        timings_s=timings,
+        sign_twin=_optional_table(r, doc, "sign_twin"),
+        warnings=warnings,
+        diagnostics=_diagnostics(r, doc, n, (stage1, stage2)),
+        observations=observations,
+    )
+
+
+def _read_json(path: Path, r: _Reader) -> Any:
+    """The parsed file; a key repeated within an object is an error, not the last one wins."""
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as e:
         raise InputError(path, "", f"cannot read file: {e}") from None
+
+    def parse_int(digits: str) -> int:
+        try:
+            return int(digits)
+        except ValueError:  # beyond Python's limit on digits
+            r.fail("", f"not valid here: an integer of {len(digits.lstrip('-'))} digits")
+
     try:
-        doc = json.loads(text)
+        doc = json.loads(text, object_pairs_hook=_Object.from_pairs, parse_int=parse_int)
     except json.JSONDecodeError as e:
         raise InputError(path, "", f"not valid JSON: {e}") from None
-    if not isinstance(doc, dict):
-        r.fail("", "must be a JSON object")
-    if doc.get("format") != FORMAT:
-        r.fail("format", f"expected {FORMAT!r} (got {_describe(doc.get('format'))})")
-    model = doc.get("model")
-    if model not in model_registry():
+    except RecursionError:
+        raise InputError(path, "", "not valid here: arrays or objects nested too deeply") from None
+    where = _repeated_key(doc)
+    if where is not None:
+        r.fail(where, "duplicate key: a key may appear only once in an object")
+    return doc
+
+
+class _Object(dict):
+    """A JSON object; ``repeated`` is its first key that appears more than once, if any."""
+
+    repeated: str | None = None
+
+    @classmethod
+    def from_pairs(cls, pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+        obj = dict(pairs)
+        if len(obj) == len(pairs):
+            return obj
+        seen: set[str] = set()
+        for key, _ in pairs:
+            if key in seen:
+                break
+            seen.add(key)
+        out = cls(obj)
+        out.repeated = key
+        return out
+
+
+def _repeated_key(doc: Any) -> str | None:
+    """Where the first repeated key in document order is, e.g. ``rig.camera_px.fx``."""
+    stack = [("", doc)]
+    while stack:
+        where, x = stack.pop()
+        if isinstance(x, _Object):
+            return _join(where, x.repeated)
+        if isinstance(x, dict):
+            items = [(_join(where, k), v) for k, v in x.items()]
+        elif isinstance(x, list):
+            items = [(f"{where}[{i}]", v) for i, v in enumerate(x)]
+        else:
+            continue
+        stack.extend(reversed(items))
+    return None
+
+
+def _what(x: Any) -> str:
+    return "null" if x is None else _describe(x)
+
+
+def _field(r: _Reader, table: dict[str, Any], key: str, where: str) -> Any:
+    if key not in table:
+        r.fail(_join(where, key), "missing")
+    return table[key]
+
+
+def _integer(r: _Reader, x: Any, where: str, low: int | None = None, high: int | None = None):
+    if isinstance(x, bool) or not isinstance(x, int):
+        r.fail(where, f"must be an integer (got {_what(x)})")
+    if low is not None and x < low or high is not None and x > high:
+        got = x if len(str(x)) <= 24 else f"an integer of {len(str(abs(x)))} digits"
+        if high is None:
+            r.fail(where, f"must be at least {low} (got {got})")
+        r.fail(where, f"must be {low} to {high} (got {got})")
+    return x
+
+
+def _count(r: _Reader, x: Any, where: str) -> int:
+    return _integer(r, x, where, 0)
+
+
+def _boolean(r: _Reader, x: Any, where: str) -> bool:
+    if not isinstance(x, bool):
+        r.fail(where, f"must be true or false (got {_what(x)})")
+    return x
+
+
+def _string(r: _Reader, x: Any, where: str) -> str:
+    if not isinstance(x, str):
+        r.fail(where, f"must be a string (got {_what(x)})")
+    return x
+
+
+def _length(r: _Reader, x: Any, where: str) -> float:
+    """An error length or a mean of them, mm: finite and >= 0."""
+    v = r.number(x, where)
+    if v < 0:
+        r.fail(where, f"must be >= 0 mm (got {v})")
+    return v
+
+
+def _numbers(r: _Reader, x: Any, where: str) -> list[float]:
+    if not isinstance(x, list):
+        r.fail(where, f"must be an array of numbers (got {_what(x)})")
+    return [r.number(v, f"{where}[{i}]") for i, v in enumerate(x)]
+
+
+def _model_name(r: _Reader, x: Any, where: str) -> str:
+    if not isinstance(x, str) or x not in model_registry():
         known = ", ".join(sorted(model_registry()))
-        r.fail("model", f"unknown model {_describe(model)}; known: {known}")
-    rig = r.table(doc.get("rig"), "rig", ("camera_px", "capture_hand_position_mm", "hand_angle"))
+        r.fail(where, f"unknown model {_what(x)}; known: {known}")
+    return x
+
+
+def _loss_name(r: _Reader, x: Any, where: str) -> str:
+    if not isinstance(x, str) or x not in LOSS_NAMES:
+        r.fail(where, f"unknown loss {_what(x)}; known: {', '.join(LOSS_NAMES)}")
+    return x
+
+
+#: Checks of the calibration settings a result records (handeye_jax.calibrate.Settings);
+#: the evaluation refits stage 2 with them.
+_SETTINGS: dict[str, Callable[[_Reader, Any, str], Any]] = {
+    "model": _model_name,
+    "seed": lambda r, x, w: _integer(r, x, w, *SEED_RANGE),
+    "population": lambda r, x, w: _integer(r, x, w, 4),
+    "generations": lambda r, x, w: _integer(r, x, w, 1),
+    "early_stop": _boolean,
+    "tol": lambda r, x, w: r.number(x, w),
+    "crossover": lambda r, x, w: r.number(x, w),
+    "mutation": lambda r, x, w: r.number(x, w),
+    "polish": _boolean,
+    "loss": _loss_name,
+    "loss_scale_mm": lambda r, x, w: r.number(x, w, positive=True),
+    "diagnostics": _boolean,
+}
+#: Checks of the DE and LM summaries of a stage, by key; other keys are kept unchecked.
+_DE = {"F": _Reader.number, "generations": _count, "evaluations": _count, "converged": _boolean}
+_POLISH = {
+    "ran": _boolean, "accepted": _boolean, "F_before": _Reader.number, "F_after": _Reader.number,
+    "steps": _count, "solver_converged": _boolean,
+}  # fmt: skip
+
+
+def _rig(r: _Reader, value: Any) -> dict[str, Any]:
+    rig = r.table(value, "rig", ("camera_px", "capture_hand_position_mm", "hand_angle"))
     cam = r.table(rig["camera_px"], "rig.camera_px", ("fx", "fy", "cx", "cy"))
     for k in ("fx", "fy"):
-        r.number(cam[k], f"rig.camera_px.{k}", positive=True)
+        if r.number(cam[k], f"rig.camera_px.{k}", positive=True, limit=MAX_PX) < 1:
+            r.fail(f"rig.camera_px.{k}", f"must be at least 1 px (got {cam[k]:g})")
     for k in ("cx", "cy"):
-        r.number(cam[k], f"rig.camera_px.{k}")
-    r.vector(rig["capture_hand_position_mm"], "rig.capture_hand_position_mm", 3)
+        r.number(cam[k], f"rig.camera_px.{k}", limit=MAX_PX)
+    r.vector(rig["capture_hand_position_mm"], "rig.capture_hand_position_mm", 3, MAX_MM)
     angle = r.table(rig["hand_angle"], "rig.hand_angle", ("zero_deg", "sign"))
-    r.number(angle["zero_deg"], "rig.hand_angle.zero_deg")
+    r.number(angle["zero_deg"], "rig.hand_angle.zero_deg", limit=MAX_DEG)
     if r.number(angle["sign"], "rig.hand_angle.sign") not in (1.0, -1.0):
         r.fail("rig.hand_angle.sign", f"must be 1 or -1 (got {angle['sign']})")
-    centres = doc.get("centres_mm")
-    if not isinstance(centres, list) or len(centres) != 2:
-        r.fail("centres_mm", f"must be a list of two [x, y] points (got {_describe(centres)})")
-    centres = [r.vector(c, f"centres_mm[{i}]", 2) for i, c in enumerate(centres)]
+    return rig
 
-    def stage(key: str, names: tuple[str, ...]) -> StageResult:
-        s = doc.get(key)
-        if not isinstance(s, dict):
-            r.fail(key, f"must be an object (got {_describe(s)})")
-        F, f1, f2 = (r.number(s.get(k), f"{key}.{k}") for k in ("F", "f1", "f2"))
-        p = r.table(s.get("params"), f"{key}.params", names)
-        params = {n: r.number(p[n], f"{key}.params.{n}") for n in names}
-        return StageResult(
-            F=F, f1=f1, f2=f2, params=params,
-            residuals_mm=s.get("residuals_mm", []), de=s.get("de", {}),
-            polish=s.get("polish", {}), convergence=s.get("convergence", {}),
-        )  # fmt: skip
 
-    seed = doc.get("seed")
-    if isinstance(seed, bool) or not isinstance(seed, int):
-        r.fail("seed", f"must be an integer (got {_describe(seed)})")
-    return CalibrationResult(
-        model=model,
-        seed=seed,
-        settings=doc.get("settings", {}),
-        dataset=str(doc.get("dataset", "")),
-        rig=rig,
-        stage1=stage("stage1", get_model(model).param_names),
-        stage2=stage("stage2", AffinePair.param_names),
-        centre_index=int(doc.get("centre_index", 0)),
-        centres_mm=centres,
-        timings_s=doc.get("timings_s", {}),
-        sign_twin=doc.get("sign_twin", {}),
-        warnings=list(doc.get("warnings", [])),
-        diagnostics=_optional_table(r, doc, "diagnostics"),
-        observations=_observations(r, doc),
-    )
+def _stage(r: _Reader, doc: dict[str, Any], key: str, names: tuple[str, ...]) -> StageResult:
+    s = doc[key]
+    if not isinstance(s, dict):
+        r.fail(key, f"must be an object (got {_what(s)})")
+    F, f1, f2 = (_length(r, _field(r, s, k, key), f"{key}.{k}") for k in ("F", "f1", "f2"))
+    p = r.table(_field(r, s, "params", key), f"{key}.params", names)
+    params = {n: r.number(p[n], f"{key}.params.{n}", limit=MAX_PARAM) for n in names}
+    residuals = s.get("residuals_mm", [])
+    if not isinstance(residuals, list):
+        r.fail(f"{key}.residuals_mm", f"must be an array, one entry per landmark (got "
+               f"{_what(residuals)})")  # fmt: skip
+    for m, e in enumerate(residuals):
+        _residual(r, e, f"{key}.residuals_mm[{m}]", m, RESIDUAL_KEYS)
+    de = _summary(r, s, "de", key, _DE)
+    polish = _summary(r, s, "polish", key, _POLISH)
+    if "pinned" in polish:  # the first results listed the parameters LM left on a bound
+        pinned = polish["pinned"]
+        if not isinstance(pinned, list) or not all(isinstance(p, str) for p in pinned):
+            r.fail(f"{key}.polish.pinned", f"must be an array of names (got {_what(pinned)})")
+    return StageResult(
+        F=F, f1=f1, f2=f2, params=params, residuals_mm=residuals, de=de, polish=polish,
+        convergence=_convergence(r, s, key),
+    )  # fmt: skip
+
+
+def _residual(r: _Reader, e: Any, where: str, m: int, keys: tuple[str, ...]) -> None:
+    """One landmark's entry of ``residuals_mm`` or of a leave-one-out's ``held_out_mm``."""
+    r.table(e, where, keys)
+    if _integer(r, e["m"], f"{where}.m") != m:
+        r.fail(f"{where}.m", f"must be {m}: entries are in landmark order (got {e['m']})")
+    for k in keys[1:]:
+        if k.endswith("_xy_mm"):
+            r.vector(e[k], f"{where}.{k}", 2)
+        else:
+            _length(r, e[k], f"{where}.{k}")
+
+
+def _summary(r: _Reader, s: dict[str, Any], key: str, stage: str, checks: dict) -> dict[str, Any]:
+    where = f"{stage}.{key}"
+    value = s.get(key, {})
+    if not isinstance(value, dict):
+        r.fail(where, f"must be an object (got {_what(value)})")
+    for k, check in checks.items():
+        if k in value:
+            check(r, value[k], f"{where}.{k}")
+    return value
+
+
+def _convergence(r: _Reader, s: dict[str, Any], stage: str) -> dict[str, list[float]]:
+    where = f"{stage}.convergence"
+    c = s.get("convergence", {})
+    if not isinstance(c, dict):
+        r.fail(where, f"must be an object (got {_what(c)})")
+    out = dict(c)
+    for k in ("best_F", "median_F"):
+        if k in c:
+            out[k] = _numbers(r, c[k], f"{where}.{k}")
+    if "median_generation" in c:
+        gens = c["median_generation"]
+        if not isinstance(gens, list):
+            r.fail(f"{where}.median_generation", f"must be an array of generations (got "
+                   f"{_what(gens)})")  # fmt: skip
+        for i, g in enumerate(gens):
+            _integer(r, g, f"{where}.median_generation[{i}]", 1)
+        if "median_F" in c and len(gens) != len(c["median_F"]):
+            r.fail(f"{where}.median_generation", f"must have one generation per median_F "
+                   f"({len(c['median_F'])}) (got {len(gens)})")  # fmt: skip
+    elif "median_F" in c:  # the first results recorded it every generation
+        out["median_generation"] = list(range(1, len(c["median_F"]) + 1))
+    return out
 
 
 def _optional_table(r: _Reader, doc: dict[str, Any], key: str) -> dict[str, Any]:
     value = doc.get(key, {})
     if not isinstance(value, dict):
-        r.fail(key, f"must be an object (got {_describe(value)})")
+        r.fail(key, f"must be an object (got {_what(value)})")
     return value
 
 
@@ -265,18 +523,48 @@ def _observations(r: _Reader, doc: dict[str, Any]) -> dict[str, Any]:
     if not obs:
         return {}
     r.table(obs, "observations", (*OBSERVATION_ARRAYS, "mm_per_tablet_px"))
-    r.number(obs["mm_per_tablet_px"], "observations.mm_per_tablet_px", positive=True)
+    r.number(obs["mm_per_tablet_px"], "observations.mm_per_tablet_px", positive=True,
+             limit=MAX_MM_PER_TABLET_PX)  # fmt: skip
     n = None
     for name, tail in OBSERVATION_ARRAYS.items():
         where = f"observations.{name}"
         rows = obs[name]
         if not isinstance(rows, list) or not rows or (n is not None and len(rows) != n):
             want = "a non-empty list" if n is None else f"a list of {n} (one per landmark)"
-            r.fail(where, f"must be {want} (got {_describe(rows)})")
+            r.fail(where, f"must be {want} (got {_what(rows)})")
         n = len(rows)
+        limit = OBSERVATION_LIMITS[name]
         for i, row in enumerate(rows):
             if tail:
-                r.vector(row, f"{where}[{i}]", tail[0])
+                r.vector(row, f"{where}[{i}]", tail[0], limit)
             else:
-                r.number(row, f"{where}[{i}]")
+                r.number(row, f"{where}[{i}]", positive=name == "depth_mm", limit=limit)
     return obs
+
+
+def _diagnostics(
+    r: _Reader, doc: dict[str, Any], n: int | None, stages: tuple[StageResult, StageResult]
+) -> dict[str, Any]:
+    """The optional ``diagnostics``: each stage's object and its leave-one-out are checked."""
+    diag = _optional_table(r, doc, "diagnostics")
+    for key, s in zip(("stage1", "stage2"), stages, strict=True):
+        if key not in diag:
+            continue
+        d = diag[key]
+        where = f"diagnostics.{key}"
+        if not isinstance(d, dict):
+            r.fail(where, f"must be an object (got {_what(d)})")
+        if "loo" not in d:
+            continue
+        loo = r.table(d["loo"], f"{where}.loo", LOO_KEYS)
+        for k in LOO_KEYS[1:]:
+            _length(r, loo[k], f"{where}.loo.{k}")
+        held = loo["held_out_mm"]
+        if not s.residuals_mm:
+            r.fail(f"{key}.residuals_mm", f"missing: {where}.loo compares with it")
+        if not isinstance(held, list) or len(held) != n:
+            r.fail(f"{where}.loo.held_out_mm", f"must be a list of {n} (one per landmark) "
+                   f"(got {_what(held)})")  # fmt: skip
+        for m, e in enumerate(held):
+            _residual(r, e, f"{where}.loo.held_out_mm[{m}]", m, HELD_OUT_KEYS)
+    return diag
