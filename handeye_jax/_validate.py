@@ -12,6 +12,8 @@ from .errors import InputError
 
 def _describe(x: Any) -> str:
     """A short description of a TOML value for error messages."""
+    if x is None:  # JSON's null; TOML has none
+        return "null"
     if isinstance(x, bool):
         return f"boolean {str(x).lower()}"
     if isinstance(x, int | float):
