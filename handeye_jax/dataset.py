@@ -63,7 +63,7 @@ import tomlkit.exceptions
 import tomlkit.items
 
 from . import geometry as geo
-from ._atomic import write_bytes_atomic, write_text_atomic
+from ._atomic import StagedFiles, write_output
 from ._validate import MAX_DEG, MAX_MM, MAX_PX, _describe, _join, _Reader
 from ._x64 import in_float64
 from .errors import InputError
@@ -484,10 +484,7 @@ def save_dataset(ds: Dataset, path: str | Path) -> None:
     path = Path(path)
     text = dataset_to_toml(ds)
     _parse(tomllib.loads(text), path)
-    try:
-        write_text_atomic(path, text)
-    except OSError as e:
-        raise InputError(path, "", f"cannot write: {e}") from None
+    write_output(path, text)
 
 
 # -- updating a file in place ------------------------------------------------------------------
@@ -569,8 +566,9 @@ def update_dataset(
     made since the caller loaded it is not undone). The current file must be a valid dataset;
     the edited text is validated as :func:`load_dataset` would and must read back equal to
     ``new`` before anything is written; then the previous bytes go to :func:`backup_path`
-    (with ``keep_backup``) and the file is replaced atomically, so a failure at any point
-    leaves it byte-identical. Raises :class:`InputError` naming the file and field.
+    (with ``keep_backup``) and the file is replaced, both or neither, so a failure at any
+    point leaves the file and its backup byte-identical. Raises :class:`InputError` naming
+    the file and field.
 
     Returns ``True`` if the file was written, ``False`` if it already held these values (then
     nothing, not even the backup, is written).
@@ -590,14 +588,7 @@ def update_dataset(
     if check != ds:
         raise InputError(path, "", "editing in place does not read back equal; nothing written")
     data = (_BOM if raw.startswith(_BOM) else b"") + edited.encode("utf-8")
-    if keep_backup:
-        backup = backup_path(path)
-        try:
-            write_bytes_atomic(backup, raw)
-        except OSError as e:
-            raise InputError(backup, "", f"cannot keep the previous dataset: {e}") from None
-    try:
-        write_bytes_atomic(path, data)
-    except OSError as e:
-        raise InputError(path, "", f"cannot write: {e}") from None
+    # The backup and the new file land together: a failed write keeps the old backup too.
+    files = {backup_path(path): raw} if keep_backup else {}
+    StagedFiles({**files, path: data}).commit()
     return True

@@ -760,7 +760,7 @@ def test_a_failed_update_leaves_the_file_byte_identical(
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(atomic_mod.os, "fsync", full)
-    with pytest.raises(InputError, match="cannot keep the previous dataset: .*No space left"):
+    with pytest.raises(InputError, match=r"rig\.toml\.bak: cannot write: No space left"):
         update_dataset(commented, paper.replace(name="other"))
     monkeypatch.undo()
     assert commented.read_bytes() == before
@@ -775,6 +775,25 @@ def test_a_failed_update_leaves_the_file_byte_identical(
     monkeypatch.undo()
     assert commented.read_bytes() == before
     assert os.listdir(commented.parent) == ["rig.toml"]
+
+
+def test_an_update_whose_last_rename_fails_keeps_the_file_and_its_old_backup(
+    commented: Path, paper: Dataset, monkeypatch
+):
+    assert update_dataset(commented, paper.replace(name="first"))  # makes rig.toml.bak
+    files = {p.name: p.read_bytes() for p in commented.parent.iterdir()}
+    real = atomic_mod.os.replace
+
+    def fails_on_the_dataset(src, dst):
+        if Path(dst) == commented:
+            raise OSError(5, "Input/output error")
+        real(src, dst)
+
+    monkeypatch.setattr(atomic_mod.os, "replace", fails_on_the_dataset)
+    with pytest.raises(InputError, match=r"rig\.toml: cannot write: Input/output error$"):
+        update_dataset(commented, paper.replace(name="second"))
+    monkeypatch.undo()
+    assert {p.name: p.read_bytes() for p in commented.parent.iterdir()} == files
 
 
 def test_update_refuses_a_file_that_is_not_a_valid_dataset(commented: Path, paper: Dataset):
