@@ -476,3 +476,139 @@ def test_the_command_serves_until_interrupted(tmp_path):
         proc.send_signal(signal.SIGINT)
         out, _ = proc.communicate(timeout=30)
     assert proc.returncode == 0 and "stopped" in out
+
+
+# -- files the posts write: checked before serving, a failed save named and kept for retry --
+
+
+@pytest.fixture
+def no_bind(monkeypatch):
+    """Binding the server fails the test: every check must come before it."""
+
+    def bind(*args, **kwargs):
+        raise AssertionError("the server was bound before its output files were checked")
+
+    monkeypatch.setattr(server_mod.TabletServer, "__init__", bind)
+
+
+def _listing(folder):
+    return {p.name: p.read_bytes() if p.is_file() else None for p in Path(folder).iterdir()}
+
+
+def test_an_unwritable_default_trials_file_is_refused_before_serving(
+    tmp_path, monkeypatch, capsys, no_bind
+):
+    # Without --dataset the default is tablet-trials.json in the working folder: here /sys.
+    monkeypatch.chdir("/sys")
+    assert main(["tablet", "--ppi", "267", "--scale", "2", "--port", "0"]) == 2
+    _one_error_line(capsys, "tablet-trials.json: --trials: cannot write", "default trials file")
+    assert not Path("/sys/tablet-trials.json").exists()
+    monkeypatch.chdir(tmp_path)
+    # With --dataset it is DATASET_STEM.trials.json beside the dataset: here a folder.
+    ds = tmp_path / "rig.toml"
+    shutil.copy(PAPER, ds)
+    (tmp_path / "rig.trials.json").mkdir()
+    before = _listing(tmp_path)
+    assert main(["tablet", "--dataset", str(ds), "--port", "0"]) == 2
+    _one_error_line(capsys, f"{tmp_path / 'rig.trials.json'}: --trials: cannot write: is a "
+                    "folder", "the default trials file", "choose one with --trials")  # fmt: skip
+    assert _listing(tmp_path) == before  # no probe or temporary file left
+    # The library checks a given trials file too (the command line checks it first).
+    with pytest.raises(Exception, match=r"afile.t\.json: --trials: cannot write") as e:
+        (tmp_path / "afile").write_text("a file, not a folder")
+        make_server(ds, port=0, trials_path=tmp_path / "afile" / "t.json")
+    assert "default trials file" not in str(e.value)
+
+
+def test_a_dataset_whose_folder_cannot_be_written_is_refused_before_serving(
+    tmp_path, monkeypatch, capsys, no_bind
+):
+    from handeye_jax import _atomic
+
+    folder = tmp_path / "rig"
+    folder.mkdir()
+    ds = folder / "rig.toml"
+    shutil.copy(PAPER, ds)
+    trials = tmp_path / "t.json"  # writable: only the dataset's folder is not
+    argv = ["tablet", "--dataset", str(ds), "--trials", str(trials), "--port", "0"]
+    real = _atomic.tempfile.mkstemp
+
+    def denied(*args, dir=None, prefix="", suffix="", **kwargs):
+        if dir is not None and Path(dir) == folder:  # as in a folder the user cannot write
+            raise PermissionError(13, "Permission denied", f"{dir}/{prefix}x1y2{suffix}")
+        return real(*args, dir=dir, prefix=prefix, suffix=suffix, **kwargs)
+
+    monkeypatch.setattr(_atomic.tempfile, "mkstemp", denied)
+    before = _listing(folder)
+    assert main(argv) == 2
+    _one_error_line(capsys, f"{ds}: --dataset: cannot write in folder", "Permission denied",
+                    "keeps the previous file as rig.toml.bak")  # fmt: skip
+    assert _listing(folder) == before and not trials.exists()
+    monkeypatch.setattr(_atomic.tempfile, "mkstemp", real)
+    # A folder where the backup goes: calibration could write the dataset but not keep it.
+    (folder / "rig.toml.bak").mkdir()
+    assert main(argv) == 2
+    _one_error_line(capsys, "rig.toml.bak: --dataset: cannot write: is a folder")
+    assert list((folder / "rig.toml.bak").iterdir()) == [] and ds.read_bytes() == PAPER.read_bytes()
+    (folder / "rig.toml.bak").rmdir()
+    monkeypatch.undo()  # the same files in a writable folder: the server starts
+    stop(start(ds, trials_path=trials))
+
+
+def _failing_replace(monkeypatch, target):
+    """``os.replace`` onto ``target`` fails as on a full disk (its message naming the temp)."""
+    real = os.replace
+
+    def full(src, dst, *args, **kwargs):
+        if Path(dst) == target:
+            raise OSError(errno.ENOSPC, "No space left on device", str(src), str(dst))
+        return real(src, dst, *args, **kwargs)
+
+    monkeypatch.setattr(os, "replace", full)
+
+
+def _server_error(status, doc, path):
+    """A 500 (the page keeps the run and retries) naming ``path`` and the reason, one line."""
+    assert status == 500 and doc["status"] == 500, doc
+    error = doc["error"]
+    assert error.startswith(f"{path}: ") and error.endswith(": No space left on device"), error
+    assert "\n" not in error and ".tmp" not in error and "Errno" not in error, error
+
+
+def test_a_failed_trials_save_is_a_500_naming_the_file_and_the_post_can_be_resent(
+    served, monkeypatch
+):
+    url, ds = served
+    trials = ds.parent / "rig.trials.json"
+    touch = {"m": 0, "target_px": [10.0, 20.0], "touch_px": [13.0, 24.0], "pointer_type": "pen"}
+    body = {"run_id": "t-1", "label": "stage 2", "targets": "grid", "touches": [touch]}
+    _failing_replace(monkeypatch, trials)
+    status, doc = request(url + "api/evaluation", body)
+    _server_error(status, doc, trials)
+    assert doc["error"] == f"{trials}: cannot write: No space left on device"
+    assert sorted(p.name for p in ds.parent.iterdir()) == ["rig.toml"]  # no temp, no trials
+    monkeypatch.undo()
+    status, doc = request(url + "api/evaluation", body)  # the page's retry
+    assert status == 200 and doc["trial"] == 1 and doc["mean_px"] == pytest.approx(5.0)
+    assert [t["run_id"] for t in json.loads(trials.read_text())["trials"]] == ["t-1"]
+
+
+def test_a_failed_dataset_save_is_a_500_naming_the_file_and_the_post_can_be_resent(
+    served, monkeypatch
+):
+    url, ds = served
+    before = ds.read_bytes()
+    tablet_px = load_dataset(ds).tablet_px.tolist()
+    errors = [[1.0, -2.0]] * 9
+    backup = ds.parent / "rig.toml.bak"
+    for target in (backup, ds):  # the backup fails, or the dataset after the backup
+        _failing_replace(monkeypatch, target)
+        status, doc = request(url + "api/calibration", calibration_body(tablet_px, errors))
+        _server_error(status, doc, target)
+        assert ds.read_bytes() == before
+        assert {p.name for p in ds.parent.iterdir()} <= {"rig.toml", "rig.toml.bak"}
+        monkeypatch.undo()
+    status, doc = request(url + "api/calibration", calibration_body(tablet_px, errors))
+    assert status == 200 and doc["written"] is True
+    np.testing.assert_array_equal(load_dataset(ds).touch_error_px, errors)
+    assert backup.read_bytes() == before

@@ -12,6 +12,10 @@ Built on the standard library's :class:`http.server.ThreadingHTTPServer`. Routes
 * ``POST /api/evaluation``: one trial of touches; appended to the trials file (atomic).
 
 A refused post gets a 4xx JSON answer ``{"error": ..., "field": ...}`` and changes no file.
+A post the server could not save (a file it cannot read or write, a full disk) gets a 500
+whose ``error`` is one line naming the user's file and the reason, and changes no file; the
+page keeps the run and sends it again. The files the posts write are checked before the
+server starts (:func:`make_server`).
 A connection that sends nothing, or less body than its ``Content-Length``, for
 ``request_timeout_s`` (30 s) is answered 408 or closed, so it cannot hold a thread forever.
 """
@@ -34,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from .._atomic import check_output, reason
 from ..dataset import backup_path, load_dataset
 from ..errors import InputError
 from ..geometry import mm_per_tablet_px
@@ -299,10 +304,15 @@ class _Handler(BaseHTTPRequestHandler):
             self._json(HTTPStatus.OK, routes[url.path](doc))
         except posts.PostError as e:
             self._refuse(e.status, e.field, e.message)
-        except InputError as e:  # the dataset on disk is unreadable or invalid: nothing written
-            self._refuse(HTTPStatus.CONFLICT, e.field, str(e))
-        except OSError as e:
-            self._refuse(HTTPStatus.INTERNAL_SERVER_ERROR, "", f"cannot write: {e}")
+        except InputError as e:  # nothing written, either way
+            failed = _server_failure(e)
+            if failed is not None:  # a file the server cannot read or write: the page retries
+                self._refuse(HTTPStatus.INTERNAL_SERVER_ERROR, "", failed)
+            else:  # the dataset on disk is invalid: the page shows it as refused
+                self._refuse(HTTPStatus.CONFLICT, e.field, str(e))
+        except OSError as e:  # the OSError's file names may be temporary files: left out
+            why = f"the server could not save this post: {reason(e)}"
+            self._refuse(HTTPStatus.INTERNAL_SERVER_ERROR, "", why)
 
     def _read_body(self) -> bytes:
         if "chunked" in self.headers.get("Transfer-Encoding", "").lower():
@@ -345,6 +355,21 @@ class _Handler(BaseHTTPRequestHandler):
             if not chunk:
                 break
             left -= len(chunk)
+
+
+def _server_failure(e: InputError) -> str | None:
+    """For an :class:`InputError` raised over an OSError (a file the server could not read or
+    write), one line naming the user's file, what failed and the reason; else ``None``.
+
+    The OSError's own text is left out: it names the temporary file of an atomic write.
+    """
+    cause = e.__context__  # set even by ``raise ... from None``
+    while cause is not None and not isinstance(cause, OSError):
+        cause = cause.__context__
+    if cause is None:
+        return None
+    what = e.message.split(": ", 1)[0] or "cannot write"
+    return str(InputError(e.path, e.field, f"{what}: {reason(cause)}"))
 
 
 def _grid(query: str) -> np.ndarray:
@@ -399,7 +424,10 @@ def make_server(
             shorter than its Content-Length) before the server answers 408 or closes it.
 
     Raises :class:`InputError` naming the file or option for bad input: ``--port`` for a port
-    in use or not allowed, ``--host`` for an address that is not this PC's.
+    in use or not allowed, ``--host`` for an address that is not this PC's, ``--trials`` for a
+    trials file (given or the default) that cannot be written, ``--dataset`` for a dataset
+    whose folder cannot be written (calibration writes it and its backup ``DATASET.bak``).
+    Every file a post writes is checked here, before the server is bound.
     """
     ds_path = Path(dataset) if dataset is not None else None
     ds = load_dataset(ds_path) if ds_path is not None else None
@@ -412,13 +440,13 @@ def make_server(
             raise InputError(None, name, "needed without --dataset, to turn tablet px into mm")
         if not np.isfinite(v) or v <= 0:
             raise InputError(None, name, f"must be a finite number > 0 (got {v})")
+    default_trials = trials_path is None
     if trials_path is None:
         trials_path = (
             ds_path.with_name(ds_path.stem + ".trials.json") if ds_path else "tablet-trials.json"
         )
     trials_path = Path(trials_path)
-    if not trials_path.parent.is_dir():
-        raise InputError(trials_path, "", f"folder {str(trials_path.parent)!r} does not exist")
+    _check_outputs(ds_path, trials_path, default_trials, [targets, result])
     info = _result_info(result) if result is not None else None
     if info is not None and ds is not None and info["dataset"] != ds.name:
         info["note"] = (
@@ -445,6 +473,35 @@ def make_server(
         raise InputError(None, "--host", f"cannot use {host!r}: {e.strerror}") from None
     except OSError as e:
         raise _bind_error(e, host, port) from None
+
+
+def _check_outputs(
+    dataset: Path | None,
+    trials_path: Path,
+    default_trials: bool,
+    inputs: list[str | Path | None],
+) -> None:
+    """Refuse, before serving, a file the posts would write but could not.
+
+    Calibration rewrites ``dataset`` and keeps ``DATASET.bak`` beside it (both atomic, via a
+    temporary file in its folder); evaluation writes ``trials_path``.
+    """
+    if dataset is not None:
+        backup = backup_path(dataset)
+        why = (f"calibration writes touch_error_px into {dataset.name} and keeps the "
+               f"previous file as {backup.name}")  # fmt: skip
+        try:
+            check_output(dataset, "--dataset")
+            check_output(backup, "--dataset", inputs)
+        except InputError as e:
+            raise InputError(e.path, e.field, f"{e.message} ({why})") from None
+    try:
+        check_output(trials_path, "--trials", [dataset, *inputs])
+    except InputError as e:
+        if not default_trials:
+            raise
+        note = "the default trials file, as --trials was not given; choose one with --trials"
+        raise InputError(e.path, e.field, f"{e.message} ({note})") from None
 
 
 def _bind_error(e: OSError, host: str, port: int) -> InputError:

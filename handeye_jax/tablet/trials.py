@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from .._atomic import write_text_atomic
+from .._atomic import write_output
 from .._validate import _describe, _Reader
 from ..errors import InputError
 from ..geometry import mm_per_tablet_px
@@ -124,8 +124,12 @@ def find_trial(doc: dict[str, Any], run_id: str) -> dict[str, Any] | None:
 
 
 def save_trials(doc: dict[str, Any], path: str | Path) -> None:
-    """Write the trials document atomically."""
-    write_text_atomic(path, json.dumps(doc, indent=1, allow_nan=False) + "\n")
+    """Write the trials document atomically: complete or untouched.
+
+    Raises :class:`InputError` naming ``path`` (not the temporary file) and the reason when
+    it cannot be written.
+    """
+    write_output(path, json.dumps(doc, indent=1, allow_nan=False) + "\n")
 
 
 def summarise(doc: dict[str, Any]) -> list[dict[str, Any]]:
