@@ -22,7 +22,7 @@ import numpy as np
 from jaxtyping import Float
 
 from . import geometry as geo
-from ._validate import _describe, _Reader
+from ._validate import MAX_DEG, MAX_MM, MAX_PX, _describe, _Reader
 from ._x64 import in_float64
 from .errors import InputError
 from .models import HTMModel
@@ -250,40 +250,54 @@ def load_truth(path: str | Path) -> TwinTruth:
         r.fail("format", f"expected {FORMAT!r} (got {_describe(doc.get('format'))})")
     keys = ("format", *TwinTruth.__dataclass_fields__)
     r.table(doc, "", keys, optional=("seed",))
-    size = r.vector(doc["image_size_px"], "image_size_px", 2)
+    size = r.vector(doc["image_size_px"], "image_size_px", 2, 1e5)
     if any(s < 8 or s != int(s) for s in size):
         r.fail("image_size_px", f"must be two whole numbers >= 8 (got {size})")
     cam = r.table(doc["camera_px"], "camera_px", ("fx", "fy", "cx", "cy"))
-    camera = {k: r.number(cam[k], f"camera_px.{k}", positive=k in ("fx", "fy")) for k in cam}
+    camera = {
+        k: r.number(cam[k], f"camera_px.{k}", positive=k in ("fx", "fy"), limit=MAX_PX) for k in cam
+    }
     m = r.table(doc["model"], "model", HTMModel.param_names)
-    model = {k: r.number(m[k], f"model.{k}") for k in HTMModel.param_names}
+    model = {k: r.number(m[k], f"model.{k}", limit=MAX_MM) for k in HTMModel.param_names}
     layout = doc["landmarks_tablet_px"]
     if not isinstance(layout, list) or len(layout) < 4:
         r.fail("landmarks_tablet_px", f"must be 4 or more [x, y] (got {_describe(layout)})")
-    tab = [r.vector(p, f"landmarks_tablet_px[{i}]", 2) for i, p in enumerate(layout)]
+    tab = [r.vector(p, f"landmarks_tablet_px[{i}]", 2, MAX_PX) for i, p in enumerate(layout)]
     angles = doc["landmarks_hand_angle_deg"]
     if not isinstance(angles, list) or len(angles) != len(tab):
         r.fail("landmarks_hand_angle_deg", f"must be a list of {len(tab)} numbers")
-    angles = [r.number(a, f"landmarks_hand_angle_deg[{i}]") for i, a in enumerate(angles)]
+    angles = [
+        r.number(a, f"landmarks_hand_angle_deg[{i}]", limit=MAX_DEG) for i, a in enumerate(angles)
+    ]
     sign = r.number(doc["hand_angle_sign"], "hand_angle_sign")
     if sign not in (1.0, -1.0):
         r.fail("hand_angle_sign", f"must be 1 or -1 (got {sign})")
+    for key, low in (("ppi", 1.0), ("scale", 0.01)):
+        if r.number(doc[key], key, positive=True) < low:
+            r.fail(key, f"must be at least {low:g} (got {doc[key]})")
+    for key in ("fx", "fy"):
+        if camera[key] < 1:
+            r.fail(f"camera_px.{key}", f"must be at least 1 px (got {cam[key]})")
     seed = doc.get("seed")
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
         r.fail("seed", f"must be an integer or null (got {_describe(seed)})")
     truth = TwinTruth(
         image_size_px=(int(size[0]), int(size[1])),
         camera_px=camera,
-        lens_blur_px=r.number(doc["lens_blur_px"], "lens_blur_px", positive=True),
+        lens_blur_px=r.number(doc["lens_blur_px"], "lens_blur_px", positive=True, limit=1e3),
         model=model,
-        camera_z_mm=r.number(doc["camera_z_mm"], "camera_z_mm"),
-        tablet_height_mm=r.number(doc["tablet_height_mm"], "tablet_height_mm"),
-        capture_position_mm=tuple(r.vector(doc["capture_position_mm"], "capture_position_mm", 3)),
-        ppi=r.number(doc["ppi"], "ppi", positive=True),
-        scale=r.number(doc["scale"], "scale", positive=True),
-        display_px=tuple(r.vector(doc["display_px"], "display_px", 2)),
-        dot_px=r.number(doc["dot_px"], "dot_px", positive=True),
-        hand_angle_zero_deg=r.number(doc["hand_angle_zero_deg"], "hand_angle_zero_deg"),
+        camera_z_mm=r.number(doc["camera_z_mm"], "camera_z_mm", limit=MAX_MM),
+        tablet_height_mm=r.number(doc["tablet_height_mm"], "tablet_height_mm", limit=MAX_MM),
+        capture_position_mm=tuple(
+            r.vector(doc["capture_position_mm"], "capture_position_mm", 3, MAX_MM)
+        ),
+        ppi=r.number(doc["ppi"], "ppi", positive=True, limit=1e5),
+        scale=r.number(doc["scale"], "scale", positive=True, limit=100),
+        display_px=tuple(r.vector(doc["display_px"], "display_px", 2, MAX_PX)),
+        dot_px=r.number(doc["dot_px"], "dot_px", positive=True, limit=MAX_PX),
+        hand_angle_zero_deg=r.number(
+            doc["hand_angle_zero_deg"], "hand_angle_zero_deg", limit=MAX_DEG
+        ),
         hand_angle_sign=int(sign),
         landmarks_tablet_px=np.array(tab),
         landmarks_hand_angle_deg=np.array(angles),

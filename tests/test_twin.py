@@ -46,6 +46,10 @@ def test_truth_json_round_trips_and_stays_in_range(tmp_path, seed):
         (lambda d: d.update(dot_px=-1), "dot_px"),
         (lambda d: d["capture_position_mm"].__setitem__(0, 1000.0), "not in the picture"),
         (lambda d: d.update(format="other"), "format"),
+        (lambda d: d.update(ppi=1e-320), "ppi: must be at least 1"),
+        (lambda d: d.update(scale=1e308), "scale: must be at most 100"),
+        (lambda d: d["camera_px"].update(fx=1e-300), "camera_px.fx: must be at least 1 px"),
+        (lambda d: d.update(camera_z_mm=10**400), "camera_z_mm: must be finite"),
     ],
 )
 def test_bad_truth_json_names_the_field(tmp_path, change, field):
