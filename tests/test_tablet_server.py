@@ -335,6 +335,20 @@ def test_the_trials_summary_gives_max_in_px_and_mm():
     assert lines[-1].split() == ["max", "in", "mm", "0.95", "0.76", "0.85"]
 
 
+@pytest.mark.parametrize("key", ["tablet", "trials"])
+def test_a_trials_file_without_a_table_names_it_missing(tmp_path, key):
+    from handeye_jax.errors import InputError
+    from handeye_jax.tablet.trials import load_trials, new_trials
+
+    doc = new_trials(267.0, 2.0)
+    del doc[key]
+    path = tmp_path / "t.trials.json"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(InputError) as e:
+        load_trials(path, 267.0, 2.0)
+    assert str(e.value) == f"{path}: {key}: missing"
+
+
 def test_grid_endpoint_and_its_errors(served):
     url, _ = served
     status, doc = request(url + "api/grid?cols=3&rows=3&left=400&top=150&right=1040&bottom=550")

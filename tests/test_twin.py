@@ -205,7 +205,11 @@ def test_simulate_and_evaluate_input_errors(tmp_path, capsys):
     assert "truth.json" in err and "not valid JSON" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "o").exists()
     assert main(["simulate", str(tmp_path / "no" / "such" / "dir")]) == 2
-    assert "parent folder" in capsys.readouterr().err
+    assert f"folder {str(tmp_path / 'no' / 'such')!r} does not exist" in capsys.readouterr().err
+    (tmp_path / "afile").write_text("mine")
+    assert main(["simulate", str(tmp_path / "afile")]) == 2
+    assert "afile: cannot write the twin here: is a file" in capsys.readouterr().err
+    assert (tmp_path / "afile").read_text() == "mine"
     write_twin(simulate(_TRUTH, PRESETS["none"], 1, exact=True, n_heldout=2), tmp_path / "t")
     assert main(["evaluate", str(tmp_path / "missing.json"), str(tmp_path / "t")]) == 2
     assert "missing.json" in capsys.readouterr().err

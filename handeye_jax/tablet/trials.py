@@ -60,7 +60,10 @@ def load_trials(path: str | Path, ppi: float, scale: float) -> dict[str, Any]:
         r.fail("", "must be a JSON object")
     if doc.get("format") != FORMAT:
         r.fail("format", f"expected {FORMAT!r} (got {_describe(doc.get('format'))})")
-    tablet = r.table(doc.get("tablet"), "tablet", ("ppi", "scale", "mm_per_px"))
+    for key in ("tablet", "trials"):
+        if key not in doc:
+            r.fail(key, "missing")
+    tablet = r.table(doc["tablet"], "tablet", ("ppi", "scale", "mm_per_px"))
     for key, want in (("ppi", ppi), ("scale", scale)):
         got = r.number(tablet[key], f"tablet.{key}", positive=True)
         if got != want:
