@@ -166,7 +166,7 @@ def check_folder_output(
     paths = [folder / name for name in names]
     try:
         if folder.exists() and not folder.is_dir():
-            raise InputError(folder, field, "cannot write: not a folder")
+            raise InputError(folder, field, "cannot write: is a file, not a folder")
         if not folder.parent.is_dir():
             what = "is not a folder" if folder.parent.exists() else "does not exist"
             raise InputError(folder, field, f"cannot write: folder {str(folder.parent)!r} {what}")

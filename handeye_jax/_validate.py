@@ -59,9 +59,16 @@ class _Reader:
         return value
 
     def number(
-        self, x: Any, where: str, positive: bool = False, limit: float | None = None
+        self,
+        x: Any,
+        where: str,
+        positive: bool = False,
+        limit: float | None = None,
+        minimum: float | None = None,
+        unit: str = "",
     ) -> float:
-        """A finite float; ``positive``: > 0; ``limit``: at most this in magnitude."""
+        """A finite float; ``positive``: > 0; ``limit``: at most this in magnitude;
+        ``minimum``: at least this (``unit`` names its unit in the message)."""
         if isinstance(x, bool) or not isinstance(x, int | float):
             self.fail(where, f"must be a number (got {_describe(x)})")
         try:
@@ -72,6 +79,8 @@ class _Reader:
             self.fail(where, f"must be finite (got {x})")
         if positive and value <= 0:
             self.fail(where, f"must be > 0 (got {x})")
+        if minimum is not None and value < minimum:
+            self.fail(where, f"must be at least {minimum:g}{' ' + unit if unit else ''} (got {x})")
         if limit is not None and abs(value) > limit:
             self.fail(where, f"must be at most {limit:g} in magnitude (got {x})")
         return value

@@ -59,10 +59,6 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from .twin import draw_truth, load_truth
 
     out = Path(args.out_dir)
-    if out.exists() and not out.is_dir():
-        raise InputError(out, "", "cannot write the twin here: is a file, not a folder")
-    if not out.parent.is_dir():
-        raise InputError(out, "", f"cannot write: folder {str(out.parent)!r} does not exist")
     check_folder_output(out, TWIN_FILES, "", [args.truth])
     if args.truth:
         if args.dot_px is not None:

@@ -263,22 +263,16 @@ def _parse(doc: dict[str, Any], path: Path | None) -> Dataset:
 
     cam = r.table(doc["camera"], "camera", _CAMERA_KEYS)
     camera = Camera(
-        fx_px=r.number(cam["fx"], "camera.fx", positive=True, limit=MAX_PX),
-        fy_px=r.number(cam["fy"], "camera.fy", positive=True, limit=MAX_PX),
+        fx_px=r.number(cam["fx"], "camera.fx", True, MAX_PX, minimum=1, unit="px"),
+        fy_px=r.number(cam["fy"], "camera.fy", True, MAX_PX, minimum=1, unit="px"),
         cx_px=r.number(cam["cx"], "camera.cx", limit=MAX_PX),
         cy_px=r.number(cam["cy"], "camera.cy", limit=MAX_PX),
     )
-    for key in ("fx", "fy"):
-        if cam[key] < 1:
-            r.fail(f"camera.{key}", f"must be at least 1 px (got {cam[key]:g})")
     capture = r.table(doc["capture"], "capture", _CAPTURE_KEYS)
     capture_position = r.vector(capture["hand_position"], "capture.hand_position", 3, MAX_MM)
     tablet = r.table(doc["tablet"], "tablet", _TABLET_KEYS)
-    ppi = r.number(tablet["ppi"], "tablet.ppi", positive=True, limit=1e5)
-    scale = r.number(tablet["scale"], "tablet.scale", positive=True, limit=100)
-    for key, low in (("ppi", 1.0), ("scale", 0.01)):
-        if tablet[key] < low:
-            r.fail(f"tablet.{key}", f"must be at least {low:g} (got {tablet[key]:g})")
+    ppi = r.number(tablet["ppi"], "tablet.ppi", True, 1e5, minimum=1)
+    scale = r.number(tablet["scale"], "tablet.scale", True, 100, minimum=0.01)
     angle = r.table(doc["hand_angle"], "hand_angle", _HAND_ANGLE_KEYS)
     zero = r.number(angle["zero"], "hand_angle.zero", limit=MAX_DEG)
     sign = r.number(angle["sign"], "hand_angle.sign")

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._atomic import write_text_atomic
+from ._atomic import write_output
 from ._validate import MAX_DEG, MAX_MM, MAX_PX, _describe, _join, _Reader
 from ._x64 import in_float64
 from .errors import InputError
@@ -144,8 +144,9 @@ class CalibrationResult:
         return json.dumps(doc, indent=2, allow_nan=False) + "\n"
 
     def save(self, path: str | Path) -> None:
-        """Write the result atomically: the file is complete or not written at all."""
-        write_text_atomic(path, self.to_json())
+        """Write the result atomically: the file is complete or not written at all; raises
+        :class:`InputError` naming ``path`` if it cannot be written."""
+        write_output(path, self.to_json())
 
 
 def rig_to_dict(rig: Rig) -> dict[str, Any]:
@@ -212,18 +213,18 @@ def load_result(path: str | Path) -> CalibrationResult:
     r = _Reader(path)
     doc = _read_json(path, r)
     if not isinstance(doc, dict):
-        r.fail("", f"must be a JSON object (got {_what(doc)})")
+        r.fail("", f"must be a JSON object (got {_describe(doc)})")
     for key in ("format", "model", "seed", "rig", "stage1", "stage2", "centre_index",
                 "centres_mm"):  # fmt: skip
         _field(r, doc, key, "")
     if doc["format"] != FORMAT:
-        r.fail("format", f"expected {FORMAT!r} (got {_what(doc['format'])})")
+        r.fail("format", f"expected {FORMAT!r} (got {_describe(doc['format'])})")
     model = _model_name(r, doc["model"], "model")
     seed = _integer(r, doc["seed"], "seed", *SEED_RANGE)
     rig = _rig(r, doc["rig"])
     centres = doc["centres_mm"]
     if not isinstance(centres, list) or len(centres) != 2:
-        r.fail("centres_mm", f"must be a list of two [x, y] points (got {_what(centres)})")
+        r.fail("centres_mm", f"must be a list of two [x, y] points (got {_describe(centres)})")
     centres = [r.vector(c, f"centres_mm[{i}]", 2, MAX_MM) for i, c in enumerate(centres)]
     observations = _observations(r, doc)
     stage1 = _stage(r, doc, "stage1", get_model(model).param_names)
@@ -244,16 +245,16 @@ def load_result(path: str | Path) -> CalibrationResult:
             check(r, settings[key], f"settings.{key}")
     dataset = doc.get("dataset", "")
     if not isinstance(dataset, str):
-        r.fail("dataset", f"must be a string (got {_what(dataset)})")
+        r.fail("dataset", f"must be a string (got {_describe(dataset)})")
     timings = _optional_table(r, doc, "timings_s")
     for key, value in timings.items():
         r.number(value, f"timings_s.{key}")
     warnings = doc.get("warnings", [])
     if not isinstance(warnings, list):
-        r.fail("warnings", f"must be an array of strings (got {_what(warnings)})")
+        r.fail("warnings", f"must be an array of strings (got {_describe(warnings)})")
     for i, w in enumerate(warnings):
         if not isinstance(w, str):
-            r.fail(f"warnings[{i}]", f"must be a string (got {_what(w)})")
+            r.fail(f"warnings[{i}]", f"must be a string (got {_describe(w)})")
     return CalibrationResult(
         model=model,
         seed=seed,
@@ -334,10 +335,6 @@ def _repeated_key(doc: Any) -> str | None:
     return None
 
 
-def _what(x: Any) -> str:
-    return "null" if x is None else _describe(x)
-
-
 def _field(r: _Reader, table: dict[str, Any], key: str, where: str) -> Any:
     if key not in table:
         r.fail(_join(where, key), "missing")
@@ -346,7 +343,7 @@ def _field(r: _Reader, table: dict[str, Any], key: str, where: str) -> Any:
 
 def _integer(r: _Reader, x: Any, where: str, low: int | None = None, high: int | None = None):
     if isinstance(x, bool) or not isinstance(x, int):
-        r.fail(where, f"must be an integer (got {_what(x)})")
+        r.fail(where, f"must be an integer (got {_describe(x)})")
     if low is not None and x < low or high is not None and x > high:
         got = x if len(str(x)) <= 24 else f"an integer of {len(str(abs(x)))} digits"
         if high is None:
@@ -361,13 +358,13 @@ def _count(r: _Reader, x: Any, where: str) -> int:
 
 def _boolean(r: _Reader, x: Any, where: str) -> bool:
     if not isinstance(x, bool):
-        r.fail(where, f"must be true or false (got {_what(x)})")
+        r.fail(where, f"must be true or false (got {_describe(x)})")
     return x
 
 
 def _string(r: _Reader, x: Any, where: str) -> str:
     if not isinstance(x, str):
-        r.fail(where, f"must be a string (got {_what(x)})")
+        r.fail(where, f"must be a string (got {_describe(x)})")
     return x
 
 
@@ -381,20 +378,20 @@ def _length(r: _Reader, x: Any, where: str) -> float:
 
 def _numbers(r: _Reader, x: Any, where: str) -> list[float]:
     if not isinstance(x, list):
-        r.fail(where, f"must be an array of numbers (got {_what(x)})")
+        r.fail(where, f"must be an array of numbers (got {_describe(x)})")
     return [r.number(v, f"{where}[{i}]") for i, v in enumerate(x)]
 
 
 def _model_name(r: _Reader, x: Any, where: str) -> str:
     if not isinstance(x, str) or x not in model_registry():
         known = ", ".join(sorted(model_registry()))
-        r.fail(where, f"unknown model {_what(x)}; known: {known}")
+        r.fail(where, f"unknown model {_describe(x)}; known: {known}")
     return x
 
 
 def _loss_name(r: _Reader, x: Any, where: str) -> str:
     if not isinstance(x, str) or x not in LOSS_NAMES:
-        r.fail(where, f"unknown loss {_what(x)}; known: {', '.join(LOSS_NAMES)}")
+        r.fail(where, f"unknown loss {_describe(x)}; known: {', '.join(LOSS_NAMES)}")
     return x
 
 
@@ -426,8 +423,7 @@ def _rig(r: _Reader, value: Any) -> dict[str, Any]:
     rig = r.table(value, "rig", ("camera_px", "capture_hand_position_mm", "hand_angle"))
     cam = r.table(rig["camera_px"], "rig.camera_px", ("fx", "fy", "cx", "cy"))
     for k in ("fx", "fy"):
-        if r.number(cam[k], f"rig.camera_px.{k}", positive=True, limit=MAX_PX) < 1:
-            r.fail(f"rig.camera_px.{k}", f"must be at least 1 px (got {cam[k]:g})")
+        r.number(cam[k], f"rig.camera_px.{k}", True, MAX_PX, minimum=1, unit="px")
     for k in ("cx", "cy"):
         r.number(cam[k], f"rig.camera_px.{k}", limit=MAX_PX)
     r.vector(rig["capture_hand_position_mm"], "rig.capture_hand_position_mm", 3, MAX_MM)
@@ -441,14 +437,14 @@ def _rig(r: _Reader, value: Any) -> dict[str, Any]:
 def _stage(r: _Reader, doc: dict[str, Any], key: str, names: tuple[str, ...]) -> StageResult:
     s = doc[key]
     if not isinstance(s, dict):
-        r.fail(key, f"must be an object (got {_what(s)})")
+        r.fail(key, f"must be an object (got {_describe(s)})")
     F, f1, f2 = (_length(r, _field(r, s, k, key), f"{key}.{k}") for k in ("F", "f1", "f2"))
     p = r.table(_field(r, s, "params", key), f"{key}.params", names)
     params = {n: r.number(p[n], f"{key}.params.{n}", limit=MAX_PARAM) for n in names}
     residuals = s.get("residuals_mm", [])
     if not isinstance(residuals, list):
         r.fail(f"{key}.residuals_mm", f"must be an array, one entry per landmark (got "
-               f"{_what(residuals)})")  # fmt: skip
+               f"{_describe(residuals)})")  # fmt: skip
     for m, e in enumerate(residuals):
         _residual(r, e, f"{key}.residuals_mm[{m}]", m, RESIDUAL_KEYS)
     de = _summary(r, s, "de", key, _DE)
@@ -456,7 +452,7 @@ def _stage(r: _Reader, doc: dict[str, Any], key: str, names: tuple[str, ...]) ->
     if "pinned" in polish:  # the first results listed the parameters LM left on a bound
         pinned = polish["pinned"]
         if not isinstance(pinned, list) or not all(isinstance(p, str) for p in pinned):
-            r.fail(f"{key}.polish.pinned", f"must be an array of names (got {_what(pinned)})")
+            r.fail(f"{key}.polish.pinned", f"must be an array of names (got {_describe(pinned)})")
     return StageResult(
         F=F, f1=f1, f2=f2, params=params, residuals_mm=residuals, de=de, polish=polish,
         convergence=_convergence(r, s, key),
@@ -479,7 +475,7 @@ def _summary(r: _Reader, s: dict[str, Any], key: str, stage: str, checks: dict) 
     where = f"{stage}.{key}"
     value = s.get(key, {})
     if not isinstance(value, dict):
-        r.fail(where, f"must be an object (got {_what(value)})")
+        r.fail(where, f"must be an object (got {_describe(value)})")
     for k, check in checks.items():
         if k in value:
             check(r, value[k], f"{where}.{k}")
@@ -490,7 +486,7 @@ def _convergence(r: _Reader, s: dict[str, Any], stage: str) -> dict[str, list[fl
     where = f"{stage}.convergence"
     c = s.get("convergence", {})
     if not isinstance(c, dict):
-        r.fail(where, f"must be an object (got {_what(c)})")
+        r.fail(where, f"must be an object (got {_describe(c)})")
     out = dict(c)
     for k in ("best_F", "median_F"):
         if k in c:
@@ -499,7 +495,7 @@ def _convergence(r: _Reader, s: dict[str, Any], stage: str) -> dict[str, list[fl
         gens = c["median_generation"]
         if not isinstance(gens, list):
             r.fail(f"{where}.median_generation", f"must be an array of generations (got "
-                   f"{_what(gens)})")  # fmt: skip
+                   f"{_describe(gens)})")  # fmt: skip
         for i, g in enumerate(gens):
             _integer(r, g, f"{where}.median_generation[{i}]", 1)
         if "median_F" in c and len(gens) != len(c["median_F"]):
@@ -513,7 +509,7 @@ def _convergence(r: _Reader, s: dict[str, Any], stage: str) -> dict[str, list[fl
 def _optional_table(r: _Reader, doc: dict[str, Any], key: str) -> dict[str, Any]:
     value = doc.get(key, {})
     if not isinstance(value, dict):
-        r.fail(key, f"must be an object (got {_what(value)})")
+        r.fail(key, f"must be an object (got {_describe(value)})")
     return value
 
 
@@ -531,7 +527,7 @@ def _observations(r: _Reader, doc: dict[str, Any]) -> dict[str, Any]:
         rows = obs[name]
         if not isinstance(rows, list) or not rows or (n is not None and len(rows) != n):
             want = "a non-empty list" if n is None else f"a list of {n} (one per landmark)"
-            r.fail(where, f"must be {want} (got {_what(rows)})")
+            r.fail(where, f"must be {want} (got {_describe(rows)})")
         n = len(rows)
         limit = OBSERVATION_LIMITS[name]
         for i, row in enumerate(rows):
@@ -553,7 +549,7 @@ def _diagnostics(
         d = diag[key]
         where = f"diagnostics.{key}"
         if not isinstance(d, dict):
-            r.fail(where, f"must be an object (got {_what(d)})")
+            r.fail(where, f"must be an object (got {_describe(d)})")
         if "loo" not in d:
             continue
         loo = r.table(d["loo"], f"{where}.loo", LOO_KEYS)
@@ -564,7 +560,7 @@ def _diagnostics(
             r.fail(f"{key}.residuals_mm", f"missing: {where}.loo compares with it")
         if not isinstance(held, list) or len(held) != n:
             r.fail(f"{where}.loo.held_out_mm", f"must be a list of {n} (one per landmark) "
-                   f"(got {_what(held)})")  # fmt: skip
+                   f"(got {_describe(held)})")  # fmt: skip
         for m, e in enumerate(held):
             _residual(r, e, f"{where}.loo.held_out_mm[{m}]", m, HELD_OUT_KEYS)
     return diag

@@ -254,8 +254,9 @@ def load_truth(path: str | Path) -> TwinTruth:
     if any(s < 8 or s != int(s) for s in size):
         r.fail("image_size_px", f"must be two whole numbers >= 8 (got {size})")
     cam = r.table(doc["camera_px"], "camera_px", ("fx", "fy", "cx", "cy"))
+    focal = {"fx": 1.0, "fy": 1.0}  # px; cx and cy may be anything on the sensor's scale
     camera = {
-        k: r.number(cam[k], f"camera_px.{k}", positive=k in ("fx", "fy"), limit=MAX_PX) for k in cam
+        k: r.number(cam[k], f"camera_px.{k}", k in focal, MAX_PX, focal.get(k), "px") for k in cam
     }
     m = r.table(doc["model"], "model", HTMModel.param_names)
     model = {k: r.number(m[k], f"model.{k}", limit=MAX_MM) for k in HTMModel.param_names}
@@ -272,12 +273,6 @@ def load_truth(path: str | Path) -> TwinTruth:
     sign = r.number(doc["hand_angle_sign"], "hand_angle_sign")
     if sign not in (1.0, -1.0):
         r.fail("hand_angle_sign", f"must be 1 or -1 (got {sign})")
-    for key, low in (("ppi", 1.0), ("scale", 0.01)):
-        if r.number(doc[key], key, positive=True) < low:
-            r.fail(key, f"must be at least {low:g} (got {doc[key]})")
-    for key in ("fx", "fy"):
-        if camera[key] < 1:
-            r.fail(f"camera_px.{key}", f"must be at least 1 px (got {cam[key]})")
     seed = doc.get("seed")
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
         r.fail("seed", f"must be an integer or null (got {_describe(seed)})")
@@ -291,8 +286,8 @@ def load_truth(path: str | Path) -> TwinTruth:
         capture_position_mm=tuple(
             r.vector(doc["capture_position_mm"], "capture_position_mm", 3, MAX_MM)
         ),
-        ppi=r.number(doc["ppi"], "ppi", positive=True, limit=1e5),
-        scale=r.number(doc["scale"], "scale", positive=True, limit=100),
+        ppi=r.number(doc["ppi"], "ppi", True, 1e5, minimum=1),
+        scale=r.number(doc["scale"], "scale", True, 100, minimum=0.01),
         display_px=tuple(r.vector(doc["display_px"], "display_px", 2, MAX_PX)),
         dot_px=r.number(doc["dot_px"], "dot_px", positive=True, limit=MAX_PX),
         hand_angle_zero_deg=r.number(

@@ -208,7 +208,7 @@ def test_simulate_and_evaluate_input_errors(tmp_path, capsys):
     assert f"folder {str(tmp_path / 'no' / 'such')!r} does not exist" in capsys.readouterr().err
     (tmp_path / "afile").write_text("mine")
     assert main(["simulate", str(tmp_path / "afile")]) == 2
-    assert "afile: cannot write the twin here: is a file" in capsys.readouterr().err
+    assert "afile: cannot write: is a file, not a folder" in capsys.readouterr().err
     assert (tmp_path / "afile").read_text() == "mine"
     write_twin(simulate(_TRUTH, PRESETS["none"], 1, exact=True, n_heldout=2), tmp_path / "t")
     assert main(["evaluate", str(tmp_path / "missing.json"), str(tmp_path / "t")]) == 2
