@@ -13,6 +13,7 @@ whatever your setting; wrap your own calls of the low-level functions in
 
 from . import geometry, models, objective, optim
 from ._x64 import float64
+from ._xla import vectorise_small_loops
 from .calibrate import Settings, calibrate
 from .dataset import Dataset, load_dataset, save_dataset
 from .errors import InputError
@@ -45,4 +46,5 @@ __all__ = [
     "objective",
     "optim",
     "save_dataset",
+    "vectorise_small_loops",
 ]

@@ -13,6 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ._atomic import check_output, write_output
+from ._xla import vectorise_small_loops
 from .errors import InputError
 
 PROG = "handeye-jax"
@@ -269,6 +270,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        vectorise_small_loops()
         _enable_compilation_cache()
         return args.func(args)
     except InputError as e:

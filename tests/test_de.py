@@ -160,3 +160,53 @@ def test_uniforms_are_uniform_independent_and_stream_separated():
     assert abs(np.corrcoef(u.ravel(), v.ravel())[0, 1]) < 0.01
     assert not np.any(u == v)
     np.testing.assert_array_equal(u, np.asarray(uniforms(jnp.uint64(123), 5, (20000, 8))))
+
+
+_SMALL_LOOPS_PROBE = """
+import sys
+import jax
+import numpy as np
+import handeye_jax
+from handeye_jax import HTMModel, load_dataset
+from handeye_jax.objective import Stage1Objective
+from handeye_jax.optim import differential_evolution
+applied = handeye_jax.vectorise_small_loops() if sys.argv[2] == "on" else False
+with jax.enable_x64(True):
+    obj = Stage1Objective(HTMModel, load_dataset(sys.argv[1]).observations())
+    lo, hi = HTMModel.search_bounds()
+    r = differential_evolution(obj, lo, hi, key=jax.random.PRNGKey(3), population=300,
+                               generations=70, early_stop=False)
+again = handeye_jax.vectorise_small_loops()
+np.save(sys.argv[3], r.population)
+print(applied, again)
+"""
+
+
+def test_vectorising_small_loops_keeps_the_de_bit_for_bit(tmp_path):
+    """The LLVM option changes which loops use SIMD, not the numbers; it applies only before
+    JAX's first computation, and never over the user's own ``xla_backend_extra_options``."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    paper = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    out = {}
+    for mode in ("on", "off"):
+        npy = tmp_path / f"{mode}.npy"
+        p = subprocess.run(
+            [sys.executable, "-c", _SMALL_LOOPS_PROBE, str(paper), mode, str(npy)],
+            capture_output=True, text=True, env=env, timeout=300,
+        )  # fmt: skip
+        assert p.returncode == 0, p.stderr[-2000:]
+        out[mode] = (p.stdout.split(), np.load(npy))
+    assert out["on"][0] == ["True", "False"]  # applied first; a second call, too late, is not
+    assert out["off"][0] == ["False", "False"]
+    np.testing.assert_array_equal(out["on"][1], out["off"][1])
+    user = dict(env, XLA_FLAGS="--xla_backend_extra_options=-vectorizer-min-trip-count=8")
+    p = subprocess.run(
+        [sys.executable, "-c", "import handeye_jax; print(handeye_jax.vectorise_small_loops())"],
+        capture_output=True, text=True, env=user, timeout=300,
+    )  # fmt: skip
+    assert p.stdout.split() == ["False"], p.stderr[-2000:]
