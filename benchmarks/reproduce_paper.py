@@ -16,9 +16,11 @@ import platform
 import time
 from pathlib import Path
 
-from handeye_jax import Settings, calibrate, load_dataset
+from handeye_jax import Settings, calibrate, load_dataset, vectorise_small_loops
 
 PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
+
+vectorise_small_loops()  # as the command line does
 
 
 def stage_evaluations(stage, d: int) -> int:
