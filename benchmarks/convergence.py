@@ -54,7 +54,7 @@ import optimistix as optx
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from handeye_jax import HTMModel, Settings, load_dataset
+from handeye_jax import HTMModel, Settings, load_dataset, vectorise_small_loops
 from handeye_jax.objective import Stage1Objective
 from handeye_jax.optim import differential_evolution, levenberg_marquardt
 from handeye_jax.optim.polish import _Box
@@ -313,6 +313,7 @@ def plot(groups: dict[str, list[Run]], de_stop: str, de_full: str, lm_labels: li
 
 
 def main() -> None:
+    vectorise_small_loops()  # as the command line does
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=5, help="number of seeds S (seeds 1..S)")
     ap.add_argument("--population", type=int, default=Settings.population)

@@ -17,7 +17,7 @@ import sys
 
 import numpy as np
 
-from handeye_jax import Settings, calibrate
+from handeye_jax import Settings, calibrate, vectorise_small_loops
 from handeye_jax.simulate import PRESETS, simulate
 from handeye_jax.twin import draw_truth
 
@@ -34,6 +34,7 @@ def f_others(result) -> float:
 
 
 def main() -> None:
+    vectorise_small_loops()  # as the command line does
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--population", type=int, default=200)
     ap.add_argument("--generations", type=int, default=400)

@@ -22,7 +22,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from handeye_jax import Settings, calibrate, load_dataset
+from handeye_jax import Settings, calibrate, load_dataset, vectorise_small_loops
 from handeye_jax.detect import detect_landmarks, fill_dataset
 from handeye_jax.evaluate import evaluate_twin
 from handeye_jax.simulate import PRESETS, simulate, write_twin
@@ -123,6 +123,7 @@ def write_section(path: Path, heading: str, text: str) -> None:
 
 
 def main() -> None:
+    vectorise_small_loops()  # as the command line does
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5])
     ap.add_argument("--preset", choices=sorted(PRESETS), default="paper")
