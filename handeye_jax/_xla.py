@@ -123,9 +123,12 @@ def vectorise_small_loops() -> bool:
 
     Adds :data:`SMALL_LOOPS_FLAG` to ``XLA_FLAGS``. It applies only if JAX has not yet started
     a backend (XLA reads its flags once, then) and ``XLA_FLAGS`` does not already set
-    ``xla_backend_extra_options`` (the user's own choice is kept). Returns whether it applied.
+    ``xla_backend_extra_options`` (the user's own choice is kept) nor name a flag file (XLA
+    reads a value that does not start with ``--`` as a file name). Returns whether it applied.
     """
-    flags = os.environ.get("XLA_FLAGS", "")
+    flags = os.environ.get("XLA_FLAGS", "").strip()
+    if flags and not flags.startswith("--"):
+        return False
     if "xla_backend_extra_options" in flags or _backend_started():
         return False
     os.environ["XLA_FLAGS"] = f"{flags} {SMALL_LOOPS_FLAG}".strip()

@@ -184,7 +184,8 @@ print(applied, again)
 
 def test_vectorising_small_loops_keeps_the_de_bit_for_bit(tmp_path):
     """The LLVM option changes which loops use SIMD, not the numbers; it applies only before
-    JAX's first computation, and never over the user's own ``xla_backend_extra_options``."""
+    JAX's first computation, never over the user's own ``xla_backend_extra_options``, and
+    never to an ``XLA_FLAGS`` that names a flag file."""
     import os
     import subprocess
     import sys
@@ -204,9 +205,10 @@ def test_vectorising_small_loops_keeps_the_de_bit_for_bit(tmp_path):
     assert out["on"][0] == ["True", "False"]  # applied first; a second call, too late, is not
     assert out["off"][0] == ["False", "False"]
     np.testing.assert_array_equal(out["on"][1], out["off"][1])
-    user = dict(env, XLA_FLAGS="--xla_backend_extra_options=-vectorizer-min-trip-count=8")
-    p = subprocess.run(
-        [sys.executable, "-c", "import handeye_jax; print(handeye_jax.vectorise_small_loops())"],
-        capture_output=True, text=True, env=user, timeout=300,
-    )  # fmt: skip
-    assert p.stdout.split() == ["False"], p.stderr[-2000:]
+    flagfile = tmp_path / "xla.flags"
+    flagfile.write_text("--xla_cpu_enable_fast_min_max=false\n")
+    probe = "import os, handeye_jax as h; print(h.vectorise_small_loops(), os.environ['XLA_FLAGS'])"
+    for flags in ("--xla_backend_extra_options=-vectorizer-min-trip-count=8", str(flagfile)):
+        p = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                           env=dict(env, XLA_FLAGS=flags), timeout=300)  # fmt: skip
+        assert p.stdout.split() == ["False", flags], p.stderr[-2000:]
