@@ -163,7 +163,8 @@ def _select(fn: Callable, state: DEState, trial: Float[Array, "n d"]) -> DEState
     # The objective is mapped over the trials as columns of a (d, n) array: the same numbers
     # (populations bit-identical), but XLA then runs the objective's first loops, which pick
     # parameters out of every trial, on both cores. A generation at N = 10,000 took 5-25 %
-    # less time (interleaved A/B, benchmarks/de_throughput.py's harness, 2026-12-02).
+    # less time with the paper's HTM stage 1 and the same (within 3 %) with DH (interleaved
+    # A/B, benchmarks/de_throughput.py's harness, 2026-12-02).
     f_trial = _safe(jax.vmap(fn, in_axes=1)(trial.T))
     better = f_trial <= state.fitness
     return DEState(
