@@ -20,8 +20,6 @@ from handeye_jax import Settings, calibrate, load_dataset, vectorise_small_loops
 
 PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
 
-vectorise_small_loops()  # as the command line does
-
 
 def stage_evaluations(stage, d: int) -> int:
     return stage.de["evaluations"] + stage.polish.get("steps", 0) * (1 + d)
@@ -39,6 +37,7 @@ def row(label, r, seconds):
 
 
 def main() -> None:
+    vectorise_small_loops()  # as the command line does
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5])
     ap.add_argument("--population", type=int, default=Settings.population)

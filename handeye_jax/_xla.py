@@ -23,10 +23,10 @@ One more setting cannot be scoped to a program: LLVM's loop vectoriser leaves an
 fewer than 16 iterations scalar, and XLA's CPU code for a population is full of them (the 12
 parameters of a member, the 9 landmarks). :func:`vectorise_small_loops` lowers that limit to
 4 for the whole process, through ``XLA_FLAGS``, so it must run before JAX's first computation.
-The command line calls it, and so do the benchmarks; a library user may call it first thing.
-It changes which loops use SIMD instructions, not the arithmetic: the DE's populations are
-bit-identical with and without it (``tests/test_de.py``). On the 2-core machine it made a DE
-generation at N = 10,000 about 1.3× faster (``benchmarks/RESULTS.md``).
+The command line, the benchmarks and the notebooks call it; a library user may call it
+first thing. It changes which loops use SIMD instructions, not the arithmetic: the DE's
+populations are bit-identical with and without it (``tests/test_de.py``). On the 2-core
+machine it made a DE generation at N = 10,000 about 1.3× faster (``benchmarks/RESULTS.md``).
 """
 
 from __future__ import annotations

@@ -1,5 +1,10 @@
 """The DE and LM optimisers on problems with known answers; they know nothing of hand-eye."""
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -186,11 +191,6 @@ def test_vectorising_small_loops_keeps_the_de_bit_for_bit(tmp_path):
     """The LLVM option changes which loops use SIMD, not the numbers; it applies only before
     JAX's first computation, never over the user's own ``xla_backend_extra_options``, and
     never to an ``XLA_FLAGS`` that names a flag file."""
-    import os
-    import subprocess
-    import sys
-    from pathlib import Path
-
     paper = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     out = {}
