@@ -141,7 +141,7 @@ def main(argv=None) -> None:
                  for name, f in loops.items()}  # fmt: skip
         alone = eqx.filter_jit(_objective_scan, compiler_options=loop_compiler_options())
         # Over columns, as the DE maps its objective over the trials.
-        calls["objective alone"] = lambda: alone(objective, state.population, k, True)
+        calls["objective alone"] = lambda: alone(objective, state.population, k, "columns")
         ms = {name: [t / k for t in ts] for name, ts in interleaved_ms(calls, args.rounds).items()}
 
     print(f"# DE overhead by ablation, {time.strftime('%Y-%m-%d')}")

@@ -21,6 +21,9 @@ def test_de_throughput_runs_all_three_des():
     out = _run("de_throughput.py", "--quick")
     for name in ("handeye-jax", "scipy", "evosax", "objective alone", "full budget", "memory"):
         assert name in out
+    # the objective alone, timed in each layout, with the DE's overhead against each
+    for layout in ("rows", "columns", "transposed copy"):
+        assert re.search(rf"^\| {layout} \| \d+\.\d+ \| -?\d+ % \|$", out, re.M)
 
 
 def test_scaling_runs_and_plots(tmp_path):
