@@ -59,13 +59,13 @@ LAYOUTS = ("rows", "columns", "transposed copy")
 def _objective_scan(objective, pop, steps: int, layout: str = "rows"):
     """``steps`` evaluations of the population's objective in a ``lax.scan``, laid out and
     mapped as ``layout`` says (one of :data:`LAYOUTS`)."""
+    if layout not in LAYOUTS:
+        raise ValueError(f"layout must be one of {LAYOUTS} (got {layout!r})")
     copy = layout == "transposed copy"
 
     def step(p, _):
-        if layout == "rows":
-            f = jax.vmap(objective)(p)
-        else:
-            f = jax.vmap(objective, in_axes=1)(p if copy else p.T)
+        x = p.T if layout == "columns" else p
+        f = jax.vmap(objective, in_axes=0 if layout == "rows" else 1)(x)
         # A data dependence between steps, so XLA cannot hoist the evaluation out of the loop.
         return p + jnp.where(jnp.sum(f) > jnp.inf, 1.0, 0.0), f[0]
 
