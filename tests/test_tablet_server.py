@@ -583,25 +583,6 @@ def test_the_result_being_evaluated_is_named_and_checked(tmp_path):
         other.server_close()
 
 
-def test_the_command_serves_until_interrupted(tmp_path):
-    ds = tmp_path / "rig.toml"
-    shutil.copy(PAPER, ds)
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    cmd = [sys.executable, "-m", "handeye_jax.cli", "tablet", "--dataset", str(ds), "--port", "0"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-    try:
-        first = proc.stdout.readline()
-        assert first.startswith("tablet page: http://127.0.0.1:"), first
-        url, _, secret = first.split()[2].partition("?token=")
-        status, doc = request(url + "api/session", token=secret)
-        assert status == 200 and doc["dataset"]["name"] == "paper2023"
-        assert doc["tablet"]["mm_per_px"] == pytest.approx(25.4 / 267 * 2)
-    finally:
-        proc.send_signal(signal.SIGINT)
-        out, _ = proc.communicate(timeout=30)
-    assert proc.returncode == 0 and "stopped" in out
-
-
 # -- files the posts write: checked before serving, a failed save named and kept for retry --
 
 
@@ -893,8 +874,14 @@ class ServerProcess:
 def real(tmp_path_factory):
     server = ServerProcess(tmp_path_factory.mktemp("real"))
     yield server
-    server.stop()
-    assert server.proc.returncode == 0
+    out = server.stop()  # Ctrl-C
+    assert server.proc.returncode == 0 and "stopped" in out
+
+
+def test_the_command_serves_until_interrupted(real):
+    status, doc = real.api("GET", "/api/session")
+    assert status == 200 and doc["dataset"]["name"] == "paper2023"
+    assert doc["tablet"]["mm_per_px"] == pytest.approx(25.4 / 267 * 2)
 
 
 def _touches(tablet_px, errors):

@@ -508,6 +508,7 @@ async function flush() {
   }
   app.flushing = false;
   showOutbox();
+  showWarnings(); // a refused secret shows there
   if (retry) app.retryTimer = setTimeout(flush, RETRY_MS);
   else if (app.flushAgain) {
     app.flushAgain = false;
