@@ -17,9 +17,9 @@ import numpy as np
 # Bounds on what one post may hold, so a post (or many) cannot grow the files without end.
 # A run touches each point by jogging the robot: the paper's has 9; 100 is a 10 x 10 grid.
 MAX_TOUCHES = 100
-# A bigger body is not a run: 100 touches take about 15 kB.
+# A bigger body is not a run: 100 touches take about 10 kB.
 MAX_BODY_BYTES = 64 * 1024
-# Evaluation trials in one trials file (each post rewrites the file, ~25 kB per full trial).
+# Evaluation trials in one trials file (each post rewrites it; a trial of 100 touches ~32 kB).
 MAX_TRIALS = 100
 # No screen is wider or taller than this many CSS px (browsers' canvas size limit).
 MAX_SCREEN_PX = 16384.0

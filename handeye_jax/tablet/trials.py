@@ -31,7 +31,7 @@ from ..geometry import mm_per_tablet_px
 from .posts import EvaluationPost
 
 FORMAT = "handeye-jax.trials/1"
-# A trials file the server may read: posts keep it under ~3 MB (100 trials of 100 touches).
+# A trials file the server may read: posts keep it under ~3.3 MB (100 trials of 100 touches).
 MAX_FILE_BYTES = 16 * 1024 * 1024
 
 
