@@ -428,7 +428,7 @@ def test_the_secret_is_random_and_a_given_one_must_be_as_strong(tmp_path):
     finally:
         for s in servers:
             s.server_close()
-    for weak in ("", "short", "x" * 31, "a b" * 20, "é" * 40):
+    for weak in ("", "short", "x" * 31, "a b" * 20, "é" * 40, "x" * 40 + "\n"):
         with pytest.raises(InputError, match=r"^token: must be at least 32 characters"):
             make_server(PAPER, port=0, trials_path=trials, token=weak)
 

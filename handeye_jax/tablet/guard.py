@@ -29,7 +29,7 @@ TOKEN_HEADER = "X-Handeye-Token"
 # 32 random bytes, URL-safe base64: 43 characters; a given secret must be as hard to guess.
 TOKEN_BYTES = 32
 MIN_TOKEN_CHARS = 32
-_TOKEN_CHARS = re.compile(r"^[A-Za-z0-9_-]+$")
+_TOKEN_CHARS = re.compile(r"[A-Za-z0-9_-]+")
 _LOOPBACK_NAMES = ("localhost",)
 # Compact QR codes use half blocks drawn in the terminal's text colour: white on black, set
 # explicitly, reads the same on a light and a dark terminal.
@@ -43,7 +43,8 @@ def new_token() -> str:
 
 def check_token(token: str) -> str:
     """``token`` if it can be a secret: at least 32 URL-safe characters; else ``ValueError``."""
-    if not isinstance(token, str) or len(token) < MIN_TOKEN_CHARS or not _TOKEN_CHARS.match(token):
+    strong = isinstance(token, str) and len(token) >= MIN_TOKEN_CHARS
+    if not strong or not _TOKEN_CHARS.fullmatch(token):
         raise ValueError(
             f"must be at least {MIN_TOKEN_CHARS} characters of A-Z a-z 0-9 _ - (e.g. from "
             "secrets.token_urlsafe(32))"
