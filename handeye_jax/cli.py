@@ -213,8 +213,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="serve the tablet page: draw landmarks, record touches, measure touching errors",
         description="Serve the page the tablet shows. Calibration mode writes each landmark's "
         "touch_error_px (tablet px) into the dataset, changing only those values so its "
-        "comments stay (previous file kept as DATASET.bak); evaluation mode saves trials of "
-        "touches with their mean and max error in px and mm.",
+        "comments stay (every previous version kept as DATASET.<UTC time>.bak); evaluation "
+        "mode saves trials of touches with their mean and max error in px and mm. Only who "
+        "opens the printed URL (or scans its QR code) gets in: it carries a secret, new at "
+        "each start.",
     )
     tab.add_argument("--dataset", help="dataset whose landmarks to draw and touch errors to write")
     tab.add_argument(

@@ -552,6 +552,7 @@ def update_dataset(
     new: Dataset | Callable[[Dataset], Dataset],
     *,
     keep_backup: bool = True,
+    backup: str | Path | None = None,
 ) -> bool:
     """Change the values of the dataset file at ``path`` to ``new``'s, keeping the file's text.
 
@@ -559,10 +560,10 @@ def update_dataset(
     and layout survive. ``new`` may be a function of the dataset on disk (read once, so an edit
     made since the caller loaded it is not undone). The current file must be a valid dataset;
     the edited text is validated as :func:`load_dataset` would and must read back equal to
-    ``new`` before anything is written; then the previous bytes go to :func:`backup_path`
-    (with ``keep_backup``) and the file is replaced, both or neither, so a failure at any
-    point leaves the file and its backup byte-identical. Raises :class:`InputError` naming
-    the file and field.
+    ``new`` before anything is written; then the previous bytes go to ``backup`` (by default
+    :func:`backup_path`; with ``keep_backup``) and the file is replaced, both or neither, so a
+    failure at any point leaves the file and its backup byte-identical. Raises
+    :class:`InputError` naming the file and field.
 
     Returns ``True`` if the file was written, ``False`` if it already held these values (then
     nothing, not even the backup, is written).
@@ -583,6 +584,6 @@ def update_dataset(
         raise InputError(path, "", "editing in place does not read back equal; nothing written")
     data = (_BOM if raw.startswith(_BOM) else b"") + edited.encode("utf-8")
     # The backup and the new file land together: a failed write keeps the old backup too.
-    files = {backup_path(path): raw} if keep_backup else {}
+    files = {Path(backup) if backup else backup_path(path): raw} if keep_backup else {}
     StagedFiles({**files, path: data}).commit()
     return True

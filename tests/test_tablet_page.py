@@ -1,14 +1,17 @@
-"""The tablet page in real headless Chromium: pen touches, screenshots, reloads, lost links.
+"""The tablet page in real headless Chromium: pen touches, screenshots, reloads, lost links,
+and who gets in (the secret, another site's page, another host name).
 
 Chromium is Debian's (/usr/bin/chromium, installed by .ci/run); Playwright drives it. Pen
 contacts are real input events (DevTools ``Input.dispatchMouseEvent`` with
 ``pointerType: "pen"``), so they pass through Chromium's input pipeline like a tablet pen's.
+Chromium resolves ``attacker.example`` to 127.0.0.1, as a DNS rebinding attack would make it.
 """
 
 import io
 import json
 import shutil
 import threading
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +19,7 @@ import pytest
 from PIL import Image
 from playwright.sync_api import sync_playwright
 from scipy import ndimage
+from test_tablet_server import ServerProcess
 
 from handeye_jax import load_dataset
 from handeye_jax.tablet import grid_targets, make_server
@@ -25,6 +29,7 @@ CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = [
     "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
     "--disable-background-networking", "--disable-component-update", "--disable-sync",
+    "--host-resolver-rules=MAP attacker.example 127.0.0.1",
 ]  # fmt: skip
 # The paper's tablet, a Surface Pro 7 (2736 x 1824 px at display scale 2): 1368 x 912 CSS px.
 SCALE = 2.0
@@ -65,7 +70,7 @@ def open_page(browser, url, scale=SCALE):
 
 @pytest.fixture
 def page(browser, tablet):
-    page = open_page(browser, tablet[0].url)
+    page = open_page(browser, tablet[0].secret_url)
     yield page
     assert page.errors == []
     page.context.close()
@@ -138,7 +143,8 @@ def test_calibration_records_pen_touches_and_writes_the_dataset(page, tablet):
     saved = load_dataset(ds_path)
     assert np.abs(saved.touch_error_px - d).max() <= 0.5
     assert saved == ds.replace(touch_error_px=saved.touch_error_px)
-    assert (ds_path.parent / "rig.toml.bak").read_bytes() == original
+    [backup] = [p for p in ds_path.parent.iterdir() if p.suffix == ".bak"]
+    assert backup.read_bytes() == original and backup.name in page.inner_text("#status")
     assert page.evaluate("localStorage.getItem('handeye-jax.tablet/1:outbox')") == "[]"
 
 
@@ -227,7 +233,7 @@ def test_evaluation_trials_report_mean_and_max_in_px_and_mm(page, tablet):
 
 
 def test_a_display_scale_other_than_the_datasets_is_warned_about(browser, tablet):
-    page = open_page(browser, tablet[0].url, scale=1.25)
+    page = open_page(browser, tablet[0].secret_url, scale=1.25)
     try:
         warning = page.inner_text("#warning")
         assert page.is_visible("#warning")
@@ -270,22 +276,29 @@ def test_rings_and_numbers_can_be_turned_off_leaving_only_the_dots(page, tablet)
 
 
 class Restartable:
-    """A tablet server that restarts on the same port (the page's origin) with a dataset."""
+    """A tablet server that restarts on the same port (the page's origin) with a dataset;
+    with the same secret (as a script may give it), unless ``new_secret``."""
 
     def __init__(self, dataset):
         self.server = make_server(dataset, port=0, quiet=True)
         self.port = self.server.server_address[1]
         threading.Thread(target=self.server.serve_forever, args=(0.05,), daemon=True).start()
 
-    def restart(self, dataset, page):
+    def restart(self, dataset, page=None, new_secret=False):
+        token = None if new_secret else self.server.token
         self.stop()
-        self.server = make_server(dataset, port=self.port, quiet=True)
+        self.server = make_server(dataset, port=self.port, quiet=True, token=token)
         threading.Thread(target=self.server.serve_forever, args=(0.05,), daemon=True).start()
-        page.reload()
+        if page is not None:
+            page.reload()
+            self.wait_session(page)
+
+    def wait_session(self, page):
+        """Wait until the page has this server's session (its dataset's fingerprint)."""
         page.wait_for_selector("#tablet-info:not(:empty)")
         page.wait_for_function(
-            "p => (JSON.parse(localStorage.getItem('handeye-jax.tablet/1:session')) || {})"
-            ".dataset.path === p", arg=str(dataset))  # fmt: skip
+            "k => (JSON.parse(localStorage.getItem('handeye-jax.tablet/1:session')) || {})"
+            ".dataset.key === k", arg=self.server.app.session()["dataset"]["key"])  # fmt: skip
 
     def stop(self):
         self.server.shutdown()
@@ -305,7 +318,7 @@ def test_a_run_of_another_dataset_is_not_resumed_silently(browser, tmp_path):
     """The server restarted on another dataset: the stored run is shown, kept or discarded."""
     a, b, originals = two_datasets(tmp_path)
     server = Restartable(a)
-    page = open_page(browser, server.server.url)
+    page = open_page(browser, server.server.secret_url)
     page.on("dialog", lambda dialog: dialog.accept())
 
     def restart(dataset):
@@ -321,7 +334,8 @@ def test_a_run_of_another_dataset_is_not_resumed_silently(browser, tmp_path):
         restart(b)  # another dataset: the run is not resumed
         page.wait_for_selector("#stale:not([hidden])")
         text = page.inner_text("#stale")
-        assert "calibration of paper2023, 3 of 9 touched" in text and str(b) in text
+        assert "calibration of paper2023, 3 of 9 touched" in text and "rig.toml" in text
+        assert str(tmp_path) not in text  # names, never the PC's folders
         assert page.is_hidden("#run") and page.is_hidden("#menu")
         pen(page, ds.tablet_px[3])  # touches go nowhere while the operator decides
         page.click("#stale-keep")
@@ -353,7 +367,7 @@ def test_a_run_of_another_dataset_is_not_resumed_silently(browser, tmp_path):
 def test_touches_waiting_for_another_dataset_are_held_not_sent(browser, tmp_path):
     a, b, originals = two_datasets(tmp_path)
     server = Restartable(a)
-    page = open_page(browser, server.server.url)
+    page = open_page(browser, server.server.secret_url)
     try:
         ds = load_dataset(a)
         d = offsets(ds.n_landmarks, seed=11)
@@ -363,7 +377,7 @@ def test_touches_waiting_for_another_dataset_are_held_not_sent(browser, tmp_path
         page.wait_for_selector("#outbox li.held")
         assert "another dataset" in page.inner_text("#outbox")
         page.wait_for_timeout(500)
-        assert b.read_bytes() == originals[b] and not (b.parent / "rig.toml.bak").exists()
+        assert b.read_bytes() == originals[b] and not list(b.parent.glob("*.bak"))
         server.restart(a, page)  # a again: delivered
         wait_saved(page)
         assert np.abs(load_dataset(a).touch_error_px - d).max() <= 0.5
@@ -373,3 +387,174 @@ def test_touches_waiting_for_another_dataset_are_held_not_sent(browser, tmp_path
         page.context.close()
         server.stop()
     assert b.read_bytes() == originals[b]
+
+
+# -- who gets in: a real server process, as the operator starts it ----------------------------
+
+
+@pytest.fixture(scope="module")
+def real(tmp_path_factory):
+    server = ServerProcess(tmp_path_factory.mktemp("real-page"))
+    yield server
+    server.stop()
+
+
+def test_the_page_works_with_the_secret_and_is_refused_without_it(browser, real):
+    context = browser.new_context(viewport=VIEWPORT, device_scale_factor=SCALE)
+    try:
+        page = context.new_page()
+        answer = page.goto(real.url)  # without the secret: a page that says where to get it
+        assert answer.status == 403
+        assert "scan the QR code" in page.inner_text("body") and page.locator("#board").count() == 0
+        assert page.evaluate("localStorage.length") == 0  # no app ran
+        answer = page.goto(real.url + "?token=" + "z" * 43)
+        assert answer.status == 403 and "was it restarted?" in page.inner_text("#why")
+        assert context.cookies() == []
+
+        page.goto(real.secret_url)  # the URL the server printed (or its QR code)
+        page.wait_for_selector("#tablet-info:not(:empty)")
+        assert page.url == real.url  # the secret does not stay in the address bar or history
+        [cookie] = context.cookies()
+        assert cookie["name"] == f"handeye-jax-token-{real.port}" and cookie["value"] == real.token
+        assert cookie["httpOnly"] and cookie["sameSite"] == "Strict"
+        assert page.evaluate("document.cookie") == ""  # the page's scripts cannot read it
+        ds = load_dataset(real.dataset)
+        d = offsets(ds.n_landmarks, seed=12)
+        page.click("#start-calibration")
+        for m in range(ds.n_landmarks):
+            pen(page, ds.tablet_px[m] + d[m])
+        page.click("#send")
+        assert "written to rig.toml; previous file kept as rig.toml.20" in wait_saved(page)
+        assert np.abs(load_dataset(real.dataset).touch_error_px - d).max() <= 0.5
+        page.reload()  # the cookie lets it in again
+        page.wait_for_selector("#tablet-info:not(:empty)")
+        assert "paper2023" in page.inner_text("#tablet-info")
+    finally:
+        context.close()
+
+
+class _EvilPage(BaseHTTPRequestHandler):
+    """Another site's page on this PC (another port: another origin, the same site)."""
+
+    def do_GET(self):
+        body = b"<!doctype html><title>another site</title><p>nothing to see"
+        self.send_response(200)
+        self.send_header("Content-Type", "text/html")
+        self.send_header("Content-Length", str(len(body)))
+        self.end_headers()
+        self.wfile.write(body)
+
+    def log_message(self, *args):
+        pass
+
+
+ATTACK = """async ([target, body, token]) => {
+  const out = {};
+  const tries = {
+    session: () => fetch(target + "api/session", {credentials: "include"}),
+    post: () => fetch(target + "api/calibration", {method: "POST", mode: "no-cors",
+      credentials: "include", headers: {"Content-Type": "text/plain"}, body}),
+    leaked: () => fetch(target + "api/session", {headers: {"X-Handeye-Token": token}}),
+  };
+  for (const [name, f] of Object.entries(tries)) {
+    try { out[name] = (await f()).status; } catch (e) { out[name] = "failed"; }
+  }
+  return out;
+}"""
+
+
+def test_a_page_of_another_origin_cannot_use_the_server(browser, real):
+    evil = ThreadingHTTPServer(("127.0.0.1", 0), _EvilPage)
+    threading.Thread(target=evil.serve_forever, args=(0.05,), daemon=True).start()
+    evil_origin = f"http://127.0.0.1:{evil.server_address[1]}"
+    context = browser.new_context(viewport=VIEWPORT, device_scale_factor=SCALE)
+    try:
+        page = context.new_page()
+        page.goto(real.secret_url)  # this browser has the secret (its cookie)...
+        page.wait_for_selector("#tablet-info:not(:empty)")
+        page.goto(evil_origin + "/")  # ...and then opens another site's page
+        before = real.dataset.read_bytes()
+        ds = load_dataset(real.dataset)
+        body = json.dumps(
+            {
+                "run_id": "evil",
+                "touches": [
+                    {"m": m, "tablet_px": xy, "touch_error_px": [9.0, 9.0], "pointer_type": "pen"}
+                    for m, xy in enumerate(ds.tablet_px.tolist())
+                ],
+            }  # fmt: skip
+        )
+        out = page.evaluate(ATTACK, [real.url, body, real.token])
+        # The browser sent them all (the server logs each refusal, naming the Origin)...
+        for method, path in (("GET", "/api/session"), ("POST", "/api/calibration")):
+            real.wait_log(f"refused {method} {path}: Origin '{evil_origin}'")
+        # ...and the page got nothing: no readable answer, no change on disk.
+        assert out == {"session": "failed", "post": "failed", "leaked": "failed"}, out
+        assert real.dataset.read_bytes() == before
+        # The cookie it carried is good: the same request from the page's own origin passes.
+        [cookie] = context.cookies(real.url)
+        status, _ = real.api(
+            "POST", "/api/calibration", json.loads(body),
+            {"X-Handeye-Token": None, "Cookie": f"{cookie['name']}={cookie['value']}"},
+        )  # fmt: skip
+        assert status == 200
+    finally:
+        context.close()
+        evil.shutdown()
+        evil.server_close()
+        real.dataset.write_bytes(PAPER.read_bytes())
+
+
+def test_a_page_reached_by_another_host_name_is_refused(browser, real):
+    """DNS rebinding: a page of attacker.example whose name now points at this PC."""
+    attacker = f"http://attacker.example:{real.port}/"
+    context = browser.new_context(viewport=VIEWPORT, device_scale_factor=SCALE)
+    try:
+        page = context.new_page()
+        answer = page.goto(attacker + "?token=" + real.token)  # even with the secret
+        assert answer.status == 403 and json.loads(page.inner_text("body"))["field"] == "Host"
+        assert context.cookies() == []  # no login through another name
+        # A script of that origin (the attacker's page, served before the name was rebound;
+        # here that origin's document is the refusal) fetches from "its own" server, which is
+        # this one now, even with a leaked secret.
+        out = page.evaluate(
+            """async (token) => {
+              const r = await fetch("/api/session", {headers: {"X-Handeye-Token": token}});
+              return [r.status, await r.json()];
+            }""",
+            real.token,
+        )
+        assert out[0] == 403 and out[1]["field"] == "Host" and "attacker.example" in out[1]["error"]
+        real.wait_log("refused GET /api/session: Host 'attacker.example:")
+    finally:
+        context.close()
+
+
+def test_a_restarted_server_asks_for_its_new_url_and_keeps_the_runs(browser, tmp_path):
+    ds_path = tmp_path / "rig.toml"
+    shutil.copy(PAPER, ds_path)
+    original = ds_path.read_bytes()
+    server = Restartable(ds_path)
+    page = open_page(browser, server.server.secret_url)
+    try:
+        ds = load_dataset(ds_path)
+        d = offsets(ds.n_landmarks, seed=13)
+        calibrate_offline(page, ds, d)  # sent while the link is down: kept, retried every 3 s
+        server.restart(ds_path, new_secret=True)  # the operator restarted the server
+        page.unroute("**/api/**")
+        page.wait_for_selector("#status:has-text('not sent')", timeout=15000)
+        assert "does not have the server's secret" in page.inner_text("#status")
+        assert "open the URL it printed" in page.inner_text("#warning")
+        assert "waiting for the server" in page.inner_text("#outbox")  # kept, not refused
+        page.reload()  # the old cookie no longer opens the page: it says where to go
+        assert "scan the QR code" in page.inner_text("body")
+        assert len(json.loads(page.evaluate(
+            "localStorage.getItem('handeye-jax.tablet/1:outbox')"))) == 1  # fmt: skip
+        assert ds_path.read_bytes() == original
+        page.goto(server.server.secret_url)  # the new URL (its QR code): delivered
+        assert "written to rig.toml" in wait_saved(page)
+        assert np.abs(load_dataset(ds_path).touch_error_px - d).max() <= 0.5
+        assert page.errors == []
+    finally:
+        page.context.close()
+        server.stop()

@@ -1,8 +1,18 @@
-"""The tablet server without a browser: strict posts, files never corrupted, one-line errors."""
+"""The tablet server without a browser: only the operator gets in, strict bounded posts,
+files never corrupted and every version of the dataset kept, one-line errors.
 
+Most tests use a server in this process (over a copy of the paper's dataset); the ones on
+who may get in (the secret, Host, Origin) and on what the listening socket takes run against
+one real server process, started as the operator starts it.
+"""
+
+import datetime as dt
 import errno
+import http.client
 import json
 import os
+import re
+import select
 import shutil
 import signal
 import socket
@@ -20,17 +30,37 @@ from test_dataset import commented_paper_text, comments_of
 
 from handeye_jax import load_dataset
 from handeye_jax.cli import main
-from handeye_jax.tablet import grid_targets, load_targets, make_server, serve
+from handeye_jax.errors import InputError
+from handeye_jax.tablet import (
+    MAX_BODY_BYTES,
+    MAX_TOUCHES,
+    MAX_TRIALS,
+    grid_targets,
+    load_targets,
+    make_server,
+    serve,
+    versioned_backup_path,
+)
 from handeye_jax.tablet import server as server_mod
-from handeye_jax.tablet.posts import MAX_BODY_BYTES
-from handeye_jax.tablet.trials import format_summary
+from handeye_jax.tablet.trials import format_summary, new_trials
 
 PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
+REPO = Path(__file__).resolve().parents[1]
+# The in-process servers' secret (make_server's token=, as a script would give it).
+TOKEN = "test-secret-0123456789-abcdefghijklmnopqrstuvwxyz"
+BACKUP_NAME = re.compile(r"^rig\.toml\.\d{4}-\d\d-\d\dT\d\d-\d\d-\d\d\.\d{3}Z(-\d+)?\.bak$")
+
+
+def backups(folder):
+    """The dataset's versioned backups in ``folder``, oldest first."""
+    found = sorted(p for p in Path(folder).iterdir() if p.name.endswith(".bak"))
+    assert all(BACKUP_NAME.match(p.name) for p in found), found
+    return found
 
 
 def start(ds, **kwargs):
     """A running server over ``ds`` on a free port (unless ``port`` is given)."""
-    server = make_server(ds, **{"port": 0, "quiet": True, **kwargs})
+    server = make_server(ds, **{"port": 0, "quiet": True, "token": TOKEN, **kwargs})
     threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True).start()
     return server
 
@@ -50,10 +80,13 @@ def served(tmp_path):
     stop(server)
 
 
-def request(url, body=None, headers=None, method=None):
-    """(status, JSON answer) of a request; ``body`` is bytes or a JSON-able object."""
+def request(url, body=None, headers=None, method=None, token=TOKEN):
+    """(status, JSON answer) of a request with the secret ``token`` (none if ``None``);
+    ``body`` is bytes or a JSON-able object."""
     data = body if isinstance(body, bytes) or body is None else json.dumps(body).encode()
     h = {"Content-Type": "application/json"} if data is not None else {}
+    if token is not None:
+        h["X-Handeye-Token"] = token
     h.update(headers or {})
     req = urllib.request.Request(url, data=data, headers=h, method=method)
     try:
@@ -83,11 +116,42 @@ def test_valid_calibration_post_writes_dataset_and_backup(served):
     new = load_dataset(ds)
     np.testing.assert_array_equal(new.touch_error_px, errors)
     assert new == old.replace(touch_error_px=errors)  # nothing else changed
-    assert (ds.parent / "rig.toml.bak").read_bytes() == before
-    # A resend (the answer was lost) writes nothing and keeps the backup of the original.
+    [backup] = backups(ds.parent)
+    assert backup.read_bytes() == before and doc["backup"] == backup.name
+    # A resend (the answer was lost) writes nothing and makes no backup.
     status, doc = request(url + "api/calibration", calibration_body(old.tablet_px.tolist(), errors))
-    assert status == 200 and doc["written"] is False
-    assert (ds.parent / "rig.toml.bak").read_bytes() == before
+    assert status == 200 and doc["written"] is False and doc["backup"] is None
+    assert backups(ds.parent) == [backup]
+
+
+def test_every_saved_version_of_the_dataset_is_kept(served):
+    """Issue 16: one DATASET.bak was overwritten by the next post, losing the original."""
+    url, ds = served
+    tablet_px = load_dataset(ds).tablet_px.tolist()
+    versions = [ds.read_bytes()]
+    for k in range(3):
+        errors = np.full((9, 2), float(k + 1))
+        status, doc = request(url + "api/calibration", calibration_body(tablet_px, errors, f"r{k}"))
+        assert status == 200 and doc["written"] is True
+        versions.append(ds.read_bytes())
+    kept = backups(ds.parent)
+    assert [p.read_bytes() for p in kept] == versions[:-1]  # the original first, none lost
+    assert doc["backup"] == kept[-1].name and ds.read_bytes() == versions[-1]
+    np.testing.assert_array_equal(load_dataset(kept[1]).touch_error_px, np.full((9, 2), 1.0))
+
+
+def test_a_backup_name_is_never_one_that_exists(tmp_path):
+    ds = tmp_path / "rig.toml"
+    when = dt.datetime(2026, 12, 2, 7, 37, 28, 123456, tzinfo=dt.UTC)
+    first = versioned_backup_path(ds, when)
+    assert first.name == "rig.toml.2026-12-02T07-37-28.123Z.bak"
+    first.write_text("kept")
+    second = versioned_backup_path(ds, when)
+    assert second.name == "rig.toml.2026-12-02T07-37-28.123Z-2.bak"
+    second.write_text("kept too")
+    assert versioned_backup_path(ds, when).name.endswith("123Z-3.bak")
+    later = versioned_backup_path(ds, when + dt.timedelta(milliseconds=1))
+    assert sorted([first.name, later.name]) == [first.name, later.name]  # names sort by time
 
 
 def _bad_bodies(tablet_px):
@@ -139,7 +203,8 @@ def test_a_calibration_post_keeps_the_users_comments(tmp_path):
     assert comments_of(after) == comments_of(before.decode())
     assert "# end of file: keep this note" in after and "  -70,  # y" in after
     assert load_dataset(ds) == old.replace(touch_error_px=errors)
-    assert (tmp_path / "rig.toml.bak").read_bytes() == before
+    [backup] = backups(tmp_path)
+    assert backup.read_bytes() == before
 
 
 def test_touches_of_another_datasets_landmarks_are_refused(served):
@@ -234,7 +299,7 @@ def test_malformed_evaluation_posts_leave_the_trials_file_byte_identical(served)
         (400, {**good, "run_id": "t-2", "touches": [{**touch, "pointer_type": None}]}),
         (400, {**good, "run_id": "t-2", "touches": [{**touch, "target_px": [1.0, None]}]}),
         (409, {**good, "run_id": "t-2", "targets": "file"}),  # no targets file was given
-        (413, {**good, "run_id": "t-2", "touches": [touch] * 1001}),
+        (413, {**good, "run_id": "t-2", "touches": [touch] * (MAX_TOUCHES + 1)}),
     ]
     for status, body in bad:
         got, doc = request(url + "api/evaluation", body)
@@ -252,9 +317,9 @@ def test_a_short_body_cannot_hold_a_thread(tmp_path):
     try:
         port = server.server_address[1]
         with socket.create_connection(("127.0.0.1", port), timeout=10) as raw:
-            raw.sendall(b"POST /api/calibration HTTP/1.1\r\nHost: x\r\n"
-                        b"Content-Type: application/json\r\nContent-Length: 100\r\n\r\n"
-                        b'{"run_id":')  # fmt: skip
+            raw.sendall(f"POST /api/calibration HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n"
+                        f"X-Handeye-Token: {TOKEN}\r\nContent-Type: application/json\r\n"
+                        'Content-Length: 100\r\n\r\n{"run_id":'.encode())  # fmt: skip
             t0 = time.monotonic()
             answer = b""
             while chunk := raw.recv(65536):  # until the server closes the connection
@@ -298,9 +363,25 @@ def test_bind_failures_name_the_option_to_change(tmp_path, monkeypatch):
     assert not (tmp_path / "t.json").exists()
 
 
-def test_the_page_url_for_every_address_is_one_a_tablet_can_open(tmp_path, monkeypatch, capsys):
-    assert server_mod.page_urls("0.0.0.0", 8765, ["192.168.1.20", "10.0.0.7"]) == [
-        "http://192.168.1.20:8765/", "http://10.0.0.7:8765/",
+def qr_decode(lines):
+    """The text of a QR code printed in half blocks (``guard.qr_text``), read by OpenCV."""
+    import cv2
+
+    dark = {"█": (False, False), "▀": (False, True), "▄": (True, False), " ": (True, True)}
+    rows = []
+    for line in lines:
+        cells = [dark[c] for c in re.sub(r"\x1b\[[0-9;]*m", "", line)]
+        rows += [[top for top, _ in cells], [bottom for _, bottom in cells]]
+    img = np.pad(np.where(np.array(rows), 0, 255).astype(np.uint8), 8, constant_values=255)
+    img = cv2.resize(img, None, fx=8, fy=8, interpolation=cv2.INTER_NEAREST)
+    return cv2.QRCodeDetector().detectAndDecode(img)[0]
+
+
+def test_the_page_url_for_every_address_carries_the_secret_and_a_qr_code(
+    tmp_path, monkeypatch, capsys
+):
+    assert server_mod.page_urls("0.0.0.0", 8765, ["192.168.1.20", "10.0.0.7"], "s3") == [
+        "http://192.168.1.20:8765/?token=s3", "http://10.0.0.7:8765/?token=s3",
     ]  # fmt: skip
     assert server_mod.page_urls("127.0.0.1", 8765) == ["http://127.0.0.1:8765/"]
     assert server_mod.page_urls("::", 80, ["fe80::1"]) == ["http://[fe80::1]:80/"]
@@ -312,15 +393,44 @@ def test_the_page_url_for_every_address_is_one_a_tablet_can_open(tmp_path, monke
 
     monkeypatch.setattr(server_mod.TabletServer, "serve_forever", interrupted)
     trials = tmp_path / "t.json"
-    monkeypatch.setattr(server_mod, "lan_addresses", lambda: ["192.168.1.20"])
+    monkeypatch.setattr(server_mod, "lan_addresses", lambda: ["192.168.1.20", "10.0.0.7"])
     assert serve(PAPER, host="0.0.0.0", port=0, quiet=True, trials_path=trials) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert lines[0].startswith("tablet page: http://192.168.1.20:") and "0.0.0.0" not in lines[0]
-    assert "every address of this PC (0.0.0.0)" in lines[1] and "firewall" in lines[1]
+    url = lines[0].split()[2]
+    assert re.fullmatch(r"http://192\.168\.1\.20:\d+/\?token=[\w-]{43}", url), lines[0]
+    qr = [line for line in lines if line and set(line) <= set("█▀▄ ")]
+    assert len(qr) > 10 and qr_decode(qr) == url  # the QR code is the first URL, exactly
+    secret = url.split("token=")[1]
+    others = [line for line in lines if "10.0.0.7" in line or "127.0.0.1" in line]
+    assert len(others) == 2 and all(f"?token={secret}" in line for line in others)
+    wildcard = [line for line in lines if "every address of this PC (0.0.0.0)" in line]
+    assert len(wildcard) == 1 and "firewall" in wildcard[0]
+    # Each start makes a new secret.
+    assert serve(PAPER, host="0.0.0.0", port=0, quiet=True, trials_path=trials) == 0
+    assert capsys.readouterr().out.split("token=")[1][:43] != secret
     monkeypatch.setattr(server_mod, "lan_addresses", lambda: [])
     assert serve(PAPER, host="0.0.0.0", port=0, quiet=True, trials_path=trials) == 0
     first = capsys.readouterr().out.splitlines()[0]
-    assert "http://THIS-PC:" in first and "no LAN address found" in first
+    assert "http://THIS-PC:" in first and "no LAN address found" in first and "token=" in first
+    # Only this PC can open a server on 127.0.0.1: its URL, without a QR code to scan.
+    assert serve(PAPER, port=0, quiet=True, trials_path=trials) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("tablet page: http://127.0.0.1:") and "█" not in out
+
+
+def test_the_secret_is_random_and_a_given_one_must_be_as_strong(tmp_path):
+    trials = tmp_path / "t.json"
+    servers = [make_server(PAPER, port=0, quiet=True, trials_path=trials) for _ in range(2)]
+    try:
+        tokens = [s.token for s in servers]
+        assert tokens[0] != tokens[1] and all(re.fullmatch(r"[\w-]{43}", t) for t in tokens)
+        assert servers[0].secret_url == f"{servers[0].url}?token={tokens[0]}"
+    finally:
+        for s in servers:
+            s.server_close()
+    for weak in ("", "short", "x" * 31, "a b" * 20, "é" * 40, "x" * 40 + "\n"):
+        with pytest.raises(InputError, match=r"^token: must be at least 32 characters"):
+            make_server(PAPER, port=0, trials_path=trials, token=weak)
 
 
 def test_the_trials_summary_gives_max_in_px_and_mm():
@@ -473,25 +583,6 @@ def test_the_result_being_evaluated_is_named_and_checked(tmp_path):
         other.server_close()
 
 
-def test_the_command_serves_until_interrupted(tmp_path):
-    ds = tmp_path / "rig.toml"
-    shutil.copy(PAPER, ds)
-    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
-    cmd = [sys.executable, "-m", "handeye_jax.cli", "tablet", "--dataset", str(ds), "--port", "0"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-    try:
-        first = proc.stdout.readline()
-        assert first.startswith("tablet page: http://127.0.0.1:"), first
-        url = first.split()[2]
-        status, doc = request(url + "api/session")
-        assert status == 200 and doc["dataset"]["name"] == "paper2023"
-        assert doc["tablet"]["mm_per_px"] == pytest.approx(25.4 / 267 * 2)
-    finally:
-        proc.send_signal(signal.SIGINT)
-        out, _ = proc.communicate(timeout=30)
-    assert proc.returncode == 0 and "stopped" in out
-
-
 # -- files the posts write: checked before serving, a failed save named and kept for retry --
 
 
@@ -556,25 +647,19 @@ def test_a_dataset_whose_folder_cannot_be_written_is_refused_before_serving(
     before = _listing(folder)
     assert main(argv) == 2
     _one_error_line(capsys, f"{ds}: --dataset: cannot write in folder", "Permission denied",
-                    "keeps the previous file as rig.toml.bak")  # fmt: skip
+                    "keeps each previous version beside it as rig.toml.<UTC time>.bak")  # fmt: skip
     assert _listing(folder) == before and not trials.exists()
-    monkeypatch.setattr(_atomic.tempfile, "mkstemp", real)
-    # A folder where the backup goes: calibration could write the dataset but not keep it.
-    (folder / "rig.toml.bak").mkdir()
-    assert main(argv) == 2
-    _one_error_line(capsys, "rig.toml.bak: --dataset: cannot write: is a folder")
-    assert list((folder / "rig.toml.bak").iterdir()) == [] and ds.read_bytes() == PAPER.read_bytes()
-    (folder / "rig.toml.bak").rmdir()
     monkeypatch.undo()  # the same files in a writable folder: the server starts
     stop(start(ds, trials_path=trials))
 
 
-def _failing_replace(monkeypatch, target):
-    """``os.replace`` onto ``target`` fails as on a full disk (its message naming the temp)."""
+def _failing_replace(monkeypatch, fails):
+    """``os.replace`` onto a path for which ``fails(path)`` fails as on a full disk (its
+    message naming the temporary file)."""
     real = os.replace
 
     def full(src, dst, *args, **kwargs):
-        if Path(dst) == target:
+        if fails(Path(dst)):
             raise OSError(errno.ENOSPC, "No space left on device", str(src), str(dst))
         return real(src, dst, *args, **kwargs)
 
@@ -582,11 +667,13 @@ def _failing_replace(monkeypatch, target):
 
 
 def _server_error(status, doc, path):
-    """A 500 (the page keeps the run and retries) naming ``path`` and the reason, one line."""
+    """A 500 (the page keeps the run and retries) naming ``path``'s file (by its name: no
+    folder of the PC goes out) and the reason, one line."""
     assert status == 500 and doc["status"] == 500, doc
     error = doc["error"]
-    assert error.startswith(f"{path}: ") and error.endswith(": No space left on device"), error
+    assert error.startswith(f"{path.name}: ") and error.endswith(": No space left on device")
     assert "\n" not in error and ".tmp" not in error and "Errno" not in error, error
+    assert str(path.parent) not in error, error
 
 
 def test_a_failed_trials_save_is_a_500_naming_the_file_and_the_post_can_be_resent(
@@ -596,10 +683,10 @@ def test_a_failed_trials_save_is_a_500_naming_the_file_and_the_post_can_be_resen
     trials = ds.parent / "rig.trials.json"
     touch = {"m": 0, "target_px": [10.0, 20.0], "touch_px": [13.0, 24.0], "pointer_type": "pen"}
     body = {"run_id": "t-1", "label": "stage 2", "targets": "grid", "touches": [touch]}
-    _failing_replace(monkeypatch, trials)
+    _failing_replace(monkeypatch, lambda p: p == trials)
     status, doc = request(url + "api/evaluation", body)
     _server_error(status, doc, trials)
-    assert doc["error"] == f"{trials}: cannot write: No space left on device"
+    assert doc["error"] == "rig.trials.json: cannot write: No space left on device"
     assert sorted(p.name for p in ds.parent.iterdir()) == ["rig.toml"]  # no temp, no trials
     monkeypatch.undo()
     status, doc = request(url + "api/evaluation", body)  # the page's retry
@@ -614,15 +701,411 @@ def test_a_failed_dataset_save_is_a_500_naming_the_file_and_the_post_can_be_rese
     before = ds.read_bytes()
     tablet_px = load_dataset(ds).tablet_px.tolist()
     errors = [[1.0, -2.0]] * 9
-    backup = ds.parent / "rig.toml.bak"
-    for target in (backup, ds):  # the backup fails, or the dataset after the backup
-        _failing_replace(monkeypatch, target)
+    for fails, named in (  # the backup fails, or the dataset after the backup
+        (lambda p: bool(BACKUP_NAME.match(p.name)), BACKUP_NAME),
+        (lambda p: p == ds, re.compile(r"^rig\.toml$")),
+    ):
+        _failing_replace(monkeypatch, fails)
         status, doc = request(url + "api/calibration", calibration_body(tablet_px, errors))
-        _server_error(status, doc, target)
+        name = doc["error"].split(": ")[0]
+        assert named.match(name), doc
+        _server_error(status, doc, ds.parent / name)
         assert ds.read_bytes() == before
-        assert {p.name for p in ds.parent.iterdir()} <= {"rig.toml", "rig.toml.bak"}
+        assert sorted(p.name for p in ds.parent.iterdir()) == ["rig.toml"]  # no backup, no temp
         monkeypatch.undo()
     status, doc = request(url + "api/calibration", calibration_body(tablet_px, errors))
     assert status == 200 and doc["written"] is True
     np.testing.assert_array_equal(load_dataset(ds).touch_error_px, errors)
+    [backup] = backups(ds.parent)
     assert backup.read_bytes() == before
+
+
+# -- bounds on what posts may hold ------------------------------------------------------------
+
+
+def test_a_full_trials_file_refuses_another_trial(tmp_path):
+    """Issue 16: posts grew the trials file without limit (40 posts: 11 MB)."""
+    ds = tmp_path / "rig.toml"
+    shutil.copy(PAPER, ds)
+    doc = new_trials(267.0, 2.0)
+    record = {"trial": 1, "label": "stage 2", "mean_px": 1.0, "max_px": 2.0, "mean_mm": 0.19,
+              "max_mm": 0.38}  # fmt: skip
+    doc["trials"] = [{**record, "trial": i + 1, "run_id": f"old-{i}"} for i in range(MAX_TRIALS)]
+    trials = tmp_path / "rig.trials.json"
+    trials.write_text(json.dumps(doc))
+    before = trials.read_bytes()
+    server = start(ds)
+    try:
+        touch = {"m": 0, "target_px": [10.0, 20.0], "touch_px": [13.0, 24.0], "pointer_type": "pen"}
+        body = {"run_id": "new", "label": "stage 2", "targets": "grid", "touches": [touch]}
+        status, answer = request(server.url + "api/evaluation", body)
+        assert status == 409 and answer["field"] == "trials", answer
+        assert f"holds {MAX_TRIALS} trials, the limit" in answer["error"]
+        assert "--trials" in answer["error"]
+        # A resend of a saved trial is still answered (nothing to add).
+        status, answer = request(server.url + "api/evaluation", {**body, "run_id": "old-3"})
+        assert status == 200 and answer["trial"] == 4
+    finally:
+        stop(server)
+    assert trials.read_bytes() == before
+
+
+def test_runs_and_grids_are_bounded(served, tmp_path):
+    url, _ = served
+    status, doc = request(url + "api/session")
+    limits = {"max_body_bytes": MAX_BODY_BYTES, "max_touches": MAX_TOUCHES,
+              "max_trials": MAX_TRIALS, "pointer_types": ["pen", "touch", "mouse"]}  # fmt: skip
+    assert doc["limits"] == limits
+    status, doc = request(url + "api/grid?cols=11&rows=10&left=0&top=0&right=900&bottom=900")
+    assert status == 400 and doc["field"] == "rows" and f"at most {MAX_TOUCHES}" in doc["error"]
+    assert request(url + "api/grid?cols=10&rows=10&left=0&top=0&right=900&bottom=900")[0] == 200
+    # A dataset with more landmarks than a run may touch is refused before serving.
+    big = tmp_path / "big.toml"
+    text = PAPER.read_text()
+    first = text.index("[[landmarks]]")
+    block = text[first : text.index("[[landmarks]]", first + 1)]
+    extra = "".join(
+        block.replace("tablet_px = [400.0, 150.0]", f"tablet_px = [{10 + i}.0, 20.0]")
+        for i in range(MAX_TOUCHES)
+    )
+    big.write_text(text + "\n" + extra)
+    with pytest.raises(InputError, match=rf"big\.toml: landmarks: {MAX_TOUCHES + 9} landmarks"):
+        make_server(big, port=0, trials_path=tmp_path / "t.json")
+
+
+def test_an_oversized_trials_file_is_refused_before_serving(tmp_path):
+    from handeye_jax.tablet import trials as trials_mod
+
+    path = tmp_path / "t.json"
+    path.write_text(" " * (trials_mod.MAX_FILE_BYTES + 1))
+    with pytest.raises(InputError, match=r"t\.json: is \d+ bytes, over the limit"):
+        make_server(PAPER, port=0, trials_path=path)
+
+
+def test_the_session_names_files_not_paths(tmp_path):
+    """Issue 16: /api/session gave the absolute paths of the dataset, backup and trials."""
+    folder = tmp_path / "lab" / "rig"
+    folder.mkdir(parents=True)
+    ds = folder / "rig.toml"
+    shutil.copy(PAPER, ds)
+    targets = folder / "held_out.json"
+    targets.write_text(json.dumps({"tablet_px": [[500, 250]]}))
+    result = paper_result(folder / "r.json")
+    server = start(ds, targets=targets, result=result)
+    try:
+        status, doc = request(server.url + "api/session")
+    finally:
+        stop(server)
+    assert status == 200
+    text = json.dumps(doc)
+    assert str(tmp_path) not in text and "lab" not in text and "/" not in text.replace("\\/", "")
+    assert doc["dataset"]["file"] == "rig.toml" and doc["trials"]["file"] == "rig.trials.json"
+    assert doc["targets_file"]["file"] == "held_out.json" and doc["result"]["file"] == "r.json"
+
+
+# -- the real server process: who may get in ----------------------------------------------------
+
+
+class ServerProcess:
+    """``handeye-jax tablet`` as the operator runs it, its URL and secret read from its output,
+    its log (standard error) collected as it comes."""
+
+    def __init__(self, folder, *extra):
+        self.dataset = Path(folder) / "rig.toml"
+        shutil.copy(PAPER, self.dataset)
+        env = {**os.environ, "PYTHONPATH": str(REPO)}
+        cmd = [sys.executable, "-m", "handeye_jax.cli", "tablet", "--dataset",
+               str(self.dataset), "--port", "0", *extra]  # fmt: skip
+        self.proc = subprocess.Popen(
+            cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
+        )
+        first = self.proc.stdout.readline()
+        match = re.match(r"tablet page: (http://127\.0\.0\.1:(\d+)/)\?token=([\w-]+)", first)
+        assert match, first
+        self.url, self.port, self.token = match[1], int(match[2]), match[3]
+        self.secret_url = f"{self.url}?token={self.token}"
+        self.log = []
+        threading.Thread(target=self._read_log, daemon=True).start()
+
+    def _read_log(self):
+        for line in self.proc.stderr:
+            self.log.append(line)
+
+    def wait_log(self, *needles, timeout=10.0):
+        """The first log line holding every needle (waits for it)."""
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < timeout:
+            for line in list(self.log):
+                if all(n in line for n in needles):
+                    return line
+            time.sleep(0.02)
+        raise AssertionError(f"no log line with {needles}: {self.log[-5:]}")
+
+    def raw(self, method, path, headers=None, body=b"", host=None):
+        """(status, headers, body) of one request with exactly these headers."""
+        conn = http.client.HTTPConnection("127.0.0.1", self.port, timeout=30)
+        conn.putrequest(method, path, skip_host=True, skip_accept_encoding=True)
+        conn.putheader("Host", f"127.0.0.1:{self.port}" if host is None else host)
+        for key, value in (headers or {}).items():
+            conn.putheader(key, value)
+        if body or method == "POST":
+            conn.putheader("Content-Length", str(len(body)))
+        conn.endheaders(body or None)
+        r = conn.getresponse()
+        out = r.status, dict(r.getheaders()), r.read()
+        conn.close()
+        return out
+
+    def api(self, method, path, doc=None, headers=None, **kwargs):
+        """A request with the secret (unless ``headers`` carry another) and a JSON body."""
+        h = {"X-Handeye-Token": self.token, "Content-Type": "application/json", **(headers or {})}
+        h = {k: v for k, v in h.items() if v is not None}
+        body = json.dumps(doc).encode() if doc is not None else b""
+        status, headers_, raw = self.raw(method, path, h, body, **kwargs)
+        return status, (json.loads(raw) if raw else None)
+
+    def stop(self):
+        self.proc.send_signal(signal.SIGINT)
+        out, _ = self.proc.communicate(timeout=30)
+        return out
+
+
+@pytest.fixture(scope="module")
+def real(tmp_path_factory):
+    server = ServerProcess(tmp_path_factory.mktemp("real"))
+    yield server
+    out = server.stop()  # Ctrl-C
+    assert server.proc.returncode == 0 and "stopped" in out
+
+
+def test_the_command_serves_until_interrupted(real):
+    status, doc = real.api("GET", "/api/session")
+    assert status == 200 and doc["dataset"]["name"] == "paper2023"
+    assert doc["tablet"]["mm_per_px"] == pytest.approx(25.4 / 267 * 2)
+
+
+def _touches(tablet_px, errors):
+    return calibration_body(tablet_px, errors)["touches"]
+
+
+def test_without_the_secret_every_api_request_gets_403(real):
+    """Issue 16: there was no token; any device on the network could post."""
+    before = real.dataset.read_bytes()
+    tablet_px = load_dataset(real.dataset).tablet_px.tolist()
+    body = calibration_body(tablet_px, [[5.0, 5.0]] * 9)
+    wrong = "x" * 43
+    cookie = f"handeye-jax-token-{real.port}"
+    for headers in (
+        {"X-Handeye-Token": None},
+        {"X-Handeye-Token": wrong},
+        {"X-Handeye-Token": real.token[:-1]},
+        {"X-Handeye-Token": None, "Authorization": f"token {wrong}"},
+        {"X-Handeye-Token": None, "Cookie": f"{cookie}={wrong}"},
+        {"X-Handeye-Token": None, "Cookie": f"handeye-jax-token-1={real.token}"},  # another port's
+    ):
+        for method, path, doc in (
+            ("GET", "/api/session", None),
+            ("GET", "/api/grid?cols=3&rows=3&left=400&top=150&right=1040&bottom=550", None),
+            ("POST", "/api/calibration", body),
+            ("POST", "/api/evaluation", {"run_id": "x"}),
+            ("GET", f"/api/session?token={real.token}", None),  # an API URL is not a login
+        ):
+            status, answer = real.api(method, path, doc, headers)
+            assert status == 403 and answer["field"] == "token", (headers, path, answer)
+            assert "open the URL the server printed" in answer["error"]
+    assert real.dataset.read_bytes() == before
+    # With it, by header, by Authorization or by cookie (and other cookies around it):
+    for headers in (
+        {},
+        {"X-Handeye-Token": None, "Authorization": f"token {real.token}"},
+        {"X-Handeye-Token": None, "Cookie": f'a="b; c; {cookie}={real.token}; d=e'},
+    ):
+        status, answer = real.api("GET", "/api/session", None, headers)
+        assert status == 200 and answer["dataset"]["name"] == "paper2023", headers
+
+
+def test_the_first_load_with_the_secret_sets_a_cookie_and_leaves_the_url(real):
+    status, headers, body = real.raw("GET", f"/?token={real.token}")
+    assert status == 303 and headers["Location"] == "/" and body == b""
+    cookie = headers["Set-Cookie"]
+    name_value, *attributes = [part.strip() for part in cookie.split(";")]
+    assert name_value == f"handeye-jax-token-{real.port}={real.token}"
+    assert set(attributes) == {"Path=/", "HttpOnly", "SameSite=Strict"}
+    assert headers["Referrer-Policy"] == "no-referrer"  # the secret URL goes nowhere else
+    status, headers, page = real.raw("GET", "/", {"Cookie": name_value})
+    assert status == 200 and b'<script src="app.js">' in page
+    # Without the secret, or with a wrong one, the page says where to get it; no app.
+    for path, why in (
+        ("/", "does not have the server's secret"),
+        (f"/?token={'y' * 43}", "is not this server's (was it restarted?)"),
+    ):
+        status, headers, page = real.raw("GET", path)
+        assert status == 403 and "Set-Cookie" not in headers
+        assert b"scan the QR code" in page and why.encode() in page and b"app.js" not in page
+    for path in ("/app.js", "/style.css"):
+        assert real.raw("GET", path)[0] == 403
+    # The log (the operator's terminal) never shows the secret.
+    line = real.wait_log("GET /?token=")
+    assert "token=[secret]" in line
+    assert not any(real.token in line for line in real.log)
+
+
+def test_a_host_that_is_not_the_servers_is_refused(real):
+    """Issue 16: a post with ``Host: attacker.example`` was answered 200 and rewrote
+    ``touch_error_px``; a page using DNS rebinding reaches a server on 127.0.0.1 that way."""
+    before = real.dataset.read_bytes()
+    tablet_px = load_dataset(real.dataset).tablet_px.tolist()
+    body = calibration_body(tablet_px, [[5.0, 5.0]] * 9)
+    port = real.port
+    requests = (("GET", "/api/session", None), ("POST", "/api/calibration", body))
+    for host in (f"attacker.example:{port}", "attacker.example", f"127.0.0.1:{port + 1}",
+                 f"127.0.0.2:{port}", f"127.0.0.1.attacker.example:{port}", f"[::1]:{port}",
+                 f"localhost.:{port}", "", "127.0.0.1:abc"):  # fmt: skip
+        for method, path, doc in requests:
+            status, answer = real.api(method, path, doc, host=host)
+            assert status == 403 and answer["field"] == "Host", (host, answer)
+        status, headers, _ = real.raw("GET", f"/?token={real.token}", host=host)
+        assert status == 403 and "Set-Cookie" not in headers  # no login through another name
+    assert real.dataset.read_bytes() == before
+    # A request without any Host (HTTP/1.0) is refused too.
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as raw:
+        raw.sendall(f"GET /api/session HTTP/1.0\r\nX-Handeye-Token: {real.token}\r\n\r\n".encode())
+        answer = b"".join(iter(lambda: raw.recv(65536), b""))
+    assert answer.startswith(b"HTTP/1.0 403") and b'"field": "Host"' in answer
+    for host in (f"127.0.0.1:{port}", f"localhost:{port}", f"LOCALHOST:{port}"):
+        assert real.api("GET", "/api/session", host=host)[0] == 200, host
+
+
+def test_an_origin_that_is_not_the_servers_page_is_refused(real):
+    before = real.dataset.read_bytes()
+    tablet_px = load_dataset(real.dataset).tablet_px.tolist()
+    body = calibration_body(tablet_px, [[5.0, 5.0]] * 9)
+    port = real.port
+    for origin in ("http://attacker.example", f"http://127.0.0.1:{port + 1}", "null",
+                   f"https://127.0.0.1:{port}", f"http://localhost:{port}", "garbage"):  # fmt: skip
+        for method, path, doc in (("GET", "/api/session", None), ("POST", "/api/calibration", body),
+                                  ("OPTIONS", "/api/calibration", None)):  # fmt: skip
+            status, answer = real.api(method, path, doc, {"Origin": origin})
+            assert status == 403 and answer["field"] == "Origin", (origin, method, answer)
+    assert real.dataset.read_bytes() == before
+    # A fetch that the browser marks as made by another site is refused as well.
+    status, answer = real.api("GET", "/api/session", headers={"Sec-Fetch-Site": "same-site"})
+    assert status == 403 and answer["field"] == "Sec-Fetch-Site"
+    own = {"Origin": f"http://127.0.0.1:{port}", "Sec-Fetch-Site": "same-origin"}
+    assert real.api("GET", "/api/session", headers=own)[0] == 200
+
+
+def test_an_oversized_content_length_gets_413_at_once(real):
+    """Issue 16: it waited 30 s for the body, then said 500 TimeoutError."""
+    for length in (MAX_BODY_BYTES + 1, 10**12):
+        with socket.create_connection(("127.0.0.1", real.port), timeout=10) as raw:
+            t0 = time.monotonic()
+            raw.sendall(f"POST /api/evaluation HTTP/1.1\r\nHost: 127.0.0.1:{real.port}\r\n"
+                        f"X-Handeye-Token: {real.token}\r\nContent-Type: application/json\r\n"
+                        f"Content-Length: {length}\r\n\r\n".encode())  # fmt: skip
+            answer = b"".join(iter(lambda raw=raw: raw.recv(65536), b""))  # until it closes
+            waited = time.monotonic() - t0
+        assert answer.startswith(b"HTTP/1.0 413"), answer[:100]
+        assert f"body of {length} bytes is over the limit".encode() in answer
+        assert waited < 2.0, waited  # not request_timeout_s (30 s)
+    # A client that sends its whole oversized body reads the 413 too (not a reset).
+    status, headers, raw = real.raw("POST", "/api/evaluation", {
+        "X-Handeye-Token": real.token, "Content-Type": "application/json"},
+        b"x" * (MAX_BODY_BYTES + 1))  # fmt: skip
+    assert status == 413 and headers["Connection"] == "close"
+
+
+def test_head_is_answered_like_get_without_a_body(real):
+    for path in ("/", "/app.js", "/style.css", "/api/session",
+                 "/api/grid?cols=2&rows=2&left=0&top=0&right=9&bottom=9"):  # fmt: skip
+        headers = {"Cookie": f"handeye-jax-token-{real.port}={real.token}"}
+        got, got_headers, got_body = real.raw("GET", path, headers)
+        head, head_headers, head_body = real.raw("HEAD", path, headers)
+        assert got == head == 200 and head_body == b"" and len(got_body) > 0, path
+        for key in ("Content-Type", "Content-Length", "Cache-Control"):
+            assert head_headers[key] == got_headers[key], (path, key)
+        assert int(head_headers["Content-Length"]) == len(got_body)
+    assert real.raw("HEAD", "/api/session")[0] == 403  # and it is guarded the same way
+
+
+def test_malformed_queries_and_pathological_bodies_get_400_not_a_dropped_line(real):
+    grid = "/api/grid?cols=3&rows=3&left=0&top=0&right=900&bottom=900"
+    for name, value in (
+        ("cols", "nan"), ("cols", "1e400"), ("rows", "inf"), ("left", "-nan"),
+        ("right", "1e400"), ("top", "1" * 60), ("cols", "2.5"), ("cols", ""),
+    ):  # fmt: skip
+        status, answer = real.api("GET", re.sub(rf"{name}=[^&]*", f"{name}={value}", grid))
+        assert status == 400 and answer["field"] == name, (name, value, answer)
+    status, answer = real.api("GET", grid + "&x=1" * 30)
+    assert status == 400 and "too many fields" in answer["error"]
+    bodies = [
+        (400, b"[" * 60_000, "nested too deep"),  # Python's json: RecursionError
+        (413, b"[" * 100_000, "over the limit"),  # bigger than any run
+        (400, b"1" * 5_000, "too many digits"),  # Python's int(): ValueError past 4300 digits
+        (400, b'{"run_id": ' + b"9" * 5_000 + b"}", "too many digits"),
+        (
+            400,
+            b'{"run_id": "r", "label": "l", "targets": "grid", "touches": [{"m": 0, '
+            b'"target_px": [1, 2], "touch_px": [1e99999, 2], "pointer_type": "pen"}]}',
+            "must be a finite number",
+        ),  # fmt: skip
+    ]
+    for status, body, text in bodies:
+        got, _, raw = real.raw("POST", "/api/evaluation", {
+            "X-Handeye-Token": real.token, "Content-Type": "application/json"}, body)  # fmt: skip
+        answer = json.loads(raw)
+        assert got == status and text in answer["error"] + answer["field"], (body[:20], answer)
+    assert real.api("GET", "/api/session")[0] == 200  # and the server goes on
+
+
+def _open_without_accept(port, n):
+    """``n`` connections begun at once; those the kernel completes within 0.5 s."""
+    socks = []
+    for _ in range(n):
+        s = socket.socket()
+        s.setblocking(False)
+        s.connect_ex(("127.0.0.1", port))
+        socks.append(s)
+    time.sleep(0.5)
+    _, ready, _ = select.select([], socks, [], 0)
+    return socks, [s for s in ready if s.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR) == 0]
+
+
+def test_fifty_concurrent_posts_get_in_while_the_server_is_busy(real):
+    """Issue 16: 7-21 of 50 concurrent posts were reset (a listen backlog of 5)."""
+    n = 50
+    real.proc.send_signal(signal.SIGSTOP)  # busy: accepting nothing for a moment
+    try:
+        socks, connected = _open_without_accept(real.port, n)
+    finally:
+        real.proc.send_signal(signal.SIGCONT)
+    assert len(connected) == n, f"{len(connected)} of {n} connections queued"
+    touches = [{"m": m, "target_px": [10.0 * m, 20.0], "touch_px": [10.0 * m + 3, 24.0],
+                "pointer_type": "pen"} for m in range(9)]  # fmt: skip
+    answers = [None] * n
+
+    def post(i, s):
+        body = json.dumps({"run_id": f"busy-{i}", "label": "busy", "targets": "grid",
+                           "touches": touches}).encode()  # fmt: skip
+        s.setblocking(True)
+        s.settimeout(30)
+        try:
+            s.sendall(f"POST /api/evaluation HTTP/1.1\r\nHost: 127.0.0.1:{real.port}\r\n"
+                      f"X-Handeye-Token: {real.token}\r\nContent-Type: application/json\r\n"
+                      f"Content-Length: {len(body)}\r\n\r\n".encode() + body)  # fmt: skip
+            answers[i] = b"".join(iter(lambda: s.recv(65536), b"")).split(b"\r\n")[0]
+        except OSError as e:  # a reset or a timeout
+            answers[i] = repr(e).encode()
+        finally:
+            s.close()
+
+    threads = [threading.Thread(target=post, args=(i, s)) for i, s in enumerate(socks)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert answers == [b"HTTP/1.0 200 OK"] * n
+    saved = json.loads(real.dataset.with_name("rig.trials.json").read_text())["trials"]
+    assert sorted(t["run_id"] for t in saved if t["label"] == "busy") == sorted(
+        f"busy-{i}" for i in range(n)
+    )

@@ -1,12 +1,20 @@
 """The tablet app: a page that draws the landmarks, records the pen, and measures touch errors.
 
 :func:`make_server` binds the HTTP server (standard library); :func:`serve` runs it until
-Ctrl-C. The page lives in ``static/`` (HTML, JS and CSS; no build step).
+Ctrl-C. Only whoever has the secret the server prints (in its URL and QR code) can use it
+(:mod:`.guard`). The page lives in ``static/`` (HTML, JS and CSS; no build step).
 """
 
-from ..dataset import backup_path
-from .calibration import apply_touch_errors
-from .posts import PostError, parse_calibration, parse_evaluation
+from .calibration import apply_touch_errors, versioned_backup_path
+from .guard import new_token
+from .posts import (
+    MAX_BODY_BYTES,
+    MAX_TOUCHES,
+    MAX_TRIALS,
+    PostError,
+    parse_calibration,
+    parse_evaluation,
+)
 from .server import DEFAULT_HOST, DEFAULT_PORT, TabletApp, TabletServer, make_server, serve
 from .targets import grid_targets, load_targets
 from .trials import format_summary, load_trials, summarise
@@ -14,18 +22,22 @@ from .trials import format_summary, load_trials, summarise
 __all__ = [
     "DEFAULT_HOST",
     "DEFAULT_PORT",
+    "MAX_BODY_BYTES",
+    "MAX_TOUCHES",
+    "MAX_TRIALS",
     "PostError",
     "TabletApp",
     "TabletServer",
     "apply_touch_errors",
-    "backup_path",
     "format_summary",
     "grid_targets",
     "load_targets",
     "load_trials",
     "make_server",
+    "new_token",
     "parse_calibration",
     "parse_evaluation",
     "serve",
     "summarise",
+    "versioned_backup_path",
 ]

@@ -14,9 +14,13 @@ from typing import Any
 
 import numpy as np
 
-# A bigger body is not a set of touches: 1000 touches take about 150 kB.
-MAX_BODY_BYTES = 256 * 1024
-MAX_TOUCHES = 1000
+# Bounds on what one post may hold, so a post (or many) cannot grow the files without end.
+# A run touches each point by jogging the robot: the paper's has 9; 100 is a 10 x 10 grid.
+MAX_TOUCHES = 100
+# A bigger body is not a run: 100 touches take about 10 kB.
+MAX_BODY_BYTES = 64 * 1024
+# Evaluation trials in one trials file (each post rewrites it; a trial of 100 touches ~32 kB).
+MAX_TRIALS = 100
 # No screen is wider or taller than this many CSS px (browsers' canvas size limit).
 MAX_SCREEN_PX = 16384.0
 POINTER_TYPES = ("pen", "touch", "mouse")
@@ -77,15 +81,20 @@ class EvaluationPost:
 
 
 def parse_json_body(body: bytes) -> Any:
-    """Decode a UTF-8 JSON body; NaN and Infinity literals are refused."""
+    """Decode a UTF-8 JSON body; NaN and Infinity literals are refused, and so are arrays
+    nested too deep for the parser and integers too long to convert (4300+ digits)."""
 
     def no_constants(name: str) -> Any:
         raise PostError(400, "", f"{name} is not a number (JSON allows finite numbers only)")
 
     try:
         return json.loads(body.decode("utf-8"), parse_constant=no_constants)
+    except RecursionError:
+        raise PostError(400, "", "body is nested too deep to be a run of touches") from None
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
         raise PostError(400, "", f"body is not valid UTF-8 JSON: {e}") from None
+    except ValueError:  # an integer literal of 4300+ digits
+        raise PostError(400, "", "body holds a number with too many digits") from None
 
 
 def _object(

@@ -56,7 +56,7 @@ def grid_targets(
     """A ``cols`` × ``rows`` grid spanning the rectangle, in snake order (the paper's order).
 
     Args:
-        cols, rows: number of columns and rows, 1 to 30 each.
+        cols, rows: number of columns and rows, 1 to 30 each, at most 100 targets in all.
         left_px, top_px, right_px, bottom_px: the rectangle's edges, CSS px from the page's
             top-left corner; a single column (row) sits at ``left_px`` (``top_px``).
 
@@ -65,6 +65,8 @@ def grid_targets(
     for name, n in (("cols", cols), ("rows", rows)):
         if not 1 <= n <= MAX_GRID_SIDE:
             raise ValueError(f"{name}: must be 1 to {MAX_GRID_SIDE} (got {n})")
+    if cols * rows > MAX_TOUCHES:
+        raise ValueError(f"rows: a grid of at most {MAX_TOUCHES} targets (got {cols} x {rows})")
     edges = {"left": left_px, "top": top_px, "right": right_px, "bottom": bottom_px}
     for name, v in edges.items():
         if not 0.0 <= v <= MAX_SCREEN_PX:

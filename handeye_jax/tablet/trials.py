@@ -31,6 +31,8 @@ from ..geometry import mm_per_tablet_px
 from .posts import EvaluationPost
 
 FORMAT = "handeye-jax.trials/1"
+# A trials file the server may read: posts keep it under ~3.3 MB (100 trials of 100 touches).
+MAX_FILE_BYTES = 16 * 1024 * 1024
 
 
 def new_trials(ppi: float, scale: float) -> dict[str, Any]:
@@ -45,17 +47,24 @@ def new_trials(ppi: float, scale: float) -> dict[str, Any]:
 def load_trials(path: str | Path, ppi: float, scale: float) -> dict[str, Any]:
     """Read a trials file, or a new document when ``path`` does not exist.
 
-    Raises :class:`InputError` when the file is unreadable, is not this format, or was
-    measured on a tablet with another ppi or scale (its mm figures would not be comparable).
+    Raises :class:`InputError` when the file is unreadable, over 16 MiB, not this format, or
+    was measured on a tablet with another ppi or scale (its mm figures would not be comparable).
     """
     path = Path(path)
     if not path.exists():
         return new_trials(ppi, scale)
     r = _Reader(path)
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        size = path.stat().st_size
+        text = path.read_text(encoding="utf-8") if size <= MAX_FILE_BYTES else None
+        doc = json.loads(text) if text is not None else None
+    except RecursionError:
+        raise InputError(path, "", "cannot read trials: nested too deep") from None
+    except (OSError, UnicodeDecodeError, ValueError) as e:  # JSONDecodeError is a ValueError
         raise InputError(path, "", f"cannot read trials: {e}") from None
+    if text is None:
+        r.fail("", f"is {size} bytes, over the limit of {MAX_FILE_BYTES} for a trials file; "
+               "choose another --trials")  # fmt: skip
     if not isinstance(doc, dict):
         r.fail("", "must be a JSON object")
     if doc.get("format") != FORMAT:

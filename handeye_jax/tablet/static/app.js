@@ -15,6 +15,7 @@ const app = {
   marks: load("marks", true),     // draw the faint rings and numbers beside the dots
   stale: false,                   // app.run belongs to another dataset: the operator decides
   summary: null,
+  locked: false,                  // the server refused this page's secret (it was restarted)
   flushing: false,
   retryTimer: null,
 };
@@ -191,7 +192,10 @@ function showWarnings() {
       `Set the display scale to ${s.tablet.scale * 100}% and the ` +
       `browser zoom to 100%, or correct [tablet] scale in the dataset.`);
   }
-  if (!s) notes.push("No contact with the server yet: nothing to draw.");
+  if (app.locked) {
+    notes.push("The server does not know this page's secret (was it restarted?): open the URL " +
+      "it printed, or scan its QR code. Runs kept in this browser are not lost.");
+  } else if (!s) notes.push("No contact with the server yet: nothing to draw.");
   if (app.storageFailed) notes.push("This browser refuses to store progress: a reload loses it.");
   const W = window.innerWidth, H = window.innerHeight;
   const off = targetsOnScreen().findIndex(([x, y]) => x < 0 || y < 0 || x >= W || y >= H);
@@ -207,7 +211,7 @@ function showWarnings() {
     const ds = s && s.dataset;
     $("stale-text").textContent =
       `The run stored in this browser (${describeRun(app.run)}) was measured on other ` +
-      `landmarks than the server's now (${ds ? ds.name + ", " + ds.path : "no dataset"}): ` +
+      `landmarks than the server's now (${ds ? ds.name + ", " + ds.file : "no dataset"}): ` +
       "the server was restarted with another dataset. It is not resumed here. Discard it, or " +
       "keep it for its own dataset (it resumes when the server serves that dataset again).";
   }
@@ -226,7 +230,7 @@ function showInfo() {
   $("tablet-info").textContent =
     `${ds ? ds.name + ": " + ds.tablet_px.length + " landmarks; " : ""}` +
     `${s.tablet.ppi} ppi, scale ${s.tablet.scale}: 1 px = ${mm.toFixed(4)} mm` +
-    (s.result ? `; evaluating ${s.result.model} seed ${s.result.seed} (${s.result.path})` : "");
+    (s.result ? `; evaluating ${s.result.model} seed ${s.result.seed} (${s.result.file})` : "");
   const rulerMm = 20;
   $("ruler").style.width = `${rulerMm / mm}px`;
   $("ruler-label").textContent = `${rulerMm} mm: check with a ruler`;
@@ -473,6 +477,12 @@ async function flush() {
       showOutbox(`server unreachable: ${item.what} is kept in this browser; retrying`, "error");
       break;
     }
+    if (r.status === 403) { // no secret, or not the server's: kept until the page has it
+      app.locked = true;
+      showOutbox(`not sent: ${doc.error}`, "error");
+      break;
+    }
+    app.locked = false;
     if (r.ok) {
       app.outbox = app.outbox.filter((o) => o.id !== item.id);
       store("outbox", app.outbox);
@@ -498,6 +508,7 @@ async function flush() {
   }
   app.flushing = false;
   showOutbox();
+  showWarnings(); // a refused secret shows there
   if (retry) app.retryTimer = setTimeout(flush, RETRY_MS);
   else if (app.flushAgain) {
     app.flushAgain = false;
@@ -509,7 +520,14 @@ async function refreshSession() {
   try {
     const r = await fetch("api/session", { cache: "no-store" });
     const doc = await r.json();
+    if (r.status === 403) { // retrying cannot help: the operator must open the printed URL
+      app.locked = true;
+      showOutbox(`cannot load the session: ${doc.error}`, "error");
+      render();
+      return;
+    }
     if (!r.ok) throw new Error(doc.error);
+    app.locked = false;
     app.session = doc;
     store("session", doc);
     app.summary = doc.trials.summary;
