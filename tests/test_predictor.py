@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import runpy
 import sys
 from pathlib import Path
@@ -346,3 +347,40 @@ def test_predictor_benchmark_runs_in_process(capsys, monkeypatch):
     out = capsys.readouterr().out
     assert "| numpy Predictor |" in out and "| JAX path (jit) |" in out
     assert "µs per point" in out and "max |numpy − JAX|" in out
+
+
+class _Robot:
+    def __init__(self):
+        self.moves = []
+
+    def move_to(self, position_mm, hand_angle_deg):
+        self.moves.append((np.asarray(position_mm, dtype=float), float(hand_angle_deg)))
+
+
+def test_the_readme_pick_loop_touches_what_the_predictor_says(result_file):
+    """The README's "Use it on the robot" examples run as written, the pick loop with a fake
+    robot and camera: it captures from the calibration's pose and goes to each command."""
+    readme = (ROOT / "README.md").read_text()
+    section = readme.split("## Use it on the robot\n", 1)[1].split("\n## ", 1)[0]
+    blocks = re.findall(r"```python\n(.*?)```", section, flags=re.S)
+    assert len(blocks) == 2
+    import handeye_jax as hj
+
+    ns = {"hj": hj}
+    code = "\n".join(blocks).replace('"paper.result.json"', repr(str(result_file)))
+    exec(compile(code, "README.md", "exec"), ns)
+    assert ns["xy_mm"].shape == (1, 2)
+    uv, depth, angle = PAPER_POINTS
+    robot = _Robot()
+    camera = type("Camera", (), {"capture": lambda self: "picture"})()
+    found = lambda picture: (uv, depth) if picture == "picture" else None  # noqa: E731
+    predictor = ns["pred"]
+    ns["pick_loop"](robot, camera, found, predictor, hand_angle_deg=45.0, touch_z_mm=118.0)
+    frames = predictor.frames
+    assert len(robot.moves) == 1 + len(uv)
+    np.testing.assert_array_equal(robot.moves[0][0], frames.capture_position_mm)
+    assert robot.moves[0][1] == frames.capture_hand_angle_deg
+    want = predictor.hand_command(uv, depth, np.full(3, 45.0))
+    for (position, hand_angle), (x, y) in zip(robot.moves[1:], want, strict=True):
+        np.testing.assert_array_equal(position, [x, y, 118.0])
+        assert hand_angle == 45.0
