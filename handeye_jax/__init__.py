@@ -9,6 +9,9 @@ Float64: importing this package does not change JAX's global configuration. The 
 points (``calibrate``, ``CalibrationResult.predict``, ``load_dataset``…) compute in float64
 whatever your setting; wrap your own calls of the low-level functions in
 ``with handeye_jax.float64():`` (or set ``JAX_ENABLE_X64=1``) to get float64 there too.
+
+On a robot PC without JAX, ``Predictor`` and ``Frames`` (NumPy only) still import and
+compute hand commands from a result file; everything else needs JAX.
 """
 
 from ._frames import Frames

@@ -221,7 +221,8 @@ def _ros2(frames: Frames, parent: str, camera: str, pen: str, source: str) -> st
     }
     lines = [
         *_header_lines(frames, "ros2", source),
-        "A ROS 2 launch file publishing the end-effector's static transforms with tf2_ros.",
+        "A ROS 2 launch file publishing the end-effector's static transforms with tf2_ros",
+        "(named arguments: ROS 2 Humble or later).",
         "ROS conventions: metres; quaternions in the order x y z w.",
         *_frame_lines(parent, camera, pen),
         *_undetermined_lines(frames, "ros2"),
@@ -414,12 +415,11 @@ def hand_command(
 
 def check_parses(text: str, fmt: str) -> None:
     """Parse ``text`` as its format's reader would (a last guard before writing)."""
-    import cv2
-    import yaml
-
     if fmt == "json":
         json.loads(text)
     elif fmt == "yaml":
+        import yaml
+
         yaml.safe_load(text)
     elif fmt in ("ros2", "python"):
         ast.parse(text)
@@ -428,6 +428,8 @@ def check_parses(text: str, fmt: str) -> None:
 
         ET.fromstring(text)
     elif fmt == "opencv":
+        import cv2
+
         fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
         if fs.getNode("R_cam2gripper").empty():
             raise ValueError("the OpenCV file lost R_cam2gripper")
