@@ -362,7 +362,7 @@ def test_opencv_calibrate_hand_eye_matches_our_export_of_a_twins_truth(tmp_path,
         R_t2c.append(T_cam_target[:3, :3])
         t_t2c.append(T_cam_target[:3, 3:])
     for method in (cv2.CALIB_HAND_EYE_TSAI, cv2.CALIB_HAND_EYE_PARK, cv2.CALIB_HAND_EYE_HORAUD,
-                   cv2.CALIB_HAND_EYE_DANIILIDIS):  # fmt: skip
+                   cv2.CALIB_HAND_EYE_ANDREFF, cv2.CALIB_HAND_EYE_DANIILIDIS):  # fmt: skip
         R, t = cv2.calibrateHandEye(R_g2b, t_g2b, R_t2c, t_t2c, method=method)
         np.testing.assert_allclose(R, R_export, atol=1e-6, err_msg=f"method {method}")
         np.testing.assert_allclose(t, t_export, atol=1e-6, err_msg=f"method {method}")
