@@ -86,13 +86,14 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_predict(args: argparse.Namespace) -> int:
+    from ._predictor import Predictor
+    from .frames import load_frames
     from .predict import points_csv_text, read_points_csv
-    from .result import load_result
 
     out = _output_path(args.out, "--out", [args.result, args.points])
-    result = load_result(args.result)
+    predictor = Predictor.from_frames(load_frames(args.result))  # NumPy from here on
     header, rows, values = read_points_csv(args.points)
-    hand_xy = result.predict(values[:, :2], values[:, 2], values[:, 3], stage=args.stage)
+    hand_xy = predictor.hand_command(values[:, :2], values[:, 2], values[:, 3], stage=args.stage)
     text = points_csv_text(header, rows, hand_xy)
     if out is None:
         sys.stdout.write(text)
@@ -144,6 +145,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     from .calibrate import Settings
+    from .cli_export import add_export_command
     from .cli_twin import add_twin_commands
     from .models import model_registry
 
@@ -191,6 +193,7 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument("--quiet", action="store_true", help="no progress bars")
     cal.set_defaults(func=_cmd_calibrate)
     add_twin_commands(sub)  # simulate, detect, evaluate
+    add_export_command(sub)
 
     pre = sub.add_parser(
         "predict",

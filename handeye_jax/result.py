@@ -17,9 +17,11 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._atomic import write_output
+from ._frames import Frames
 from ._validate import MAX_DEG, MAX_MM, MAX_PX, _describe, _join, _Reader
 from ._x64 import in_float64
 from .errors import InputError
+from .frames import compute_frames
 from .losses import LOSS_NAMES
 from .models import AbstractCorrection, AbstractModel, AffinePair, get_model, model_registry
 from .observations import Rig
@@ -112,6 +114,12 @@ class CalibrationResult:
         )
         return np.asarray(out)
 
+    def frames(self) -> Frames:
+        """The fitted frames as plain numbers (NumPy), from the parameters and the rig."""
+        return compute_frames(
+            self.fitted_model(), self.fitted_rig(), self.fitted_correction(), self.centres_mm
+        )
+
     # -- files ---------------------------------------------------------------------------
     def to_json(self) -> str:
         def stage(s: StageResult) -> dict[str, Any]:
@@ -135,6 +143,8 @@ class CalibrationResult:
             "timings_s": self.timings_s,
             "sign_twin": self.sign_twin,
             "warnings": self.warnings,
+            # The numbers a robot needs, for the NumPy predictor (handeye_jax._predictor).
+            "frames": self.frames().to_dict(),
         }
         # Optional sections (older results lack them): see handeye_jax.diagnostics.
         if self.diagnostics:

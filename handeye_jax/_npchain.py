@@ -1,0 +1,106 @@
+"""The hand-command chain in NumPy alone: eqs. (4), (5), (7), (8) and (25).
+
+The same chain as :mod:`handeye_jax.predict`, for a robot PC: no JAX, vectorised over points.
+``handeye-jax export --format python`` copies this module's functions verbatim into the file it
+writes, so it imports nothing but NumPy.
+
+The hand points down at the capture and at every touch (eq. 1): ``R_base_hand = Ry(180)·Rz(φ)``,
+whose x-y block is ``[[-cos φ, sin φ], [sin φ, cos φ]]`` and whose third column is
+``(0, 0, -1)``. The x and y of every point therefore never depend on a z (of the camera, the
+pen or the tablet), which the data leaves undetermined; these functions never read one.
+Lengths in mm, angles in degrees, image coordinates in px.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def sincos_deg(angle_deg):
+    """``(sin, cos)`` of angles in degrees; exact at multiples of 90° (``Ry(180)`` is exact)."""
+    a = np.asarray(angle_deg, dtype=np.float64)
+    k = np.round(a / 90.0)
+    r = np.deg2rad(a - 90.0 * k)
+    s, c = np.sin(r), np.cos(r)
+    q = np.mod(k, 4.0)
+    odd = (q == 1.0) | (q == 3.0)
+    sin = np.where(odd, c, s) * np.where(q >= 2.0, -1.0, 1.0)
+    cos = np.where(odd, s, c) * np.where((q == 1.0) | (q == 2.0), -1.0, 1.0)
+    return sin, cos
+
+
+def image_to_base_xy(
+    image_px, depth_mm, camera_px, R_hand_camera, t_hand_camera_mm, capture_mm, capture_phi_deg
+):
+    """``(x, y)`` of image points in the base frame, eqs. (4)-(5), mm, shape (n, 2).
+
+    Args:
+        image_px: ``(u, v)`` of each point, px, shape (n, 2).
+        depth_mm: depth along the optical axis, mm, shape (n,).
+        camera_px: ``(fx, fy, cx, cy)``, px.
+        R_hand_camera: the camera's optical frame in the hand frame, (3, 3).
+        t_hand_camera_mm: its origin in the hand frame, mm, (3,); only x and y are read.
+        capture_mm: hand position at the capture, mm, (3,) or (n, 3); only x and y are read.
+        capture_phi_deg: the hand's turn φ at the capture, deg, scalar or (n,).
+    """
+    fx, fy, cx, cy = camera_px
+    d = np.asarray(depth_mm, dtype=np.float64)
+    uv = np.asarray(image_px, dtype=np.float64)
+    p0 = d * (uv[:, 0] - cx) / fx
+    p1 = d * (uv[:, 1] - cy) / fy
+    R = np.asarray(R_hand_camera, dtype=np.float64)
+    t = np.asarray(t_hand_camera_mm, dtype=np.float64)
+    hx = R[0, 0] * p0 + R[0, 1] * p1 + R[0, 2] * d + t[0]
+    hy = R[1, 0] * p0 + R[1, 1] * p1 + R[1, 2] * d + t[1]
+    s, c = sincos_deg(capture_phi_deg)
+    cap = np.asarray(capture_mm, dtype=np.float64)
+    return np.stack([-c * hx + s * hy + cap[..., 0], s * hx + c * hy + cap[..., 1]], axis=-1)
+
+
+def pen_offset_xy(t_hand_pen_mm, phi_deg):
+    """``(x, y)`` of the pen offset ``x' = Ry(180)·Rz(φ)·t_p`` in the base frame, eq. (7), mm."""
+    s, c = sincos_deg(phi_deg)
+    xp, yp = float(t_hand_pen_mm[0]), float(t_hand_pen_mm[1])
+    return np.stack([-c * xp + s * yp, s * xp + c * yp], axis=-1)
+
+
+def affine_about(xy_mm, centre_mm, affine):
+    """Eq. (24): scale, rotate about ``centre_mm``, then shift; ``affine = (X, Y, θ, Sx, Sy)``
+    in mm, mm, deg, 1, 1."""
+    X, Y, theta, Sx, Sy = affine
+    s, c = sincos_deg(theta)
+    cx, cy = float(centre_mm[0]), float(centre_mm[1])
+    a = (xy_mm[:, 0] - cx) * Sx
+    b = (xy_mm[:, 1] - cy) * Sy
+    return np.stack([c * a - s * b + cx + X, s * a + c * b + cy + Y], axis=-1)
+
+
+def hand_command_xy(
+    image_px,
+    depth_mm,
+    phi_deg,
+    stage,
+    camera_px,
+    R_hand_camera,
+    t_hand_camera_mm,
+    t_hand_pen_mm,
+    capture_mm,
+    capture_phi_deg,
+    A1,
+    A2,
+    centres_mm,
+):
+    """Where to send the hand, ``(x, y)`` in mm in the base frame, shape (n, 2).
+
+    Stage 1 is eq. (8), ``x_bi − x'``; stage 2 is eq. (25), ``A2(A1(x_bi) − x')`` with A1
+    turning about ``centres_mm[0]`` and A2 about ``centres_mm[1]``. ``phi_deg`` is the hand's
+    turn at each touch, ``φ = zero + sign·θh``, deg.
+    """
+    x_bi = image_to_base_xy(
+        image_px, depth_mm, camera_px, R_hand_camera, t_hand_camera_mm, capture_mm,
+        capture_phi_deg,
+    )  # fmt: skip
+    offset = pen_offset_xy(t_hand_pen_mm, phi_deg)
+    if stage == 1:
+        return x_bi - offset
+    return affine_about(affine_about(x_bi, centres_mm[0], A1) - offset, centres_mm[1], A2)
