@@ -10,7 +10,7 @@ from typing import Any
 from .errors import InputError
 
 
-def _describe(x: Any) -> str:
+def describe(x: Any) -> str:
     """A short description of a TOML value for error messages."""
     if x is None:  # JSON's null; TOML has none
         return "null"
@@ -35,7 +35,7 @@ MAX_MM = 1e5
 MAX_DEG = 3600.0
 
 
-class _Reader:
+class Reader:
     """Pulls typed fields out of a parsed TOML document, naming the field on failure."""
 
     def __init__(self, path: Path | None):
@@ -47,15 +47,15 @@ class _Reader:
     def table(self, value: Any, where: str, keys: tuple[str, ...], optional: tuple[str, ...] = ()):
         """Check that ``value`` is a table holding exactly ``keys`` (``optional`` may be absent)."""
         if not isinstance(value, dict):
-            self.fail(where, f"must be a table (got {_describe(value)})")
+            self.fail(where, f"must be a table (got {describe(value)})")
         missing = [k for k in keys if k not in value and k not in optional]
         for k in value:
             if k not in keys:
                 hint = difflib.get_close_matches(k, missing or keys, n=1)
                 expected = f"did you mean {hint[0]!r}?" if hint else f"expected {', '.join(keys)}"
-                self.fail(_join(where, k), f"unknown key; {expected}")
+                self.fail(join_key(where, k), f"unknown key; {expected}")
         if missing:
-            self.fail(_join(where, missing[0]), "missing")
+            self.fail(join_key(where, missing[0]), "missing")
         return value
 
     def number(
@@ -70,7 +70,7 @@ class _Reader:
         """A finite float; ``positive``: > 0; ``limit``: at most this in magnitude;
         ``minimum``: at least this (``unit`` names its unit in the message)."""
         if isinstance(x, bool) or not isinstance(x, int | float):
-            self.fail(where, f"must be a number (got {_describe(x)})")
+            self.fail(where, f"must be a number (got {describe(x)})")
         try:
             value = float(x)
         except OverflowError:  # an integer beyond float64's range
@@ -87,9 +87,9 @@ class _Reader:
 
     def vector(self, x: Any, where: str, n: int, limit: float | None = None) -> list[float]:
         if not isinstance(x, list) or len(x) != n:
-            self.fail(where, f"must be an array of {n} numbers (got {_describe(x)})")
+            self.fail(where, f"must be an array of {n} numbers (got {describe(x)})")
         return [self.number(v, f"{where}[{i}]", limit=limit) for i, v in enumerate(x)]
 
 
-def _join(where: str, key: str) -> str:
+def join_key(where: str, key: str) -> str:
     return f"{where}.{key}" if where else key

@@ -64,7 +64,7 @@ import tomlkit.items
 
 from . import geometry as geo
 from ._atomic import StagedFiles, write_output
-from ._validate import MAX_DEG, MAX_MM, MAX_PX, _describe, _join, _Reader
+from ._validate import MAX_DEG, MAX_MM, MAX_PX, Reader, describe, join_key
 from ._x64 import in_float64
 from .errors import InputError
 from .observations import Observations, Rig, centre_landmark
@@ -250,16 +250,16 @@ def known_search_names() -> frozenset[str]:
 
 
 def _parse(doc: dict[str, Any], path: Path | None) -> Dataset:
-    r = _Reader(path)
+    r = Reader(path)
     if "format" not in doc:
         r.fail("format", f"missing; expected {FORMAT!r}")
     if doc["format"] != FORMAT:
-        r.fail("format", f"expected {FORMAT!r} (got {_describe(doc['format'])})")
+        r.fail("format", f"expected {FORMAT!r} (got {describe(doc['format'])})")
     r.table(doc, "", _TOP_KEYS, _OPTIONAL_TOP_KEYS)
 
     name = doc["name"]
     if not isinstance(name, str) or not name.strip():
-        r.fail("name", f"must be a non-empty string (got {_describe(name)})")
+        r.fail("name", f"must be a non-empty string (got {describe(name)})")
 
     cam = r.table(doc["camera"], "camera", _CAMERA_KEYS)
     camera = Camera(
@@ -283,10 +283,10 @@ def _parse(doc: dict[str, Any], path: Path | None) -> Dataset:
     if "search" in doc:
         table = doc["search"]
         if not isinstance(table, dict):
-            r.fail("search", f"must be a table (got {_describe(table)})")
+            r.fail("search", f"must be a table (got {describe(table)})")
         known = known_search_names()
         for key, value in table.items():
-            where = _join("search", key)
+            where = join_key("search", key)
             if key not in known:
                 hint = difflib.get_close_matches(key, sorted(known), n=1)
                 more = f"did you mean {hint[0]!r}?" if hint else "no model has this parameter"
@@ -298,7 +298,7 @@ def _parse(doc: dict[str, Any], path: Path | None) -> Dataset:
 
     marks = doc["landmarks"]
     if not isinstance(marks, list) or not all(isinstance(m, dict) for m in marks):
-        r.fail("landmarks", f"must be an array of tables, [[landmarks]] (got {_describe(marks)})")
+        r.fail("landmarks", f"must be an array of tables, [[landmarks]] (got {describe(marks)})")
     if not marks:
         r.fail("landmarks", "needs at least 1 landmark (got 0)")
     rows: dict[str, list] = {k: [] for k in _LANDMARK_KEYS}

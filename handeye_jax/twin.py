@@ -22,7 +22,7 @@ import numpy as np
 from jaxtyping import Float
 
 from . import geometry as geo
-from ._validate import MAX_DEG, MAX_MM, MAX_PX, _describe, _Reader
+from ._validate import MAX_DEG, MAX_MM, MAX_PX, Reader, describe
 from ._x64 import in_float64
 from .errors import InputError
 from .models import HTMModel
@@ -237,7 +237,7 @@ def _R_base_camera(truth: TwinTruth):
 def load_truth(path: str | Path) -> TwinTruth:
     """Read and validate a ``truth.json``; raises :class:`InputError` naming the field."""
     path = Path(path)
-    r = _Reader(path)
+    r = Reader(path)
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError) as e:
@@ -247,7 +247,7 @@ def load_truth(path: str | Path) -> TwinTruth:
     if not isinstance(doc, dict):
         r.fail("", "must be a JSON object")
     if doc.get("format") != FORMAT:
-        r.fail("format", f"expected {FORMAT!r} (got {_describe(doc.get('format'))})")
+        r.fail("format", f"expected {FORMAT!r} (got {describe(doc.get('format'))})")
     keys = ("format", *TwinTruth.__dataclass_fields__)
     r.table(doc, "", keys, optional=("seed",))
     size = r.vector(doc["image_size_px"], "image_size_px", 2, 1e5)
@@ -262,7 +262,7 @@ def load_truth(path: str | Path) -> TwinTruth:
     model = {k: r.number(m[k], f"model.{k}", limit=MAX_MM) for k in HTMModel.param_names}
     layout = doc["landmarks_tablet_px"]
     if not isinstance(layout, list) or len(layout) < 4:
-        r.fail("landmarks_tablet_px", f"must be 4 or more [x, y] (got {_describe(layout)})")
+        r.fail("landmarks_tablet_px", f"must be 4 or more [x, y] (got {describe(layout)})")
     tab = [r.vector(p, f"landmarks_tablet_px[{i}]", 2, MAX_PX) for i, p in enumerate(layout)]
     angles = doc["landmarks_hand_angle_deg"]
     if not isinstance(angles, list) or len(angles) != len(tab):
@@ -275,7 +275,7 @@ def load_truth(path: str | Path) -> TwinTruth:
         r.fail("hand_angle_sign", f"must be 1 or -1 (got {sign})")
     seed = doc.get("seed")
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
-        r.fail("seed", f"must be an integer or null (got {_describe(seed)})")
+        r.fail("seed", f"must be an integer or null (got {describe(seed)})")
     truth = TwinTruth(
         image_size_px=(int(size[0]), int(size[1])),
         camera_px=camera,

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from .._atomic import write_output
-from .._validate import _describe, _Reader
+from .._validate import Reader, describe
 from ..errors import InputError
 from ..geometry import mm_per_tablet_px
 from .posts import EvaluationPost
@@ -51,7 +51,7 @@ def load_trials(path: str | Path, ppi: float, scale: float) -> dict[str, Any]:
     path = Path(path)
     if not path.exists():
         return new_trials(ppi, scale)
-    r = _Reader(path)
+    r = Reader(path)
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
@@ -59,7 +59,7 @@ def load_trials(path: str | Path, ppi: float, scale: float) -> dict[str, Any]:
     if not isinstance(doc, dict):
         r.fail("", "must be a JSON object")
     if doc.get("format") != FORMAT:
-        r.fail("format", f"expected {FORMAT!r} (got {_describe(doc.get('format'))})")
+        r.fail("format", f"expected {FORMAT!r} (got {describe(doc.get('format'))})")
     for key in ("tablet", "trials"):
         if key not in doc:
             r.fail(key, "missing")
@@ -69,7 +69,7 @@ def load_trials(path: str | Path, ppi: float, scale: float) -> dict[str, Any]:
         if got != want:
             r.fail(f"tablet.{key}", f"trials were measured at {got}, this tablet is {want}")
     if not isinstance(doc.get("trials"), list):
-        r.fail("trials", f"must be an array (got {_describe(doc.get('trials'))})")
+        r.fail("trials", f"must be an array (got {describe(doc.get('trials'))})")
     for i, t in enumerate(doc["trials"]):
         if not isinstance(t, dict):
             r.fail(f"trials[{i}]", "must be an object")
