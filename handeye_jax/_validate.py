@@ -34,6 +34,49 @@ MAX_PX = 1e6
 MAX_MM = 1e5
 MAX_DEG = 3600.0
 
+# Sizes: what the toolkit can compute on one machine (the README's "Limits" list them).
+#: Landmarks in a dataset, a result or a twin's truth.
+MAX_LANDMARKS = 10_000
+#: DE population and generations (calibrate's options; a result's settings): ten times the
+#: paper's 10,000 each.
+MAX_POPULATION = 100_000
+MAX_GENERATIONS = 100_000
+#: DE population times landmarks: DE's working memory is about 48 bytes per member and
+#: landmark (measured 37-54 B), so this is about 5 GB. The paper's N = 10,000 fits 10,000
+#: landmarks.
+MAX_MEMBER_LANDMARKS = 100_000_000
+#: Points in a points CSV (predict) or held-out targets (simulate --heldout, heldout.csv).
+MAX_POINTS = 100_000
+MAX_HELDOUT = 10_000
+#: Pixels in a picture or depth image (detect) and in a twin's picture: 4096 x 4096.
+MAX_IMAGE_PIXELS = 4096 * 4096
+
+# Plausibility: values a rig cannot have.
+#: Largest angle between an image point's ray and the optical axis, deg: a pinhole picture
+#: wider than 160 deg does not exist.
+MAX_RAY_DEG = 80.0
+#: Size of one tablet px, mm (25.4 / ppi * scale): from a 2,540 ppi panel at scale 1 to a
+#: 25 ppi wall display at scale 3; a screen's pixel is within this.
+MM_PER_TABLET_PX = (0.01, 3.0)
+
+
+def parse_int(text: str) -> int:
+    """An integer in ASCII digits, as a command-line value or CSV cell is written.
+
+    Python's ``int`` also reads ``"１２"`` (full-width) and ``"1_000"``, which no user means;
+    raises ``ValueError`` for them.
+    """
+    if not text.isascii() or "_" in text:
+        raise ValueError(f"not a whole number: {text!r}")
+    return int(text)
+
+
+def parse_float(text: str) -> float:
+    """A number in ASCII (``"3.5"``, ``"-1e3"``, ``"nan"``): :func:`parse_int`'s rule for floats."""
+    if not text.isascii() or "_" in text:
+        raise ValueError(f"not a number: {text!r}")
+    return float(text)
+
 
 class Reader:
     """Pulls typed fields out of a parsed TOML document, naming the field on failure."""

@@ -17,9 +17,20 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._atomic import write_output
-from ._validate import MAX_DEG, MAX_MM, MAX_PX, Reader, describe, join_key
+from ._io import MAX_RESULT_BYTES, load_json
+from ._validate import (
+    MAX_DEG,
+    MAX_GENERATIONS,
+    MAX_LANDMARKS,
+    MAX_MM,
+    MAX_POPULATION,
+    MAX_PX,
+    MM_PER_TABLET_PX,
+    Reader,
+    describe,
+    join_key,
+)
 from ._x64 import in_float64
-from .errors import InputError
 from .losses import LOSS_NAMES
 from .models import AbstractCorrection, AbstractModel, AffinePair, get_model, model_registry
 from .observations import Rig
@@ -189,8 +200,6 @@ AFFINE_SCALES = ("Sx1", "Sy1", "Sx2", "Sy2")
 #: Largest magnitude of a fitted parameter: the widest search range a dataset admits (DE and
 #: the LM polish stay inside their range).
 MAX_PARAM = 1e6
-#: Largest tablet pixel, mm: 1 ppi at display scale 100, the coarsest a dataset admits.
-MAX_MM_PER_TABLET_PX = 25.4 * 100
 #: Largest magnitude of each landmark array of ``observations``.
 OBSERVATION_LIMITS = {
     "tablet_px": MAX_PX, "image_px": MAX_PX, "depth_mm": MAX_MM, "hand_xy_mm": MAX_MM,
@@ -211,7 +220,7 @@ def load_result(path: str | Path) -> CalibrationResult:
     """
     path = Path(path)
     r = Reader(path)
-    doc = _read_json(path, r)
+    doc = load_json(path, MAX_RESULT_BYTES)
     if not isinstance(doc, dict):
         r.fail("", f"must be a JSON object (got {describe(doc)})")
     for key in ("format", "model", "seed", "rig", "stage1", "stage2", "centre_index",
@@ -271,68 +280,6 @@ def load_result(path: str | Path) -> CalibrationResult:
         diagnostics=_diagnostics(r, doc, n, (stage1, stage2)),
         observations=observations,
     )
-
-
-def _read_json(path: Path, r: Reader) -> Any:
-    """The parsed file; a key repeated within an object is an error, not the last one wins."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(path, "", f"cannot read file: {e}") from None
-
-    def parse_int(digits: str) -> int:
-        try:
-            return int(digits)
-        except ValueError:  # beyond Python's limit on digits
-            r.fail("", f"not valid here: an integer of {len(digits.lstrip('-'))} digits")
-
-    try:
-        doc = json.loads(text, object_pairs_hook=_Object.from_pairs, parse_int=parse_int)
-    except json.JSONDecodeError as e:
-        raise InputError(path, "", f"not valid JSON: {e}") from None
-    except RecursionError:
-        raise InputError(path, "", "not valid here: arrays or objects nested too deeply") from None
-    where = _repeated_key(doc)
-    if where is not None:
-        r.fail(where, "duplicate key: a key may appear only once in an object")
-    return doc
-
-
-class _Object(dict):
-    """A JSON object; ``repeated`` is its first key that appears more than once, if any."""
-
-    repeated: str | None = None
-
-    @classmethod
-    def from_pairs(cls, pairs: list[tuple[str, Any]]) -> dict[str, Any]:
-        obj = dict(pairs)
-        if len(obj) == len(pairs):
-            return obj
-        seen: set[str] = set()
-        for key, _ in pairs:
-            if key in seen:
-                break
-            seen.add(key)
-        out = cls(obj)
-        out.repeated = key
-        return out
-
-
-def _repeated_key(doc: Any) -> str | None:
-    """Where the first repeated key in document order is, e.g. ``rig.camera_px.fx``."""
-    stack = [("", doc)]
-    while stack:
-        where, x = stack.pop()
-        if isinstance(x, _Object):
-            return join_key(where, x.repeated)
-        if isinstance(x, dict):
-            items = [(join_key(where, k), v) for k, v in x.items()]
-        elif isinstance(x, list):
-            items = [(f"{where}[{i}]", v) for i, v in enumerate(x)]
-        else:
-            continue
-        stack.extend(reversed(items))
-    return None
 
 
 def _field(r: Reader, table: dict[str, Any], key: str, where: str) -> Any:
@@ -400,8 +347,8 @@ def _loss_name(r: Reader, x: Any, where: str) -> str:
 _SETTINGS: dict[str, Callable[[Reader, Any, str], Any]] = {
     "model": _model_name,
     "seed": lambda r, x, w: _integer(r, x, w, *SEED_RANGE),
-    "population": lambda r, x, w: _integer(r, x, w, 4),
-    "generations": lambda r, x, w: _integer(r, x, w, 1),
+    "population": lambda r, x, w: _integer(r, x, w, 4, MAX_POPULATION),
+    "generations": lambda r, x, w: _integer(r, x, w, 1, MAX_GENERATIONS),
     "early_stop": _boolean,
     "tol": lambda r, x, w: r.number(x, w),
     "crossover": lambda r, x, w: r.number(x, w),
@@ -445,6 +392,9 @@ def _stage(r: Reader, doc: dict[str, Any], key: str, names: tuple[str, ...]) -> 
     if not isinstance(residuals, list):
         r.fail(f"{key}.residuals_mm", f"must be an array, one entry per landmark (got "
                f"{describe(residuals)})")  # fmt: skip
+    if len(residuals) > MAX_LANDMARKS:
+        r.fail(f"{key}.residuals_mm", f"has {len(residuals):,} entries; at most "
+               f"{MAX_LANDMARKS:,}, one per landmark")  # fmt: skip
     for m, e in enumerate(residuals):
         _residual(r, e, f"{key}.residuals_mm[{m}]", m, RESIDUAL_KEYS)
     de = _summary(r, s, "de", key, _DE)
@@ -519,8 +469,9 @@ def _observations(r: Reader, doc: dict[str, Any]) -> dict[str, Any]:
     if not obs:
         return {}
     r.table(obs, "observations", (*OBSERVATION_ARRAYS, "mm_per_tablet_px"))
+    lo, hi = MM_PER_TABLET_PX
     r.number(obs["mm_per_tablet_px"], "observations.mm_per_tablet_px", positive=True,
-             limit=MAX_MM_PER_TABLET_PX)  # fmt: skip
+             limit=hi, minimum=lo, unit="mm")  # fmt: skip
     n = None
     for name, tail in OBSERVATION_ARRAYS.items():
         where = f"observations.{name}"
@@ -528,6 +479,8 @@ def _observations(r: Reader, doc: dict[str, Any]) -> dict[str, Any]:
         if not isinstance(rows, list) or not rows or (n is not None and len(rows) != n):
             want = "a non-empty list" if n is None else f"a list of {n} (one per landmark)"
             r.fail(where, f"must be {want} (got {describe(rows)})")
+        if len(rows) > MAX_LANDMARKS:
+            r.fail(where, f"has {len(rows):,} landmarks; at most {MAX_LANDMARKS:,}")
         n = len(rows)
         limit = OBSERVATION_LIMITS[name]
         for i, row in enumerate(rows):

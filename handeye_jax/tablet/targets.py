@@ -6,13 +6,12 @@ targets file (held-out points), or from a new grid drawn on the page.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
+from .._io import load_json
 from .._validate import Reader, describe
-from ..errors import InputError
 from ..synthetic import snake_grid_px
 from .posts import MAX_SCREEN_PX, MAX_TOUCHES
 
@@ -32,10 +31,7 @@ def load_targets(path: str | Path) -> np.ndarray:
 
         return load_dataset(path).tablet_px
     r = Reader(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise InputError(path, "", f"cannot read targets: {e}") from None
+    doc = load_json(path, what="targets")
     if not isinstance(doc, dict) or "tablet_px" not in doc:
         r.fail("tablet_px", 'missing; expected {"tablet_px": [[x, y], ...]} in px')
     if doc.get("format", TARGETS_FORMAT) != TARGETS_FORMAT:

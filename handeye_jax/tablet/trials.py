@@ -25,8 +25,8 @@ from typing import Any
 import numpy as np
 
 from .._atomic import write_output
+from .._io import load_json
 from .._validate import Reader, describe
-from ..errors import InputError
 from ..geometry import mm_per_tablet_px
 from .posts import EvaluationPost
 
@@ -52,10 +52,7 @@ def load_trials(path: str | Path, ppi: float, scale: float) -> dict[str, Any]:
     if not path.exists():
         return new_trials(ppi, scale)
     r = Reader(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise InputError(path, "", f"cannot read trials: {e}") from None
+    doc = load_json(path, what="trials")
     if not isinstance(doc, dict):
         r.fail("", "must be a JSON object")
     if doc.get("format") != FORMAT:
