@@ -244,7 +244,9 @@ def add_twin_commands(sub: argparse._SubParsersAction) -> None:
         description="Send the hand to each held-out target of TWIN_DIR as RESULT predicts "
         "it (stage 1 and 2), see where the true pen lands, and print the mean and max "
         "touching error in mm and tablet px, beside the oracle (the true parameters) and the "
-        "oracle with a stage-2 correction fitted on top (by the result's settings).",
+        "oracle with a stage-2 correction fitted on top (by the result's settings, with at most "
+        "the default population and generations). RESULT must have been fitted on TWIN_DIR's "
+        "dataset.toml.",
     )
     ev.add_argument("result", help="result file from 'calibrate --out'")
     ev.add_argument("twin_dir", help="folder written by 'simulate'")
