@@ -31,7 +31,10 @@ MAX_TEXT_BYTES = 16 * MiB
 #: MAX_LANDMARKS landmarks in the canonical layout (1.4 MiB) with room for comments.
 MAX_DATASET_BYTES = 4 * MiB
 #: Largest result, bytes: one with MAX_LANDMARKS landmarks and diagnostics is about 11 MiB.
-MAX_RESULT_BYTES = 64 * MiB
+MAX_RESULT_BYTES = 32 * MiB
+#: Most objects in a JSON file: a result with MAX_LANDMARKS landmarks holds about 50,000. A
+#: file of nothing but ``{}`` would otherwise cost 75 bytes of memory per byte of text.
+MAX_JSON_OBJECTS = 1_000_000
 #: Largest picture or depth image file, bytes.
 MAX_IMAGE_BYTES = 64 * MiB
 
@@ -131,40 +134,53 @@ def parse_json(text: str, path: str | Path | None, lead: str = "") -> Any:
     """The parsed JSON document; raises :class:`InputError` (``lead`` + why) naming ``path``.
 
     A key repeated within an object is an error (not "the last one wins"), named with its
-    path, e.g. ``rig.camera_px.fx``; so are nesting deeper than Python's recursion limit and
-    integers of more digits than Python converts.
+    path, e.g. ``rig.camera_px.fx``; so are nesting deeper than Python's recursion limit,
+    integers of more digits than Python converts and more than :data:`MAX_JSON_OBJECTS`
+    objects.
     """
+
+    def fail(field: str, why: str):
+        raise InputError(path, field, f"{lead}{why}")
 
     def parse_int(digits: str) -> int:
         try:
             return int(digits)
         except ValueError:  # beyond Python's limit on digits
-            n = len(digits.lstrip("-"))
-            raise InputError(path, "", f"{lead}not valid here: an integer of {n} digits") from None
+            fail("", f"not valid here: an integer of {len(digits.lstrip('-'))} digits")
+
+    objects = 0
+    repeated = False
+
+    def from_pairs(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+        nonlocal objects, repeated
+        objects += 1
+        if objects > MAX_JSON_OBJECTS:
+            fail("", f"not valid here: more than {MAX_JSON_OBJECTS:,} objects")
+        obj = dict(pairs)
+        if len(obj) == len(pairs):
+            return obj
+        repeated = True
+        return _Object.marked(obj, pairs)
 
     try:
-        doc = json.loads(text, object_pairs_hook=_Object.from_pairs, parse_int=parse_int)
+        doc = json.loads(text, object_pairs_hook=from_pairs, parse_int=parse_int)
     except json.JSONDecodeError as e:
-        raise InputError(path, "", f"{lead}not valid JSON: {e}") from None
+        fail("", f"not valid JSON: {e}")
     except RecursionError:
-        why = f"{lead}not valid here: arrays or objects nested too deeply"
-        raise InputError(path, "", why) from None
-    where = _repeated_key(doc)
-    if where is not None:
-        raise InputError(path, where, "duplicate key: a key may appear only once in an object")
+        fail("", "not valid here: arrays or objects nested too deeply")
+    if repeated:  # only then walk the document, to name where
+        raise InputError(path, _repeated_key(doc), "duplicate key: a key may appear only once "
+                         "in an object")  # fmt: skip
     return doc
 
 
 class _Object(dict):
-    """A JSON object; ``repeated`` is its first key that appears more than once, if any."""
+    """A JSON object with a repeated key: ``repeated`` is the first such key."""
 
-    repeated: str | None = None
+    repeated: str
 
     @classmethod
-    def from_pairs(cls, pairs: list[tuple[str, Any]]) -> dict[str, Any]:
-        obj = dict(pairs)
-        if len(obj) == len(pairs):
-            return obj
+    def marked(cls, obj: dict[str, Any], pairs: list[tuple[str, Any]]) -> _Object:
         seen: set[str] = set()
         for key, _ in pairs:
             if key in seen:
@@ -175,21 +191,20 @@ class _Object(dict):
         return out
 
 
-def _repeated_key(doc: Any) -> str | None:
+def _repeated_key(doc: Any) -> str:
     """Where the first repeated key in document order is, e.g. ``rig.camera_px.fx``."""
-    stack = [("", doc)]
+    stack: list[tuple[tuple, Any]] = [((), doc)]
     while stack:
-        where, x = stack.pop()
+        path, x = stack.pop()
         if isinstance(x, _Object):
-            return join_key(where, x.repeated)
-        if isinstance(x, dict):
-            items = [(join_key(where, k), v) for k, v in x.items()]
-        elif isinstance(x, list):
-            items = [(f"{where}[{i}]", v) for i, v in enumerate(x)]
-        else:
-            continue
-        stack.extend(reversed(items))
-    return None
+            path = (*path, x.repeated)
+            break
+        items = x.items() if isinstance(x, dict) else enumerate(x)
+        stack.extend(reversed([((*path, k), v) for k, v in items if isinstance(v, dict | list)]))
+    where = ""
+    for k in path:
+        where = f"{where}[{k}]" if isinstance(k, int) else join_key(where, k)
+    return where
 
 
 def csv_rows(text: str, path: str | Path | None) -> list[list[str]]:
