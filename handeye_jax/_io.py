@@ -17,6 +17,7 @@ import json
 import os
 import stat
 import tomllib
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -207,17 +208,20 @@ def _repeated_key(doc: Any) -> str:
     return where
 
 
-def csv_rows(text: str, path: str | Path | None) -> list[list[str]]:
-    """The rows of a CSV text; a field over the csv module's limit is an error naming its line."""
+def csv_rows(text: str, path: str | Path | None) -> Iterator[list[str]]:
+    """The rows of a CSV text that hold something (blank rows are skipped as they are read).
+
+    A field over the csv module's limit, or anything else it cannot read, raises
+    :class:`InputError` naming ``path`` and the line.
+    """
     reader = csv.reader(io.StringIO(text))
-    rows = []
     try:
         for row in reader:
-            rows.append(row)
+            if any(cell.strip() for cell in row):
+                yield row
     except csv.Error as e:
         where = f"line {reader.line_num}"
         if "field limit" in str(e):
             limit = csv.field_size_limit()
             raise InputError(path, where, f"has a field longer than {limit:,} characters") from None
         raise InputError(path, where, f"not valid CSV: {e}") from None
-    return rows

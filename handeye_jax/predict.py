@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import io
+import itertools
 import math
 from pathlib import Path
 
@@ -59,7 +60,8 @@ def read_points_csv(path: str | Path) -> tuple[list[str], list[list[str]], np.nd
     """
     path = Path(path)
     _, text = read_text(path, MAX_TEXT_BYTES)  # a BOM, as spreadsheets write, is fine
-    lines = [row for row in csv_rows(text, path) if any(cell.strip() for cell in row)]
+    # Read no further than one row past the limit: 16 MiB of blank rows holds 16 million.
+    lines = list(itertools.islice(csv_rows(text, path), MAX_POINTS + 2))
     if not lines:
         raise InputError(path, "header", f"file is empty; expected {','.join(POINTS_HEADER)}")
     header = [h.strip() for h in lines[0]]
@@ -77,7 +79,7 @@ def read_points_csv(path: str | Path) -> tuple[list[str], list[list[str]], np.nd
     if not rows:
         raise InputError(path, "rows", "no points after the header")
     if len(rows) > MAX_POINTS:
-        raise InputError(path, "rows", f"has {len(rows):,} points; at most {MAX_POINTS:,}")
+        raise InputError(path, "rows", f"has more than {MAX_POINTS:,} points, the most read")
     values = np.empty((len(rows), 4))
     for i, row in enumerate(rows, start=2):
         if len(row) != len(header):

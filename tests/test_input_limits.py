@@ -211,3 +211,20 @@ def test_json_loaders_name_a_repeated_key(tmp_path):
     assert e.field == "tablet_px" and "duplicate key" in e.message
     path.write_text(json.dumps({"tablet_px": [[1, 2]]}))
     np.testing.assert_array_equal(load_targets(path), [[1, 2]])
+
+
+def test_sizes_inside_a_file_are_bounded_too(tmp_path):
+    # Rows of a points CSV: reading stops one row past the limit.
+    from handeye_jax._validate import MAX_POINTS
+
+    pts = tmp_path / "many.csv"
+    pts.write_text("u,v,depth,hand_angle\n" + "338,244,169.2,90\n" * (MAX_POINTS + 1))
+    e = _error_within(10, read_points_csv, pts)
+    assert e.field == "rows" and "has more than 100,000 points" in e.message
+    pts.write_text("u,v,depth,hand_angle\n" + "338,244,169.2,90\n" * 3 + "\n" * 1_000_000)
+    assert read_points_csv(pts)[2].shape == (3, 4)  # blank lines cost nothing
+    # Objects in a JSON file: 3 MiB of {} would be a million dicts.
+    targets = tmp_path / "objects.json"
+    targets.write_text("[" + "{}," * 1_000_001 + "{}]")
+    e = _error_within(10, load_targets, targets)
+    assert "not valid here: more than 1,000,000 objects" in e.message
