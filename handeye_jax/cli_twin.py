@@ -41,10 +41,13 @@ def _heldout(text: str) -> int:
 
 
 def _twin_seed(text: str) -> int:
-    v = _whole_number(text, -(2**63))
+    try:
+        v = parse_int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
     if not SEED_RANGE[0] <= v <= SEED_RANGE[1]:
-        raise argparse.ArgumentTypeError(f"must be 0 to 2^63 - 1, as numpy's generators take "
-                                         f"(got {v})")  # fmt: skip
+        why = f"must be 0 to 2^63 - 1: numpy's generators take no other seed (got {v})"
+        raise argparse.ArgumentTypeError(why)
     return v
 
 
