@@ -10,7 +10,7 @@ from typing import Any
 from .errors import InputError
 
 
-def _describe(x: Any) -> str:
+def describe(x: Any) -> str:
     """A short description of a TOML value for error messages."""
     if x is None:  # JSON's null; TOML has none
         return "null"
@@ -34,8 +34,51 @@ MAX_PX = 1e6
 MAX_MM = 1e5
 MAX_DEG = 3600.0
 
+# Sizes: what the toolkit can compute on one machine (the README's "Limits" list them).
+#: Landmarks in a dataset, a result or a twin's truth.
+MAX_LANDMARKS = 10_000
+#: DE population and generations (calibrate's options; a result's settings): ten times the
+#: paper's 10,000 each.
+MAX_POPULATION = 100_000
+MAX_GENERATIONS = 100_000
+#: DE population times landmarks: DE's working memory is about 48 bytes per member and
+#: landmark (measured 37-54 B), so this is about 5 GB. The paper's N = 10,000 fits 10,000
+#: landmarks.
+MAX_MEMBER_LANDMARKS = 100_000_000
+#: Points in a points CSV (predict) or held-out targets (simulate --heldout, heldout.csv).
+MAX_POINTS = 100_000
+MAX_HELDOUT = 10_000
+#: Pixels in a picture or depth image (detect) and in a twin's picture: 4096 x 4096.
+MAX_IMAGE_PIXELS = 4096 * 4096
 
-class _Reader:
+# Plausibility: values a rig cannot have.
+#: Largest angle between an image point's ray and the optical axis, deg: a pinhole picture
+#: wider than 160 deg does not exist.
+MAX_RAY_DEG = 80.0
+#: Size of one tablet px, mm (25.4 / ppi * scale): from a 2,540 ppi panel at scale 1 to a
+#: 25 ppi wall display at scale 3; a screen's pixel is within this.
+MM_PER_TABLET_PX = (0.01, 3.0)
+
+
+def parse_int(text: str) -> int:
+    """An integer in ASCII digits, as a command-line value or CSV cell is written.
+
+    Python's ``int`` also reads ``"１２"`` (full-width) and ``"1_000"``, which no user means;
+    raises ``ValueError`` for them.
+    """
+    if not text.isascii() or "_" in text:
+        raise ValueError(f"not a whole number: {text!r}")
+    return int(text)
+
+
+def parse_float(text: str) -> float:
+    """A number in ASCII (``"3.5"``, ``"-1e3"``, ``"nan"``): :func:`parse_int`'s rule for floats."""
+    if not text.isascii() or "_" in text:
+        raise ValueError(f"not a number: {text!r}")
+    return float(text)
+
+
+class Reader:
     """Pulls typed fields out of a parsed TOML document, naming the field on failure."""
 
     def __init__(self, path: Path | None):
@@ -47,15 +90,15 @@ class _Reader:
     def table(self, value: Any, where: str, keys: tuple[str, ...], optional: tuple[str, ...] = ()):
         """Check that ``value`` is a table holding exactly ``keys`` (``optional`` may be absent)."""
         if not isinstance(value, dict):
-            self.fail(where, f"must be a table (got {_describe(value)})")
+            self.fail(where, f"must be a table (got {describe(value)})")
         missing = [k for k in keys if k not in value and k not in optional]
         for k in value:
             if k not in keys:
                 hint = difflib.get_close_matches(k, missing or keys, n=1)
                 expected = f"did you mean {hint[0]!r}?" if hint else f"expected {', '.join(keys)}"
-                self.fail(_join(where, k), f"unknown key; {expected}")
+                self.fail(join_key(where, k), f"unknown key; {expected}")
         if missing:
-            self.fail(_join(where, missing[0]), "missing")
+            self.fail(join_key(where, missing[0]), "missing")
         return value
 
     def number(
@@ -70,7 +113,7 @@ class _Reader:
         """A finite float; ``positive``: > 0; ``limit``: at most this in magnitude;
         ``minimum``: at least this (``unit`` names its unit in the message)."""
         if isinstance(x, bool) or not isinstance(x, int | float):
-            self.fail(where, f"must be a number (got {_describe(x)})")
+            self.fail(where, f"must be a number (got {describe(x)})")
         try:
             value = float(x)
         except OverflowError:  # an integer beyond float64's range
@@ -87,9 +130,9 @@ class _Reader:
 
     def vector(self, x: Any, where: str, n: int, limit: float | None = None) -> list[float]:
         if not isinstance(x, list) or len(x) != n:
-            self.fail(where, f"must be an array of {n} numbers (got {_describe(x)})")
+            self.fail(where, f"must be an array of {n} numbers (got {describe(x)})")
         return [self.number(v, f"{where}[{i}]", limit=limit) for i, v in enumerate(x)]
 
 
-def _join(where: str, key: str) -> str:
+def join_key(where: str, key: str) -> str:
     return f"{where}.{key}" if where else key

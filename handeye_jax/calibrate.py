@@ -16,7 +16,7 @@ import numpy as np
 
 from . import _xla
 from ._x64 import in_float64
-from .dataset import Dataset, check_min_landmarks
+from .dataset import Dataset, check_min_landmarks, check_population
 from .diagnostics import bound_hits, diagnose
 from .errors import InputError
 from .losses import L1Loss, LossObjective, get_loss
@@ -195,6 +195,22 @@ def bound_warnings(
     return out
 
 
+#: A fit whose F is above this, mm, is no rig's: the paper's is 0.36 mm.
+F_DOES_NOT_FIT_MM = 100.0
+
+
+def fit_warnings(stage1: StageResult, stage2: StageResult) -> list[str]:
+    """A plain warning when F is so large that the data cannot be a rig's."""
+    F = max(stage1.F, stage2.F)
+    if F <= F_DOES_NOT_FIT_MM:
+        return []
+    return [
+        f"the data do not fit: F = {F:.4g} mm, more than {F_DOES_NOT_FIT_MM:g} mm (a working "
+        "rig fits to about 1 mm); do not use this result. Check the dataset's units (mm, deg, "
+        "px), [tablet] ppi and scale, [camera], and the hand-angle convention"
+    ]
+
+
 def _sign_twin(objective, cls, x) -> dict[str, Any]:
     names = getattr(cls, "sign_twin", ())
     if not names:
@@ -227,6 +243,7 @@ def calibrate(
     model_cls = get_model(settings.model)
     n_params = max(len(model_cls.param_names), len(AffinePair.param_names))
     check_min_landmarks(dataset, n_params, dataset.source)
+    check_population(dataset, settings.population)
     obs = dataset.observations()
     key1, key2 = _stage_keys(np.int64(settings.seed))
 
@@ -255,7 +272,8 @@ def calibrate(
     _check_finite(stage2, "stage 2", dataset.source)
     centres = _centres(np.asarray(x2), points, obs.centre_index)
 
-    warnings = bound_warnings(stage1.params, model_cls, dataset.search) + bound_warnings(
+    warnings = fit_warnings(stage1, stage2)
+    warnings += bound_warnings(stage1.params, model_cls, dataset.search) + bound_warnings(
         stage2.params, AffinePair, dataset.search
     )
     diagnostics: dict[str, Any] = {}

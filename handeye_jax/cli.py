@@ -13,6 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ._atomic import check_output, write_output
+from ._validate import MAX_GENERATIONS, MAX_POPULATION, parse_float, parse_int
 from ._xla import vectorise_small_loops
 from .errors import InputError
 
@@ -26,7 +27,7 @@ class _Parser(argparse.ArgumentParser):
 
 def _whole_number(text: str) -> int:
     try:
-        return int(text)
+        return parse_int(text)  # ASCII digits only
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
 
@@ -42,6 +43,25 @@ def _population(text: str) -> int:
     v = _positive_int(text)
     if v < 4:
         raise argparse.ArgumentTypeError(f"DE/rand/1 needs at least 4 members (got {v})")
+    if v > MAX_POPULATION:
+        raise argparse.ArgumentTypeError(f"must be at most {MAX_POPULATION:,} (got {v})")
+    return v
+
+
+def _generations(text: str) -> int:
+    v = _positive_int(text)
+    if v > MAX_GENERATIONS:
+        raise argparse.ArgumentTypeError(f"must be at most {MAX_GENERATIONS:,} (got {v})")
+    return v
+
+
+def _positive_number(text: str) -> float:
+    try:
+        v = parse_float(text)  # ASCII only
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0 < v < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0 (got {text})")
     return v
 
 
@@ -116,7 +136,7 @@ def _cmd_tablet(args: argparse.Namespace) -> int:
 
 def _port(text: str) -> int:
     try:
-        v = int(text)
+        v = parse_int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
     if not 0 <= v <= 65535:
@@ -126,7 +146,7 @@ def _port(text: str) -> int:
 
 def _positive_mm(text: str) -> float:
     try:
-        v = float(text)
+        v = parse_float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
     if not v > 0 or v == float("inf"):
@@ -170,7 +190,7 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"DE population N, both stages (default {d.population})",
     )  # fmt: skip
     cal.add_argument(
-        "--generations", type=_positive_int, default=d.generations,
+        "--generations", type=_generations, default=d.generations,
         help=f"most DE generations G, both stages (default {d.generations})",
     )  # fmt: skip
     cal.add_argument(
@@ -206,7 +226,7 @@ def build_parser() -> argparse.ArgumentParser:
     pre.add_argument("points", help="CSV with header u,v,depth,hand_angle")
     pre.add_argument("--out", metavar="OUT.csv", help="write here instead of standard output")
     pre.add_argument(
-        "--stage", type=int, choices=(1, 2), default=2,
+        "--stage", type=_whole_number, choices=(1, 2), default=2,
         help="2: eq. (25) with the affine correction (default); 1: eq. (8), model only",
     )  # fmt: skip
     pre.set_defaults(func=_cmd_predict)
@@ -231,8 +251,10 @@ def build_parser() -> argparse.ArgumentParser:
     tab.add_argument("--targets", metavar="TARGETS.json", help="evaluation targets, tablet px")
     tab.add_argument("--result", metavar="RESULT.json", help="the result being evaluated")
     tab.add_argument("--trials", metavar="TRIALS.json", help="where evaluation trials are saved")
-    tab.add_argument("--ppi", type=float, help="tablet px per inch (default: the dataset's)")
-    tab.add_argument("--scale", type=float, help="display scale (default: the dataset's)")
+    tab.add_argument("--ppi", type=_positive_number,
+                     help="tablet px per inch (default: the dataset's)")  # fmt: skip
+    tab.add_argument("--scale", type=_positive_number,
+                     help="display scale (default: the dataset's)")  # fmt: skip
     tab.set_defaults(func=_cmd_tablet)
     rep = sub.add_parser(
         "report",

@@ -12,22 +12,58 @@ from pathlib import Path
 import numpy as np
 from jaxtyping import Float
 
-from ._atomic import StagedFiles, check_folder_output, same_file, write_output
-from .cli import _output_path, _positive_int
+from ._atomic import StagedFiles, check_folder_output, check_output, same_file, write_output
+from ._validate import MAX_HELDOUT, parse_float, parse_int
 from .dataset import backup_path, save_dataset, update_dataset
 from .detect import DetectSettings, overlay_image, read_image
 from .errors import InputError
-from .simulate import encode_png
+from .simulate import DERIVED_FILES, DERIVED_FOLDER, SEED_RANGE, encode_png
+from .twin import MAX_DOT_PX
 
 
-def _positive_float(text: str) -> float:
+def _whole_number(text: str, lo: int, hi: int | None = None) -> int:
     try:
-        v = float(text)
+        v = parse_int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if v < lo or hi is not None and v > hi:
+        most = f"{lo} to {hi:,}" if hi is not None else f"at least {lo}"
+        raise argparse.ArgumentTypeError(f"must be {most} (got {v})")
+    return v
+
+
+def _positive_int(text: str) -> int:
+    return _whole_number(text, 1)
+
+
+def _heldout(text: str) -> int:
+    return _whole_number(text, 1, MAX_HELDOUT)
+
+
+def _twin_seed(text: str) -> int:
+    try:
+        v = parse_int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if not SEED_RANGE[0] <= v <= SEED_RANGE[1]:
+        why = f"must be 0 to 2^63 - 1: numpy's generators take no other seed (got {v})"
+        raise argparse.ArgumentTypeError(why)
+    return v
+
+
+def _dot_px(text: str) -> float:
+    try:
+        v = parse_float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not v > 0 or v == float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0 (got {text})")
+    if not 0 < v <= MAX_DOT_PX:
+        raise argparse.ArgumentTypeError(f"must be > 0 and at most {MAX_DOT_PX:g} (got {text})")
     return v
+
+
+def _output(path: str | None, option: str, inputs: list) -> Path | None:
+    """The output file of ``option``, checked before the work (see ``check_output``)."""
+    return None if path is None else check_output(path, option, inputs)
 
 
 def overlay_png(
@@ -55,11 +91,12 @@ def write_overlay(
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from .simulate import PRESETS, TWIN_FILES, simulate, write_twin
+    from .simulate import PRESETS, TWIN_FILES, check_twin_folder, simulate, write_twin
     from .twin import draw_truth, load_truth
 
     out = Path(args.out_dir)
     check_folder_output(out, TWIN_FILES, "", [args.truth])
+    stale = check_twin_folder(out, args.force)
     if args.truth:
         if args.dot_px is not None:
             raise InputError(None, "--dot-px", "the truth file sets the dot size (dot_px)")
@@ -68,10 +105,13 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         truth = draw_truth(args.seed, dot_px=1.0 if args.dot_px is None else args.dot_px)
     twin = simulate(truth, PRESETS[args.preset], args.seed, exact=args.exact,
                     n_heldout=args.heldout)  # fmt: skip
-    paths = write_twin(twin, out)
+    paths = write_twin(twin, out, force=args.force)
     how = "exact" if args.exact else "detected"
     print(f"twin (seed {args.seed}, preset {args.preset}, image_px and depth {how}) written "
           f"to {out}: {', '.join(p.name for p in paths)}")  # fmt: skip
+    if stale:
+        names = ", ".join(str(p.relative_to(out)) for p in stale)
+        print(f"removed what was made from the old twin: {names}")
     return 0
 
 
@@ -80,14 +120,14 @@ def _cmd_detect(args: argparse.Namespace) -> int:
     from .detect import BlobCountError, detect_landmarks, fill_dataset
 
     images = [args.capture, args.depth]
-    out = _output_path(args.out, "--out", images)
+    out = _output(args.out, "--out", images)
     in_place = out is None or same_file(out, args.dataset)
     written = [args.dataset, backup_path(args.dataset)] if in_place else [out]
-    overlay = _output_path(args.overlay, "--overlay", [*images, args.dataset, *written])
+    overlay = _output(args.overlay, "--overlay", [*images, args.dataset, *written])
     dataset = load_dataset(args.dataset)
     if in_place:
         for path in written:
-            _output_path(path, "--dataset", images)
+            _output(path, "--dataset", images)
     if args.min_area > args.max_area:
         why = f"must be <= --max-area (got {args.min_area} > {args.max_area})"
         raise InputError(None, "--min-area", why)
@@ -127,9 +167,8 @@ def _cmd_detect(args: argparse.Namespace) -> int:
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     from .evaluate import evaluate_twin, format_evaluation
-    from .result import load_result
 
-    print(format_evaluation(evaluate_twin(load_result(args.result), args.twin_dir)))
+    print(format_evaluation(evaluate_twin(args.result, args.twin_dir)))
     return 0
 
 
@@ -140,10 +179,12 @@ def add_twin_commands(sub: argparse._SubParsersAction) -> None:
         help="a synthetic twin of the rig: pictures, dataset, truth and held-out targets",
         description="Draw a rig truth (or read --truth), render the camera's colour and depth "
         "images of the tablet, detect the landmarks, simulate the touches, and write "
-        "dataset.toml, capture.png, depth.png, truth.json and heldout.csv into OUT_DIR.",
+        "dataset.toml, capture.png, depth.png, truth.json and heldout.csv into OUT_DIR, a new "
+        "or empty folder (see --force).",
     )
-    sim.add_argument("out_dir", help="folder to write (created if missing)")
-    sim.add_argument("--seed", type=int, default=1, help="seeds the truth and every noise draw")
+    sim.add_argument("out_dir", help="folder to write: new or empty (created if missing)")
+    sim.add_argument("--seed", type=_twin_seed, default=1,
+                     help="seeds the truth and every noise draw, 0 to 2^63 - 1")  # fmt: skip
     sim.add_argument(
         "--preset",
         choices=("none", "paper", "harsh"),
@@ -156,11 +197,20 @@ def add_twin_commands(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="take image_px and depth from the truth instead of the detector",
     )
-    sim.add_argument("--heldout", type=_positive_int, default=20, help="held-out targets")
+    sim.add_argument("--heldout", type=_heldout, default=20,
+                     help=f"held-out targets, 1 to {MAX_HELDOUT:,} (default 20)")  # fmt: skip
     sim.add_argument(
         "--dot-px",
-        type=_positive_float,
-        help="side of the landmark dots, tablet px (default 1, as the paper; not with --truth)",
+        type=_dot_px,
+        help=f"side of the landmark dots, tablet px, at most {MAX_DOT_PX:g} (default 1, as the "
+        "paper; not with --truth)",
+    )
+    sim.add_argument(
+        "--force",
+        action="store_true",
+        help="write into a folder that is not empty: replace an old twin's files and remove "
+        f"what was made from it ({', '.join(DERIVED_FILES)}, the figures in {DERIVED_FOLDER}/);"
+        " other files are left as they are",
     )
     sim.set_defaults(func=_cmd_simulate)
 
@@ -197,7 +247,9 @@ def add_twin_commands(sub: argparse._SubParsersAction) -> None:
         description="Send the hand to each held-out target of TWIN_DIR as RESULT predicts "
         "it (stage 1 and 2), see where the true pen lands, and print the mean and max "
         "touching error in mm and tablet px, beside the oracle (the true parameters) and the "
-        "oracle with a stage-2 correction fitted on top (by the result's settings).",
+        "oracle with a stage-2 correction fitted on top (by the result's settings, with at most "
+        "the default population and generations). RESULT must have been fitted on TWIN_DIR's "
+        "dataset.toml.",
     )
     ev.add_argument("result", help="result file from 'calibrate --out'")
     ev.add_argument("twin_dir", help="folder written by 'simulate'")

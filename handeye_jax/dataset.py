@@ -37,7 +37,9 @@ errors, so a typo never goes unnoticed::
     touch_error_px = [-3.0, 1.0]    # touched minus drawn position, tablet px
 
 Numbers may be written as integers or floats (booleans are not numbers); NaN and infinities
-are rejected. :func:`load_dataset` raises :class:`~handeye_jax.errors.InputError` naming the
+are rejected. Values no rig has are refused too: an ``image_px`` more than 80 deg off the
+camera's optical axis, a tablet px outside 0.01 to 3 mm, more than 10,000 landmarks, a file
+over 4 MiB. :func:`load_dataset` raises :class:`~handeye_jax.errors.InputError` naming the
 file and the field (``landmarks[3].depth``, ``camera.fx``, ``search.xt``…) for any violation.
 :func:`save_dataset` writes atomically and only what :func:`load_dataset` accepts;
 :func:`update_dataset` changes an existing file's values in place, keeping its comments, key
@@ -64,7 +66,19 @@ import tomlkit.items
 
 from . import geometry as geo
 from ._atomic import StagedFiles, write_output
-from ._validate import MAX_DEG, MAX_MM, MAX_PX, _describe, _join, _Reader
+from ._io import MAX_DATASET_BYTES, parse_toml, read_text
+from ._validate import (
+    MAX_DEG,
+    MAX_LANDMARKS,
+    MAX_MEMBER_LANDMARKS,
+    MAX_MM,
+    MAX_PX,
+    MAX_RAY_DEG,
+    MM_PER_TABLET_PX,
+    Reader,
+    describe,
+    join_key,
+)
 from ._x64 import in_float64
 from .errors import InputError
 from .observations import Observations, Rig, centre_landmark
@@ -250,16 +264,16 @@ def known_search_names() -> frozenset[str]:
 
 
 def _parse(doc: dict[str, Any], path: Path | None) -> Dataset:
-    r = _Reader(path)
+    r = Reader(path)
     if "format" not in doc:
         r.fail("format", f"missing; expected {FORMAT!r}")
     if doc["format"] != FORMAT:
-        r.fail("format", f"expected {FORMAT!r} (got {_describe(doc['format'])})")
+        r.fail("format", f"expected {FORMAT!r} (got {describe(doc['format'])})")
     r.table(doc, "", _TOP_KEYS, _OPTIONAL_TOP_KEYS)
 
     name = doc["name"]
     if not isinstance(name, str) or not name.strip():
-        r.fail("name", f"must be a non-empty string (got {_describe(name)})")
+        r.fail("name", f"must be a non-empty string (got {describe(name)})")
 
     cam = r.table(doc["camera"], "camera", _CAMERA_KEYS)
     camera = Camera(
@@ -273,6 +287,7 @@ def _parse(doc: dict[str, Any], path: Path | None) -> Dataset:
     tablet = r.table(doc["tablet"], "tablet", _TABLET_KEYS)
     ppi = r.number(tablet["ppi"], "tablet.ppi", True, 1e5, minimum=1)
     scale = r.number(tablet["scale"], "tablet.scale", True, 100, minimum=0.01)
+    check_tablet_px(ppi, scale, path, "tablet")
     angle = r.table(doc["hand_angle"], "hand_angle", _HAND_ANGLE_KEYS)
     zero = r.number(angle["zero"], "hand_angle.zero", limit=MAX_DEG)
     sign = r.number(angle["sign"], "hand_angle.sign")
@@ -283,10 +298,10 @@ def _parse(doc: dict[str, Any], path: Path | None) -> Dataset:
     if "search" in doc:
         table = doc["search"]
         if not isinstance(table, dict):
-            r.fail("search", f"must be a table (got {_describe(table)})")
+            r.fail("search", f"must be a table (got {describe(table)})")
         known = known_search_names()
         for key, value in table.items():
-            where = _join("search", key)
+            where = join_key("search", key)
             if key not in known:
                 hint = difflib.get_close_matches(key, sorted(known), n=1)
                 more = f"did you mean {hint[0]!r}?" if hint else "no model has this parameter"
@@ -298,15 +313,19 @@ def _parse(doc: dict[str, Any], path: Path | None) -> Dataset:
 
     marks = doc["landmarks"]
     if not isinstance(marks, list) or not all(isinstance(m, dict) for m in marks):
-        r.fail("landmarks", f"must be an array of tables, [[landmarks]] (got {_describe(marks)})")
+        r.fail("landmarks", f"must be an array of tables, [[landmarks]] (got {describe(marks)})")
     if not marks:
         r.fail("landmarks", "needs at least 1 landmark (got 0)")
+    if len(marks) > MAX_LANDMARKS:
+        r.fail("landmarks", f"has {len(marks):,} landmarks; at most {MAX_LANDMARKS:,} can be "
+               "calibrated")  # fmt: skip
     rows: dict[str, list] = {k: [] for k in _LANDMARK_KEYS}
     for i, mark in enumerate(marks):
         where = f"landmarks[{i}]"
         r.table(mark, where, _LANDMARK_KEYS)
         rows["tablet_px"].append(r.vector(mark["tablet_px"], f"{where}.tablet_px", 2, MAX_PX))
         rows["image_px"].append(r.vector(mark["image_px"], f"{where}.image_px", 2, MAX_PX))
+        _check_ray(r, rows["image_px"][-1], camera, f"{where}.image_px")
         rows["depth"].append(r.number(mark["depth"], f"{where}.depth", positive=True, limit=MAX_MM))
         rows["hand_xy"].append(r.vector(mark["hand_xy"], f"{where}.hand_xy", 2, MAX_MM))
         rows["hand_angle"].append(
@@ -336,6 +355,34 @@ def _parse(doc: dict[str, Any], path: Path | None) -> Dataset:
     )
 
 
+def check_tablet_px(ppi: float, scale: float, path: str | Path | None, field: str) -> float:
+    """One tablet px in mm (eq. 9); :class:`InputError` naming ``field`` unless a screen's.
+
+    A screen's pixel is :data:`~handeye_jax._validate.MM_PER_TABLET_PX` (0.01 to 3 mm); ppi
+    and scale that make it larger or smaller are a typo (``ppi = 1``, ``scale = 100``: 2.5 m).
+    """
+    mm = geo.mm_per_tablet_px(ppi, scale)
+    lo, hi = MM_PER_TABLET_PX
+    if not lo <= mm <= hi:
+        raise InputError(
+            path, field,
+            f"one tablet px is 25.4 / ppi * scale = {mm:.4g} mm (ppi {ppi:g}, scale {scale:g}); "
+            f"a screen's pixel is {lo:g} to {hi:g} mm: check ppi and scale",
+        )  # fmt: skip
+    return mm
+
+
+def _check_ray(r: Reader, uv: list[float], camera: Camera, where: str) -> None:
+    """Refuse an image point more than MAX_RAY_DEG off the optical axis: not in a picture."""
+    x = (uv[0] - camera.cx_px) / camera.fx_px
+    y = (uv[1] - camera.cy_px) / camera.fy_px
+    angle = math.degrees(math.atan(math.hypot(x, y)))
+    if angle > MAX_RAY_DEG:
+        r.fail(where, f"is {angle:.1f} deg off the camera's optical axis (at most "
+               f"{MAX_RAY_DEG:g} deg with [camera]'s fx, fy, cx, cy): no point of a picture; "
+               f"check image_px and [camera] (got [{uv[0]:g}, {uv[1]:g}])")  # fmt: skip
+
+
 def _check_distinct(tablet_px: Any, path: str | Path | None) -> None:
     """Two landmarks drawn at the same place are one landmark measured twice: reject."""
     first: dict[tuple[float, float], int] = {}
@@ -350,27 +397,23 @@ def _check_distinct(tablet_px: Any, path: str | Path | None) -> None:
 
 
 def load_dataset(path: str | Path) -> Dataset:
-    """Read and validate a ``handeye-jax.dataset/1`` file; raises :class:`InputError`."""
+    """Read and validate a ``handeye-jax.dataset/1`` file; raises :class:`InputError`.
+
+    The file must be a regular file of at most 4 MiB
+    (:data:`~handeye_jax._io.MAX_DATASET_BYTES`) with at most 10,000 landmarks.
+    """
     path = Path(path)
     return _parse_text(_read(path)[1], path)
 
 
 def _read(path: Path) -> tuple[bytes, str]:
     """The file's bytes and its text (UTF-8, a BOM allowed); :class:`InputError` if unreadable."""
-    try:
-        raw = path.read_bytes()
-        return raw, raw.decode("utf-8-sig")
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(path, "", f"cannot read file: {e}") from None
+    return read_text(path, MAX_DATASET_BYTES)
 
 
 def _parse_text(text: str, path: Path, context: str = "") -> Dataset:
     """Validate a dataset's TOML text; ``context`` is added to a TOML syntax error."""
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise InputError(path, "", f"not valid TOML{context}: {e}") from None
-    return _parse(doc, path)
+    return _parse(parse_toml(text, path, context), path)
 
 
 def check_min_landmarks(ds: Dataset, n_params: int, path: str | Path | None = None) -> None:
@@ -387,6 +430,20 @@ def check_min_landmarks(ds: Dataset, n_params: int, path: str | Path | None = No
             f"needs at least {need} landmarks to fit {n_params} parameters (got {ds.n_landmarks})",
         )  # fmt: skip
     _check_distinct(ds.tablet_px, path)
+
+
+def check_population(ds: Dataset, population: int, path: str | Path | None = None) -> None:
+    """Raise :class:`InputError` if DE with ``population`` members on ``ds`` would need more
+    memory than a machine has: population x landmarks at most 10^8 (about 5 GB)."""
+    path = ds.source if path is None else path
+    if population * ds.n_landmarks > MAX_MEMBER_LANDMARKS:
+        most = MAX_MEMBER_LANDMARKS // ds.n_landmarks
+        raise InputError(
+            path, "landmarks",
+            f"{ds.n_landmarks:,} landmarks with a DE population of {population:,} need about "
+            f"{population * ds.n_landmarks * 48 / 1e9:.0f} GB; use a population of at most "
+            f"{most:,} (population x landmarks <= {MAX_MEMBER_LANDMARKS:,})",
+        )  # fmt: skip
 
 
 # -- writing ----------------------------------------------------------------------------------

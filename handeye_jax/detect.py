@@ -23,11 +23,13 @@ centre of pixel ``(row v, column u)`` is ``(u, v)``, as in the dataset's ``image
 
 from __future__ import annotations
 
+import io
 import itertools
 import os
 import struct
 import sys
 import tempfile
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,6 +37,8 @@ import cv2
 import numpy as np
 from jaxtyping import Float, Int, UInt8, UInt16
 
+from ._io import MAX_IMAGE_BYTES, read_bytes
+from ._validate import MAX_IMAGE_PIXELS
 from .dataset import Dataset
 from .errors import InputError
 
@@ -298,14 +302,20 @@ def depth_at(
 
 
 def read_image(path: str | Path, *, depth: bool = False) -> np.ndarray:
-    """Read a colour (``uint8``) or depth (``uint16`` mm, one channel) PNG; InputError if bad."""
+    """Read a colour (``uint8``) or depth (``uint16`` mm, one channel) PNG; InputError if bad.
+
+    The file must be a regular file of at most 64 MiB (``MAX_IMAGE_BYTES``) whose header
+    says at most 4096 x 4096 px (``MAX_IMAGE_PIXELS``); that is checked before decoding.
+    """
     path = Path(path)
-    try:
-        data = np.fromfile(path, dtype=np.uint8)
-    except OSError as e:
-        raise InputError(path, "", f"cannot read image: {e.strerror or e}") from None
+    raw = read_bytes(path, MAX_IMAGE_BYTES, "image")
+    data = np.frombuffer(raw, dtype=np.uint8)
     if data.size == 0:
         raise InputError(path, "", "image file is empty")
+    w, h = _header_size(path, raw)
+    if w * h > MAX_IMAGE_PIXELS:
+        raise InputError(path, "", f"cannot read image: too large ({w}x{h} px; at most "
+                         f"{MAX_IMAGE_PIXELS:,} px, e.g. 4096x4096)")  # fmt: skip
     try:
         image, printed = _decode(data)
     except cv2.error as e:
@@ -341,6 +351,27 @@ def _decode(data: np.ndarray) -> tuple[np.ndarray | None, str]:
             os.close(saved)
         caught.seek(0)
         return image, caught.read().decode("utf-8", "replace")
+
+
+def _header_size(path: Path, data: bytes) -> tuple[int, int]:
+    """The picture's ``(width, height)``, px, from its header, without decoding it.
+
+    Raises :class:`InputError` naming ``path`` when it is not a picture Pillow identifies.
+    """
+    if data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR":
+        return struct.unpack(">II", data[16:24])
+    from PIL import Image  # matplotlib's dependency; open() reads only the header
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+        try:
+            with Image.open(io.BytesIO(data)) as image:
+                return image.size
+        except Image.DecompressionBombError:  # more than twice Pillow's own limit
+            why = f"too large (more than {2 * Image.MAX_IMAGE_PIXELS:,} px)"
+        except Exception:  # noqa: BLE001 - whatever Pillow raises, it is no picture it knows
+            why = "not a PNG, JPEG or TIFF picture"
+    raise InputError(path, "", f"cannot read image: {why}")
 
 
 def _refused(data: np.ndarray, e: cv2.error) -> str:

@@ -25,7 +25,7 @@ from .dataset import Dataset, load_dataset
 from .errors import InputError
 from .models import AbstractModel
 from .predict import csv_number, hand_command, read_points_csv
-from .result import CalibrationResult
+from .result import OBSERVATION_ARRAYS, CalibrationResult, load_result
 from .twin import TwinTruth, load_truth
 
 
@@ -127,7 +127,8 @@ def evaluate(
 
     Rows, in order: ``stage 1`` and ``stage 2`` (the result, eqs. 8 and 25), ``oracle`` (the
     true parameters, eq. 8) and, when ``dataset`` is given, ``oracle + stage 2`` (the true
-    parameters with a stage-2 correction fitted to ``dataset`` by the result's settings).
+    parameters with a stage-2 correction fitted to ``dataset`` as the result's stage 2 was,
+    :func:`oracle_settings`).
 
     Args:
         result: a calibration of the twin's dataset.
@@ -144,8 +145,7 @@ def evaluate(
     model, rig = truth.htm(), truth.rig()
     rows.append(("oracle", hand_command(model, rig, image_px, depth_mm, angle_deg)))
     if dataset is not None:
-        known = {k: v for k, v in result.settings.items() if k in Settings.__dataclass_fields__}
-        correction, centres = fit_correction(dataset, model, Settings(**known))
+        correction, centres = fit_correction(dataset, model, oracle_settings(result))
         cmd = hand_command(model, rig, image_px, depth_mm, angle_deg, correction,
                            jnp.asarray(centres))  # fmt: skip
         rows.append(("oracle + stage 2", cmd))
@@ -159,17 +159,82 @@ def evaluate(
     ]
 
 
-def evaluate_twin(result: CalibrationResult, twin_dir: str | Path) -> list[TouchingError]:
+def oracle_settings(result: CalibrationResult) -> Settings:
+    """How the oracle's stage 2 is fitted: as the result's stage 2 was (its seed and DE
+    settings), but with at most the default population and generations.
+
+    A result file records what its calibration ran, not what an evaluation may allocate: a
+    file saying ``population = 10**9`` once made ``evaluate`` allocate 80 GB.
+    """
+    known = {k: v for k, v in result.settings.items() if k in Settings.__dataclass_fields__}
+    budget = Settings()
+    known["population"] = min(known.get("population", budget.population), budget.population)
+    known["generations"] = min(known.get("generations", budget.generations), budget.generations)
+    return Settings(**{**known, "seed": result.seed})
+
+
+def evaluate_twin(
+    result: CalibrationResult | str | Path, twin_dir: str | Path
+) -> list[TouchingError]:
     """:func:`evaluate` on a folder written by ``simulate``, with the oracle's stage 2.
 
-    Reads ``truth.json``, ``heldout.csv`` and ``dataset.toml`` from ``twin_dir``.
+    Reads ``truth.json``, ``heldout.csv`` and ``dataset.toml`` from ``twin_dir``; ``result``
+    is a result or its file. Raises :class:`InputError` unless the result was fitted on that
+    ``dataset.toml`` (:func:`check_fitted_on`).
     """
     twin_dir = Path(twin_dir)
+    result_path = None
+    if not isinstance(result, CalibrationResult):
+        result_path = Path(result)
+        result = load_result(result_path)
     if not twin_dir.is_dir():
         raise InputError(twin_dir, "", "not a folder written by 'handeye-jax simulate'")
+    dataset = load_dataset(twin_dir / "dataset.toml")
+    check_fitted_on(result, dataset, result_path)
     truth = load_truth(twin_dir / "truth.json")
     heldout = load_heldout(twin_dir / "heldout.csv")
-    return evaluate(result, truth, heldout, load_dataset(twin_dir / "dataset.toml"))
+    return evaluate(result, truth, heldout, dataset)
+
+
+def check_fitted_on(
+    result: CalibrationResult, dataset: Dataset, result_path: str | Path | None = None
+) -> None:
+    """Raise :class:`InputError` unless ``result`` was fitted on ``dataset``.
+
+    Compared: the dataset's name, its rig (camera, capture position, hand-angle convention),
+    its number of landmarks and, when the result carries them, every landmark array. The
+    message names the result's file (``result_path``) and the dataset's.
+    """
+    where = dataset.source or "the dataset"
+    path = result_path if result_path is not None else dataset.source
+
+    def refuse(why: str):
+        raise InputError(path, "dataset", f"{why}; evaluate a result on the twin it was "
+                         "fitted on")  # fmt: skip
+
+    if result.dataset != dataset.name:
+        refuse(f"fitted on dataset {result.dataset!r}, not on {dataset.name!r} ({where})")
+    c = dataset.camera
+    cam = result.rig["camera_px"]
+    mine = [c.fx_px, c.fy_px, c.cx_px, c.cy_px, *dataset.capture_position_mm,
+            dataset.hand_angle_zero_deg, dataset.hand_angle_sign]  # fmt: skip
+    theirs = [cam["fx"], cam["fy"], cam["cx"], cam["cy"], *result.rig["capture_hand_position_mm"],
+              result.rig["hand_angle"]["zero_deg"], result.rig["hand_angle"]["sign"]]  # fmt: skip
+    if not np.array_equal(np.asarray(mine, float), np.asarray(theirs, float)):
+        refuse(f"fitted on a dataset {result.dataset!r} with another camera, capture position "
+               f"or hand-angle convention than {where}")  # fmt: skip
+    n = len(result.stage1.residuals_mm) or dataset.n_landmarks
+    if n != dataset.n_landmarks:
+        refuse(f"fitted on {n} landmarks of a dataset {result.dataset!r}; {where} has "
+               f"{dataset.n_landmarks}")  # fmt: skip
+    obs = result.observations
+    for name in OBSERVATION_ARRAYS if obs else ():
+        ours, fitted = getattr(dataset, name), np.asarray(obs[name], dtype=float)
+        if fitted.shape != ours.shape or not np.array_equal(fitted, ours):
+            refuse(f"fitted on a dataset {result.dataset!r} whose {name} differs from {where}'s")
+    if obs and obs["mm_per_tablet_px"] != dataset.mm_per_tablet_px:
+        refuse(f"fitted on a dataset {result.dataset!r} with another tablet ppi or scale than "
+               f"{where}")  # fmt: skip
 
 
 def format_evaluation(rows: list[TouchingError]) -> str:

@@ -7,13 +7,15 @@ from __future__ import annotations
 
 import csv
 import io
+import itertools
 import math
 from pathlib import Path
 
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._validate import MAX_DEG, MAX_MM, MAX_PX
+from ._io import MAX_TEXT_BYTES, csv_rows, read_text
+from ._validate import MAX_DEG, MAX_MM, MAX_POINTS, MAX_PX, parse_float
 from .errors import InputError
 from .models import AbstractCorrection, AbstractModel
 from .observations import Rig
@@ -54,14 +56,12 @@ def read_points_csv(path: str | Path) -> tuple[list[str], list[list[str]], np.nd
     """Read a points CSV; returns ``(header, rows, values)`` with ``values`` (n, 4) float64.
 
     The header must start with ``u,v,depth,hand_angle``; extra columns are kept as they are.
+    At most 100,000 points (:data:`~handeye_jax._validate.MAX_POINTS`) in at most 16 MiB.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")  # a BOM, as spreadsheets write, is fine
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(path, "", f"cannot read file: {e}") from None
-    reader = csv.reader(io.StringIO(text))
-    lines = [row for row in reader if any(cell.strip() for cell in row)]
+    _, text = read_text(path, MAX_TEXT_BYTES)  # a BOM, as spreadsheets write, is fine
+    # Read no further than one row past the limit: 16 MiB of blank rows holds 16 million.
+    lines = list(itertools.islice(csv_rows(text, path), MAX_POINTS + 2))
     if not lines:
         raise InputError(path, "header", f"file is empty; expected {','.join(POINTS_HEADER)}")
     header = [h.strip() for h in lines[0]]
@@ -78,6 +78,8 @@ def read_points_csv(path: str | Path) -> tuple[list[str], list[list[str]], np.nd
     rows = lines[1:]
     if not rows:
         raise InputError(path, "rows", "no points after the header")
+    if len(rows) > MAX_POINTS:
+        raise InputError(path, "rows", f"has more than {MAX_POINTS:,} points, the most read")
     values = np.empty((len(rows), 4))
     for i, row in enumerate(rows, start=2):
         if len(row) != len(header):
@@ -90,11 +92,12 @@ def read_points_csv(path: str | Path) -> tuple[list[str], list[list[str]], np.nd
 
 
 def csv_number(path: Path, where: str, cell: str, limit: float) -> float:
-    """A CSV cell as a finite float at most ``limit`` in magnitude; :class:`InputError` if not."""
+    """A CSV cell as a finite float at most ``limit`` in magnitude; :class:`InputError` if not.
+
+    ASCII only: Python's ``float`` also reads ``"3_38"`` as 338 and full-width digits.
+    """
     try:
-        if "_" in cell:  # Python's float() reads "3_38" as 338; a CSV never means that
-            raise ValueError
-        x = float(cell)
+        x = parse_float(cell)
     except ValueError:
         raise InputError(path, where, f"not a number: {cell!r}") from None
     if not math.isfinite(x):

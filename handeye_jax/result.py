@@ -18,9 +18,20 @@ from jaxtyping import Array, Float
 
 from ._atomic import write_output
 from ._frames import Frames
-from ._validate import MAX_DEG, MAX_MM, MAX_PX, _describe, _join, _Reader
+from ._io import MAX_RESULT_BYTES, load_json
+from ._validate import (
+    MAX_DEG,
+    MAX_GENERATIONS,
+    MAX_LANDMARKS,
+    MAX_MM,
+    MAX_POPULATION,
+    MAX_PX,
+    MM_PER_TABLET_PX,
+    Reader,
+    describe,
+    join_key,
+)
 from ._x64 import in_float64
-from .errors import InputError
 from .frames import compute_frames
 from .losses import LOSS_NAMES
 from .models import AbstractCorrection, AbstractModel, AffinePair, get_model, model_registry
@@ -199,8 +210,6 @@ AFFINE_SCALES = ("Sx1", "Sy1", "Sx2", "Sy2")
 #: Largest magnitude of a fitted parameter: the widest search range a dataset admits (DE and
 #: the LM polish stay inside their range).
 MAX_PARAM = 1e6
-#: Largest tablet pixel, mm: 1 ppi at display scale 100, the coarsest a dataset admits.
-MAX_MM_PER_TABLET_PX = 25.4 * 100
 #: Largest magnitude of each landmark array of ``observations``.
 OBSERVATION_LIMITS = {
     "tablet_px": MAX_PX, "image_px": MAX_PX, "depth_mm": MAX_MM, "hand_xy_mm": MAX_MM,
@@ -220,21 +229,21 @@ def load_result(path: str | Path) -> CalibrationResult:
     calibration summary prints are not.
     """
     path = Path(path)
-    r = _Reader(path)
-    doc = _read_json(path, r)
+    r = Reader(path)
+    doc = load_json(path, MAX_RESULT_BYTES)
     if not isinstance(doc, dict):
-        r.fail("", f"must be a JSON object (got {_describe(doc)})")
+        r.fail("", f"must be a JSON object (got {describe(doc)})")
     for key in ("format", "model", "seed", "rig", "stage1", "stage2", "centre_index",
                 "centres_mm"):  # fmt: skip
         _field(r, doc, key, "")
     if doc["format"] != FORMAT:
-        r.fail("format", f"expected {FORMAT!r} (got {_describe(doc['format'])})")
+        r.fail("format", f"expected {FORMAT!r} (got {describe(doc['format'])})")
     model = _model_name(r, doc["model"], "model")
     seed = _integer(r, doc["seed"], "seed", *SEED_RANGE)
     rig = _rig(r, doc["rig"])
     centres = doc["centres_mm"]
     if not isinstance(centres, list) or len(centres) != 2:
-        r.fail("centres_mm", f"must be a list of two [x, y] points (got {_describe(centres)})")
+        r.fail("centres_mm", f"must be a list of two [x, y] points (got {describe(centres)})")
     centres = [r.vector(c, f"centres_mm[{i}]", 2, MAX_MM) for i, c in enumerate(centres)]
     observations = _observations(r, doc)
     stage1 = _stage(r, doc, "stage1", get_model(model).param_names)
@@ -255,16 +264,16 @@ def load_result(path: str | Path) -> CalibrationResult:
             check(r, settings[key], f"settings.{key}")
     dataset = doc.get("dataset", "")
     if not isinstance(dataset, str):
-        r.fail("dataset", f"must be a string (got {_describe(dataset)})")
+        r.fail("dataset", f"must be a string (got {describe(dataset)})")
     timings = _optional_table(r, doc, "timings_s")
     for key, value in timings.items():
         r.number(value, f"timings_s.{key}")
     warnings = doc.get("warnings", [])
     if not isinstance(warnings, list):
-        r.fail("warnings", f"must be an array of strings (got {_describe(warnings)})")
+        r.fail("warnings", f"must be an array of strings (got {describe(warnings)})")
     for i, w in enumerate(warnings):
         if not isinstance(w, str):
-            r.fail(f"warnings[{i}]", f"must be a string (got {_describe(w)})")
+            r.fail(f"warnings[{i}]", f"must be a string (got {describe(w)})")
     return CalibrationResult(
         model=model,
         seed=seed,
@@ -283,77 +292,15 @@ def load_result(path: str | Path) -> CalibrationResult:
     )
 
 
-def _read_json(path: Path, r: _Reader) -> Any:
-    """The parsed file; a key repeated within an object is an error, not the last one wins."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(path, "", f"cannot read file: {e}") from None
-
-    def parse_int(digits: str) -> int:
-        try:
-            return int(digits)
-        except ValueError:  # beyond Python's limit on digits
-            r.fail("", f"not valid here: an integer of {len(digits.lstrip('-'))} digits")
-
-    try:
-        doc = json.loads(text, object_pairs_hook=_Object.from_pairs, parse_int=parse_int)
-    except json.JSONDecodeError as e:
-        raise InputError(path, "", f"not valid JSON: {e}") from None
-    except RecursionError:
-        raise InputError(path, "", "not valid here: arrays or objects nested too deeply") from None
-    where = _repeated_key(doc)
-    if where is not None:
-        r.fail(where, "duplicate key: a key may appear only once in an object")
-    return doc
-
-
-class _Object(dict):
-    """A JSON object; ``repeated`` is its first key that appears more than once, if any."""
-
-    repeated: str | None = None
-
-    @classmethod
-    def from_pairs(cls, pairs: list[tuple[str, Any]]) -> dict[str, Any]:
-        obj = dict(pairs)
-        if len(obj) == len(pairs):
-            return obj
-        seen: set[str] = set()
-        for key, _ in pairs:
-            if key in seen:
-                break
-            seen.add(key)
-        out = cls(obj)
-        out.repeated = key
-        return out
-
-
-def _repeated_key(doc: Any) -> str | None:
-    """Where the first repeated key in document order is, e.g. ``rig.camera_px.fx``."""
-    stack = [("", doc)]
-    while stack:
-        where, x = stack.pop()
-        if isinstance(x, _Object):
-            return _join(where, x.repeated)
-        if isinstance(x, dict):
-            items = [(_join(where, k), v) for k, v in x.items()]
-        elif isinstance(x, list):
-            items = [(f"{where}[{i}]", v) for i, v in enumerate(x)]
-        else:
-            continue
-        stack.extend(reversed(items))
-    return None
-
-
-def _field(r: _Reader, table: dict[str, Any], key: str, where: str) -> Any:
+def _field(r: Reader, table: dict[str, Any], key: str, where: str) -> Any:
     if key not in table:
-        r.fail(_join(where, key), "missing")
+        r.fail(join_key(where, key), "missing")
     return table[key]
 
 
-def _integer(r: _Reader, x: Any, where: str, low: int | None = None, high: int | None = None):
+def _integer(r: Reader, x: Any, where: str, low: int | None = None, high: int | None = None):
     if isinstance(x, bool) or not isinstance(x, int):
-        r.fail(where, f"must be an integer (got {_describe(x)})")
+        r.fail(where, f"must be an integer (got {describe(x)})")
     if low is not None and x < low or high is not None and x > high:
         got = x if len(str(x)) <= 24 else f"an integer of {len(str(abs(x)))} digits"
         if high is None:
@@ -362,23 +309,23 @@ def _integer(r: _Reader, x: Any, where: str, low: int | None = None, high: int |
     return x
 
 
-def _count(r: _Reader, x: Any, where: str) -> int:
+def _count(r: Reader, x: Any, where: str) -> int:
     return _integer(r, x, where, 0)
 
 
-def _boolean(r: _Reader, x: Any, where: str) -> bool:
+def _boolean(r: Reader, x: Any, where: str) -> bool:
     if not isinstance(x, bool):
-        r.fail(where, f"must be true or false (got {_describe(x)})")
+        r.fail(where, f"must be true or false (got {describe(x)})")
     return x
 
 
-def _string(r: _Reader, x: Any, where: str) -> str:
+def _string(r: Reader, x: Any, where: str) -> str:
     if not isinstance(x, str):
-        r.fail(where, f"must be a string (got {_describe(x)})")
+        r.fail(where, f"must be a string (got {describe(x)})")
     return x
 
 
-def _length(r: _Reader, x: Any, where: str) -> float:
+def _length(r: Reader, x: Any, where: str) -> float:
     """An error length or a mean of them, mm: finite and >= 0."""
     v = r.number(x, where)
     if v < 0:
@@ -386,32 +333,32 @@ def _length(r: _Reader, x: Any, where: str) -> float:
     return v
 
 
-def _numbers(r: _Reader, x: Any, where: str) -> list[float]:
+def _numbers(r: Reader, x: Any, where: str) -> list[float]:
     if not isinstance(x, list):
-        r.fail(where, f"must be an array of numbers (got {_describe(x)})")
+        r.fail(where, f"must be an array of numbers (got {describe(x)})")
     return [r.number(v, f"{where}[{i}]") for i, v in enumerate(x)]
 
 
-def _model_name(r: _Reader, x: Any, where: str) -> str:
+def _model_name(r: Reader, x: Any, where: str) -> str:
     if not isinstance(x, str) or x not in model_registry():
         known = ", ".join(sorted(model_registry()))
-        r.fail(where, f"unknown model {_describe(x)}; known: {known}")
+        r.fail(where, f"unknown model {describe(x)}; known: {known}")
     return x
 
 
-def _loss_name(r: _Reader, x: Any, where: str) -> str:
+def _loss_name(r: Reader, x: Any, where: str) -> str:
     if not isinstance(x, str) or x not in LOSS_NAMES:
-        r.fail(where, f"unknown loss {_describe(x)}; known: {', '.join(LOSS_NAMES)}")
+        r.fail(where, f"unknown loss {describe(x)}; known: {', '.join(LOSS_NAMES)}")
     return x
 
 
 #: Checks of the calibration settings a result records (handeye_jax.calibrate.Settings);
 #: the evaluation refits stage 2 with them.
-_SETTINGS: dict[str, Callable[[_Reader, Any, str], Any]] = {
+_SETTINGS: dict[str, Callable[[Reader, Any, str], Any]] = {
     "model": _model_name,
     "seed": lambda r, x, w: _integer(r, x, w, *SEED_RANGE),
-    "population": lambda r, x, w: _integer(r, x, w, 4),
-    "generations": lambda r, x, w: _integer(r, x, w, 1),
+    "population": lambda r, x, w: _integer(r, x, w, 4, MAX_POPULATION),
+    "generations": lambda r, x, w: _integer(r, x, w, 1, MAX_GENERATIONS),
     "early_stop": _boolean,
     "tol": lambda r, x, w: r.number(x, w),
     "crossover": lambda r, x, w: r.number(x, w),
@@ -422,14 +369,14 @@ _SETTINGS: dict[str, Callable[[_Reader, Any, str], Any]] = {
     "diagnostics": _boolean,
 }
 #: Checks of the DE and LM summaries of a stage, by key; other keys are kept unchecked.
-_DE = {"F": _Reader.number, "generations": _count, "evaluations": _count, "converged": _boolean}
+_DE = {"F": Reader.number, "generations": _count, "evaluations": _count, "converged": _boolean}
 _POLISH = {
-    "ran": _boolean, "accepted": _boolean, "F_before": _Reader.number, "F_after": _Reader.number,
+    "ran": _boolean, "accepted": _boolean, "F_before": Reader.number, "F_after": Reader.number,
     "steps": _count, "solver_converged": _boolean,
 }  # fmt: skip
 
 
-def _rig(r: _Reader, value: Any) -> dict[str, Any]:
+def _rig(r: Reader, value: Any) -> dict[str, Any]:
     rig = r.table(value, "rig", ("camera_px", "capture_hand_position_mm", "hand_angle"))
     cam = r.table(rig["camera_px"], "rig.camera_px", ("fx", "fy", "cx", "cy"))
     for k in ("fx", "fy"):
@@ -444,17 +391,20 @@ def _rig(r: _Reader, value: Any) -> dict[str, Any]:
     return rig
 
 
-def _stage(r: _Reader, doc: dict[str, Any], key: str, names: tuple[str, ...]) -> StageResult:
+def _stage(r: Reader, doc: dict[str, Any], key: str, names: tuple[str, ...]) -> StageResult:
     s = doc[key]
     if not isinstance(s, dict):
-        r.fail(key, f"must be an object (got {_describe(s)})")
+        r.fail(key, f"must be an object (got {describe(s)})")
     F, f1, f2 = (_length(r, _field(r, s, k, key), f"{key}.{k}") for k in ("F", "f1", "f2"))
     p = r.table(_field(r, s, "params", key), f"{key}.params", names)
     params = {n: r.number(p[n], f"{key}.params.{n}", limit=MAX_PARAM) for n in names}
     residuals = s.get("residuals_mm", [])
     if not isinstance(residuals, list):
         r.fail(f"{key}.residuals_mm", f"must be an array, one entry per landmark (got "
-               f"{_describe(residuals)})")  # fmt: skip
+               f"{describe(residuals)})")  # fmt: skip
+    if len(residuals) > MAX_LANDMARKS:
+        r.fail(f"{key}.residuals_mm", f"has {len(residuals):,} entries; at most "
+               f"{MAX_LANDMARKS:,}, one per landmark")  # fmt: skip
     for m, e in enumerate(residuals):
         _residual(r, e, f"{key}.residuals_mm[{m}]", m, RESIDUAL_KEYS)
     de = _summary(r, s, "de", key, _DE)
@@ -462,14 +412,14 @@ def _stage(r: _Reader, doc: dict[str, Any], key: str, names: tuple[str, ...]) ->
     if "pinned" in polish:  # the first results listed the parameters LM left on a bound
         pinned = polish["pinned"]
         if not isinstance(pinned, list) or not all(isinstance(p, str) for p in pinned):
-            r.fail(f"{key}.polish.pinned", f"must be an array of names (got {_describe(pinned)})")
+            r.fail(f"{key}.polish.pinned", f"must be an array of names (got {describe(pinned)})")
     return StageResult(
         F=F, f1=f1, f2=f2, params=params, residuals_mm=residuals, de=de, polish=polish,
         convergence=_convergence(r, s, key),
     )  # fmt: skip
 
 
-def _residual(r: _Reader, e: Any, where: str, m: int, keys: tuple[str, ...]) -> None:
+def _residual(r: Reader, e: Any, where: str, m: int, keys: tuple[str, ...]) -> None:
     """One landmark's entry of ``residuals_mm`` or of a leave-one-out's ``held_out_mm``."""
     r.table(e, where, keys)
     if _integer(r, e["m"], f"{where}.m") != m:
@@ -481,22 +431,22 @@ def _residual(r: _Reader, e: Any, where: str, m: int, keys: tuple[str, ...]) -> 
             _length(r, e[k], f"{where}.{k}")
 
 
-def _summary(r: _Reader, s: dict[str, Any], key: str, stage: str, checks: dict) -> dict[str, Any]:
+def _summary(r: Reader, s: dict[str, Any], key: str, stage: str, checks: dict) -> dict[str, Any]:
     where = f"{stage}.{key}"
     value = s.get(key, {})
     if not isinstance(value, dict):
-        r.fail(where, f"must be an object (got {_describe(value)})")
+        r.fail(where, f"must be an object (got {describe(value)})")
     for k, check in checks.items():
         if k in value:
             check(r, value[k], f"{where}.{k}")
     return value
 
 
-def _convergence(r: _Reader, s: dict[str, Any], stage: str) -> dict[str, list[float]]:
+def _convergence(r: Reader, s: dict[str, Any], stage: str) -> dict[str, list[float]]:
     where = f"{stage}.convergence"
     c = s.get("convergence", {})
     if not isinstance(c, dict):
-        r.fail(where, f"must be an object (got {_describe(c)})")
+        r.fail(where, f"must be an object (got {describe(c)})")
     out = dict(c)
     for k in ("best_F", "median_F"):
         if k in c:
@@ -505,7 +455,7 @@ def _convergence(r: _Reader, s: dict[str, Any], stage: str) -> dict[str, list[fl
         gens = c["median_generation"]
         if not isinstance(gens, list):
             r.fail(f"{where}.median_generation", f"must be an array of generations (got "
-                   f"{_describe(gens)})")  # fmt: skip
+                   f"{describe(gens)})")  # fmt: skip
         for i, g in enumerate(gens):
             _integer(r, g, f"{where}.median_generation[{i}]", 1)
         if "median_F" in c and len(gens) != len(c["median_F"]):
@@ -516,28 +466,31 @@ def _convergence(r: _Reader, s: dict[str, Any], stage: str) -> dict[str, list[fl
     return out
 
 
-def _optional_table(r: _Reader, doc: dict[str, Any], key: str) -> dict[str, Any]:
+def _optional_table(r: Reader, doc: dict[str, Any], key: str) -> dict[str, Any]:
     value = doc.get(key, {})
     if not isinstance(value, dict):
-        r.fail(key, f"must be an object (got {_describe(value)})")
+        r.fail(key, f"must be an object (got {describe(value)})")
     return value
 
 
-def _observations(r: _Reader, doc: dict[str, Any]) -> dict[str, Any]:
+def _observations(r: Reader, doc: dict[str, Any]) -> dict[str, Any]:
     """The optional ``observations`` section, checked for shapes and finite numbers."""
     obs = _optional_table(r, doc, "observations")
     if not obs:
         return {}
     r.table(obs, "observations", (*OBSERVATION_ARRAYS, "mm_per_tablet_px"))
+    lo, hi = MM_PER_TABLET_PX
     r.number(obs["mm_per_tablet_px"], "observations.mm_per_tablet_px", positive=True,
-             limit=MAX_MM_PER_TABLET_PX)  # fmt: skip
+             limit=hi, minimum=lo, unit="mm")  # fmt: skip
     n = None
     for name, tail in OBSERVATION_ARRAYS.items():
         where = f"observations.{name}"
         rows = obs[name]
         if not isinstance(rows, list) or not rows or (n is not None and len(rows) != n):
             want = "a non-empty list" if n is None else f"a list of {n} (one per landmark)"
-            r.fail(where, f"must be {want} (got {_describe(rows)})")
+            r.fail(where, f"must be {want} (got {describe(rows)})")
+        if len(rows) > MAX_LANDMARKS:
+            r.fail(where, f"has {len(rows):,} landmarks; at most {MAX_LANDMARKS:,}")
         n = len(rows)
         limit = OBSERVATION_LIMITS[name]
         for i, row in enumerate(rows):
@@ -549,7 +502,7 @@ def _observations(r: _Reader, doc: dict[str, Any]) -> dict[str, Any]:
 
 
 def _diagnostics(
-    r: _Reader, doc: dict[str, Any], n: int | None, stages: tuple[StageResult, StageResult]
+    r: Reader, doc: dict[str, Any], n: int | None, stages: tuple[StageResult, StageResult]
 ) -> dict[str, Any]:
     """The optional ``diagnostics``: each stage's object and its leave-one-out are checked."""
     diag = _optional_table(r, doc, "diagnostics")
@@ -559,7 +512,7 @@ def _diagnostics(
         d = diag[key]
         where = f"diagnostics.{key}"
         if not isinstance(d, dict):
-            r.fail(where, f"must be an object (got {_describe(d)})")
+            r.fail(where, f"must be an object (got {describe(d)})")
         if "loo" not in d:
             continue
         loo = r.table(d["loo"], f"{where}.loo", LOO_KEYS)
@@ -570,7 +523,7 @@ def _diagnostics(
             r.fail(f"{key}.residuals_mm", f"missing: {where}.loo compares with it")
         if not isinstance(held, list) or len(held) != n:
             r.fail(f"{where}.loo.held_out_mm", f"must be a list of {n} (one per landmark) "
-                   f"(got {_describe(held)})")  # fmt: skip
+                   f"(got {describe(held)})")  # fmt: skip
         for m, e in enumerate(held):
             _residual(r, e, f"{where}.loo.held_out_mm[{m}]", m, HELD_OUT_KEYS)
     return diag

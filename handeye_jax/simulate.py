@@ -12,6 +12,10 @@ held-out targets for :mod:`~handeye_jax.evaluate`. :func:`write_twin` writes the
 ``truth.json``    the rig truth (:func:`~handeye_jax.twin.load_truth` reads it back)
 ``heldout.csv``   held-out targets: ``u,v,depth,hand_angle`` as measured (px, px, mm, deg)
                   and where they are drawn, ``tablet_x,tablet_y`` (tablet px)
+
+It writes into a new or empty folder only: with ``force=True`` it replaces an old twin's
+files and removes what the README's loop made from them (:data:`DERIVED_FILES`), so nothing
+stale is left beside the new twin.
 """
 
 from __future__ import annotations
@@ -23,16 +27,25 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ._atomic import write_folder_atomic
-from .dataset import Dataset, dataset_to_toml
+from ._atomic import reason, write_folder_atomic
+from ._validate import MAX_HELDOUT
+from .dataset import Dataset, backup_path, dataset_to_toml
 from .detect import BlobCountError, DetectSettings, depth_at, find_blobs, order_blobs
+from .errors import InputError
 from .render import DepthSensing, Imaging, render_capture, render_depth
+from .report import FIGURES, FORMATS
 from .synthetic import synthesize_dataset
 from .twin import TwinTruth
 
 HELDOUT_HEADER = ("u", "v", "depth", "hand_angle", "tablet_x", "tablet_y")
 #: The files :func:`write_twin` writes.
 TWIN_FILES = ("dataset.toml", "truth.json", "heldout.csv", "capture.png", "depth.png")
+#: What the README's loop makes from a twin beside its files (``detect --overlay``, ``detect``
+#: in place, ``calibrate --out``, ``report``): stale once the twin is replaced.
+DERIVED_FILES = ("overlay.png", backup_path("dataset.toml").name, "result.json")
+DERIVED_FOLDER = "result_report"
+#: Seeds numpy's generators take: 0 to 2^63 - 1.
+SEED_RANGE = (0, 2**63 - 1)
 
 
 @dataclass(frozen=True)
@@ -128,13 +141,17 @@ def simulate(
         preset: the noise preset.
         seed: seeds every random draw here (noise, touches, held-out targets).
         exact: take ``image_px`` and depth from the truth instead of detecting them.
-        n_heldout: how many held-out targets, uniform over the landmarks' area on the display
-            with hand angles uniform in [0, 180) deg.
+        n_heldout: how many held-out targets (1 to 10,000), uniform over the landmarks' area
+            on the display with hand angles uniform in [0, 180) deg.
         detect_settings: how to detect the landmarks.
 
     Raises:
         BlobCountError: the detector does not find one blob per landmark in the picture.
+        ValueError: ``seed`` is negative or ``n_heldout`` out of range.
     """
+    check_seed(seed)
+    if not 1 <= n_heldout <= MAX_HELDOUT:
+        raise ValueError(f"n_heldout must be 1 to {MAX_HELDOUT:,} (got {n_heldout})")
     detect_settings = detect_settings or DetectSettings()
     rng_image, rng_depth, rng_touch, rng_held = np.random.default_rng(seed).spawn(4)
     capture = render_capture(truth, preset.imaging, rng_image)
@@ -183,6 +200,14 @@ def simulate(
     )  # fmt: skip
 
 
+def check_seed(seed: int) -> int:
+    """``seed`` if numpy's generators take it (0 to 2^63 - 1); ``ValueError`` if not."""
+    lo, hi = SEED_RANGE
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or not lo <= seed <= hi:
+        raise ValueError(f"seed must be a whole number from 0 to 2^63 - 1 (got {seed!r})")
+    return int(seed)
+
+
 def heldout_csv_text(twin: Twin) -> str:
     """The held-out targets as ``u,v,depth,hand_angle,tablet_x,tablet_y`` (px, px, mm, deg, px)."""
     out = io.StringIO()
@@ -202,13 +227,62 @@ def encode_png(image: np.ndarray) -> bytes:
     return buf.tobytes()
 
 
-def write_twin(twin: Twin, out_dir: str | Path) -> list[Path]:
+def check_twin_folder(out_dir: str | Path, force: bool = False, field: str = "") -> list[Path]:
+    """Refuse to write a twin into a folder that holds anything, unless ``force``.
+
+    Returns the stale files :func:`write_twin` with ``force`` removes once the new twin is in
+    place: :data:`DERIVED_FILES` and the figures of ``result_report/``. Raises
+    :class:`~handeye_jax.errors.InputError` naming ``out_dir`` and ``field``.
+    """
+    folder = Path(out_dir)
+    try:
+        held = sorted(p.name for p in folder.iterdir()) if folder.is_dir() else []
+    except OSError as e:
+        raise InputError(folder, field, f"cannot list the folder: {reason(e)}") from None
+    if held and not force:
+        shown = ", ".join(held[:4]) + (f" and {len(held) - 4} more" if len(held) > 4 else "")
+        raise InputError(
+            folder, field,
+            f"not empty (holds {shown}); a twin is written into a new or empty folder: choose "
+            f"another, or pass --force to replace the old twin's files and remove "
+            f"{', '.join(DERIVED_FILES)} and {DERIVED_FOLDER}/ made from it",
+        )  # fmt: skip
+    stale = [folder / name for name in DERIVED_FILES]
+    figures = folder / DERIVED_FOLDER
+    stale += [figures / f"{name}.{ext}" for name in FIGURES for ext in FORMATS]
+    return [p for p in stale if p.is_file() or p.is_symlink()]
+
+
+def _remove(paths: list[Path], field: str) -> None:
+    for path in paths:
+        try:
+            path.unlink()
+        except FileNotFoundError:
+            pass
+        except OSError as e:
+            why = f"cannot remove this stale file (the new twin is written): {reason(e)}"
+            raise InputError(path, field, why) from None
+    for folder in {p.parent for p in paths if p.parent.name == DERIVED_FOLDER}:
+        try:
+            folder.rmdir()
+        except OSError:  # it holds files of the user's: they stay
+            pass
+
+
+def write_twin(
+    twin: Twin, out_dir: str | Path, *, force: bool = False, field: str = ""
+) -> list[Path]:
     """Write the twin's files into ``out_dir`` (created if missing); returns their paths.
 
+    ``out_dir`` must be new or empty unless ``force``: then the old twin's files are
+    replaced and, once the new ones are in place, what was made from them
+    (:func:`check_twin_folder`) is removed; other files are left as they are.
+
     Every file is encoded before the first is written, and all are put in place together:
-    on failure (an :class:`~handeye_jax.errors.InputError` naming the file) the folder is as
-    it was.
+    on failure (an :class:`~handeye_jax.errors.InputError` naming the file and ``field``)
+    the folder is as it was.
     """
+    stale = check_twin_folder(out_dir, force, field)
     files = {
         "dataset.toml": dataset_to_toml(twin.dataset).encode("utf-8"),
         "truth.json": twin.truth.to_json().encode("utf-8"),
@@ -216,4 +290,6 @@ def write_twin(twin: Twin, out_dir: str | Path) -> list[Path]:
         "capture.png": encode_png(twin.capture),
         "depth.png": encode_png(twin.depth),
     }
-    return write_folder_atomic(out_dir, files)
+    paths = write_folder_atomic(out_dir, files, field)
+    _remove(stale, field)
+    return paths

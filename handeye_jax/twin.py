@@ -22,9 +22,18 @@ import numpy as np
 from jaxtyping import Float
 
 from . import geometry as geo
-from ._validate import MAX_DEG, MAX_MM, MAX_PX, _describe, _Reader
+from ._io import load_json
+from ._validate import (
+    MAX_DEG,
+    MAX_IMAGE_PIXELS,
+    MAX_LANDMARKS,
+    MAX_MM,
+    MAX_PX,
+    Reader,
+    describe,
+)
 from ._x64 import in_float64
-from .errors import InputError
+from .dataset import check_tablet_px
 from .models import HTMModel
 from .observations import Rig
 from .synthetic import snake_grid_px, tablet_to_camera
@@ -49,6 +58,10 @@ RANGES: dict[str, tuple[float, float]] = {
 HAND_ANGLE_CONVENTIONS = ((90.0, -1), (90.0, 1), (0.0, 1), (0.0, -1))  # (zero deg, sign)
 # Landmarks (and held-out targets) must lie this far inside the picture, image px.
 MARGIN_PX = 24.0
+#: Largest lens blur σ in a truth file, image px: the PSF patch of each dot is 10 σ wide.
+MAX_LENS_BLUR_PX = 20.0
+#: Largest landmark dot, tablet px: larger dots merge with their neighbours.
+MAX_DOT_PX = 50.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -237,22 +250,20 @@ def _R_base_camera(truth: TwinTruth):
 def load_truth(path: str | Path) -> TwinTruth:
     """Read and validate a ``truth.json``; raises :class:`InputError` naming the field."""
     path = Path(path)
-    r = _Reader(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(path, "", f"cannot read file: {e}") from None
-    except json.JSONDecodeError as e:
-        raise InputError(path, "", f"not valid JSON: {e}") from None
+    r = Reader(path)
+    doc = load_json(path)
     if not isinstance(doc, dict):
         r.fail("", "must be a JSON object")
     if doc.get("format") != FORMAT:
-        r.fail("format", f"expected {FORMAT!r} (got {_describe(doc.get('format'))})")
+        r.fail("format", f"expected {FORMAT!r} (got {describe(doc.get('format'))})")
     keys = ("format", *TwinTruth.__dataclass_fields__)
     r.table(doc, "", keys, optional=("seed",))
     size = r.vector(doc["image_size_px"], "image_size_px", 2, 1e5)
     if any(s < 8 or s != int(s) for s in size):
         r.fail("image_size_px", f"must be two whole numbers >= 8 (got {size})")
+    if size[0] * size[1] > MAX_IMAGE_PIXELS:
+        r.fail("image_size_px", f"{size[0]:g} x {size[1]:g} px is more than "
+               f"{MAX_IMAGE_PIXELS:,} px (4096 x 4096), the most detect reads")  # fmt: skip
     cam = r.table(doc["camera_px"], "camera_px", ("fx", "fy", "cx", "cy"))
     focal = {"fx": 1.0, "fy": 1.0}  # px; cx and cy may be anything on the sensor's scale
     camera = {
@@ -261,8 +272,9 @@ def load_truth(path: str | Path) -> TwinTruth:
     m = r.table(doc["model"], "model", HTMModel.param_names)
     model = {k: r.number(m[k], f"model.{k}", limit=MAX_MM) for k in HTMModel.param_names}
     layout = doc["landmarks_tablet_px"]
-    if not isinstance(layout, list) or len(layout) < 4:
-        r.fail("landmarks_tablet_px", f"must be 4 or more [x, y] (got {_describe(layout)})")
+    if not isinstance(layout, list) or not 4 <= len(layout) <= MAX_LANDMARKS:
+        r.fail("landmarks_tablet_px", f"must be 4 to {MAX_LANDMARKS:,} [x, y] (got "
+               f"{describe(layout)})")  # fmt: skip
     tab = [r.vector(p, f"landmarks_tablet_px[{i}]", 2, MAX_PX) for i, p in enumerate(layout)]
     angles = doc["landmarks_hand_angle_deg"]
     if not isinstance(angles, list) or len(angles) != len(tab):
@@ -273,23 +285,28 @@ def load_truth(path: str | Path) -> TwinTruth:
     sign = r.number(doc["hand_angle_sign"], "hand_angle_sign")
     if sign not in (1.0, -1.0):
         r.fail("hand_angle_sign", f"must be 1 or -1 (got {sign})")
+    ppi = r.number(doc["ppi"], "ppi", True, 1e5, minimum=1)
+    scale = r.number(doc["scale"], "scale", True, 100, minimum=0.01)
+    check_tablet_px(ppi, scale, path, "scale")
     seed = doc.get("seed")
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
-        r.fail("seed", f"must be an integer or null (got {_describe(seed)})")
+        r.fail("seed", f"must be an integer or null (got {describe(seed)})")
     truth = TwinTruth(
         image_size_px=(int(size[0]), int(size[1])),
         camera_px=camera,
-        lens_blur_px=r.number(doc["lens_blur_px"], "lens_blur_px", positive=True, limit=1e3),
+        lens_blur_px=r.number(
+            doc["lens_blur_px"], "lens_blur_px", positive=True, limit=MAX_LENS_BLUR_PX
+        ),
         model=model,
         camera_z_mm=r.number(doc["camera_z_mm"], "camera_z_mm", limit=MAX_MM),
         tablet_height_mm=r.number(doc["tablet_height_mm"], "tablet_height_mm", limit=MAX_MM),
         capture_position_mm=tuple(
             r.vector(doc["capture_position_mm"], "capture_position_mm", 3, MAX_MM)
         ),
-        ppi=r.number(doc["ppi"], "ppi", True, 1e5, minimum=1),
-        scale=r.number(doc["scale"], "scale", True, 100, minimum=0.01),
+        ppi=ppi,
+        scale=scale,
         display_px=tuple(r.vector(doc["display_px"], "display_px", 2, MAX_PX)),
-        dot_px=r.number(doc["dot_px"], "dot_px", positive=True, limit=MAX_PX),
+        dot_px=r.number(doc["dot_px"], "dot_px", positive=True, limit=MAX_DOT_PX),
         hand_angle_zero_deg=r.number(
             doc["hand_angle_zero_deg"], "hand_angle_zero_deg", limit=MAX_DEG
         ),

@@ -78,6 +78,9 @@ BAD_DATASETS = [
     ("fx = 617.7", "fox = 617.7", "camera"),
     ('format = "handeye-jax.dataset/1"', 'format = "other/2"', "format"),
     ("image_px = [338.0, 244.0]", "image_px = [338.0]", "landmarks[4].image_px"),
+    # nonsense that calibrated to F = 64 m with exit 0 (issue 16, section 3)
+    ("image_px = [338.0, 244.0]", "image_px = [1e6, -1e6]", "landmarks[4].image_px"),
+    ("ppi = 267.0\nscale = 2.0", "ppi = 1\nscale = 100", "tablet: one tablet px is"),
 ]
 
 
@@ -190,6 +193,55 @@ def test_bad_arguments_are_one_line(args, capsys):
         main(["calibrate", str(PAPER), *args])
     assert e.value.code == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+FULL_WIDTH_ONE = "\uff11"  # Python's int() and float() read it as 1
+
+
+@pytest.mark.parametrize(
+    "argv,option,says",
+    [
+        (["calibrate", str(PAPER), "--seed", FULL_WIDTH_ONE], "--seed", "not a whole number"),
+        (["calibrate", str(PAPER), "--population", "1_000"], "--population", "not a whole"),
+        (["calibrate", str(PAPER), "--loss-scale-mm", FULL_WIDTH_ONE], "--loss-scale-mm", "not a"),
+        (["calibrate", str(PAPER), "--population", "1000000"], "--population", "at most 100,000"),
+        (["calibrate", str(PAPER), "--generations", "1000000"], "--generations", "at most 100,000"),
+        (["predict", "r.json", "p.csv", "--stage", FULL_WIDTH_ONE], "--stage", "not a whole"),
+        (["tablet", "--ppi", FULL_WIDTH_ONE], "--ppi", "not a number"),
+        (["tablet", "--scale", "nan"], "--scale", "must be a finite number > 0"),
+    ],
+)
+def test_numbers_on_the_command_line_are_ascii_and_bounded(capsys, argv, option, says):
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"argument {option}: " in err and says in err, err
+
+
+def test_full_width_digits_in_a_points_csv_are_not_numbers(result_file, tmp_path, capsys):
+    pts = tmp_path / "p.csv"
+    pts.write_text(f"u,v,depth,hand_angle\n338,244,169.2,90\n{FULL_WIDTH_ONE}19,105,168.2,0\n")
+    assert main(["predict", str(result_file), str(pts)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{pts}: line 3.u: not a number: '\uff1119'" in err, err
+
+
+def test_a_fit_that_does_not_fit_the_data_is_plainly_warned_about(tmp_path, capsys):
+    # Values within every limit, but hand positions no rig reaches from these image points.
+    text = PAPER.read_text()
+    for old in ("hand_xy = [289.0, 1.0]", "hand_xy = [403.0, 14.0]"):
+        assert old in text
+        text = text.replace(old, "hand_xy = [5000.0, -7000.0]")
+    bad = tmp_path / "far.toml"
+    bad.write_text(text)
+    out = tmp_path / "far.json"
+    assert main(["calibrate", str(bad), "--out", str(out), "--no-diagnostics", *FAST]) == 0
+    summary = capsys.readouterr().out
+    warning = next(w for w in load_result(out).warnings if w.startswith("the data do not fit"))
+    assert f"warning: {warning}" in summary and "do not use this result" in warning
+    F = float(warning.split("F = ")[1].split(" mm")[0])
+    assert F > 100
 
 
 def test_console_script_exit_keeps_every_output(tmp_path):

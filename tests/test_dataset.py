@@ -178,24 +178,47 @@ px, mm, deg = within(-1e6, 1e6), within(-1e5, 1e5), within(-3600.0, 3600.0)  # e
 pair = st.tuples(px, px)
 
 
+# Every image point within 80 deg of the optical axis: tan 80 deg = 5.67 > hypot(4, 4).
+ray_tan = within(-4.0, 4.0)
+
+
+@st.composite
+def image_points(draw, camera: Camera, n: int) -> np.ndarray:
+    """``n`` points the camera can see (clipped to the coordinate limit, which keeps them
+    between the principal point and the drawn point, so within the angle)."""
+    t = np.array(draw(st.lists(st.tuples(ray_tan, ray_tan), min_size=n, max_size=n)))
+    uv = np.array([camera.cx_px, camera.cy_px]) + t * [camera.fx_px, camera.fy_px]
+    return np.clip(uv, -1e6, 1e6)
+
+
+@st.composite
+def tablet_ppi_scale(draw) -> tuple[float, float]:
+    """ppi and scale of a screen: one tablet px is 0.01 to 3 mm (a margin against rounding)."""
+    ppi = draw(within(1, 1e5))
+    lo, hi = max(0.01, 0.01 * ppi / 25.4), min(100.0, 3.0 * ppi / 25.4)
+    return ppi, draw(within(lo * (1 + 1e-9), hi * (1 - 1e-9)))
+
+
 @st.composite
 def datasets(draw) -> Dataset:
     tablet = draw(st.lists(pair, min_size=1, max_size=12, unique=True))
     n = len(tablet)
     search_range = st.tuples(px, px).filter(lambda t: t[0] < t[1])
+    camera = Camera(draw(within(1, 1e6)), draw(within(1, 1e6)), draw(px), draw(px))
+    ppi, scale = draw(tablet_ppi_scale())
     return Dataset(
         name=draw(st.text(min_size=1, max_size=30).filter(lambda s: s.strip() != "")),
-        camera=Camera(draw(within(1, 1e6)), draw(within(1, 1e6)), draw(px), draw(px)),
+        camera=camera,
         capture_position_mm=np.array(draw(st.tuples(mm, mm, mm))),
-        tablet_ppi=draw(within(1, 1e5)),
-        tablet_scale=draw(within(0.01, 100)),
+        tablet_ppi=ppi,
+        tablet_scale=scale,
         hand_angle_zero_deg=draw(deg),
         hand_angle_sign=draw(st.sampled_from([1, -1])),
         search=draw(
             st.dictionaries(st.sampled_from(sorted(known_search_names())), search_range, max_size=4)
         ),  # fmt: skip
         tablet_px=np.array(tablet),
-        image_px=np.array(draw(st.lists(pair, min_size=n, max_size=n))),
+        image_px=draw(image_points(camera, n)),
         depth_mm=np.array(draw(st.lists(within(0, 1e5, True), min_size=n, max_size=n))),
         hand_xy_mm=np.array(draw(st.lists(st.tuples(mm, mm), min_size=n, max_size=n))),
         hand_angle_deg=np.array(draw(st.lists(deg, min_size=n, max_size=n))),
@@ -420,6 +443,25 @@ DOC_CASES = [
         "search.xt[0]",
         "at most 1e+06",
     ),
+    # Nonsense a rig cannot produce (issue 16, section 3): each calibrated to F = 64 m.
+    (
+        "image-px-off-the-picture",
+        setting("landmarks", 3, "image_px", value=[1e6, -1e6]),
+        "landmarks[3].image_px",
+        "is 90.0 deg off the camera's optical axis (at most 80 deg",
+    ),
+    (
+        "tablet-px-of-no-screen",
+        setting("tablet", value={"ppi": 1, "scale": 100}),
+        "tablet",
+        "one tablet px is 25.4 / ppi * scale = 2540 mm (ppi 1, scale 100)",
+    ),
+    (
+        "tablet-px-too-fine",
+        setting("tablet", value={"ppi": 1e5, "scale": 1}),
+        "tablet",
+        "a screen's pixel is 0.01 to 3 mm",
+    ),
 ]
 
 
@@ -481,11 +523,14 @@ def test_permission_denied(tmp_path: Path, monkeypatch):
     path = tmp_path / "secret.toml"
     path.write_bytes(PAPER.read_bytes())
 
-    def denied(self, *args, **kwargs):
-        raise PermissionError(13, "Permission denied", str(self))
+    real_open = os.open
 
-    monkeypatch.setattr(Path, "read_bytes", denied)
-    monkeypatch.setattr(Path, "read_text", denied)
+    def denied(file, *args, **kwargs):
+        if Path(file) == path:
+            raise PermissionError(13, "Permission denied", str(file))
+        return real_open(file, *args, **kwargs)
+
+    monkeypatch.setattr(os, "open", denied)
     with pytest.raises(InputError, match="cannot read file") as info:
         load_dataset(path)
     assert "secret.toml" in str(info.value) and "Permission denied" in str(info.value)

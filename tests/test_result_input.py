@@ -104,7 +104,12 @@ BAD_FIELDS = [
         "must be a number",
     ),
     (("settings",), [1, 2], "settings", "must be an object"),
-    (("settings", "population"), 2, "settings.population", "at least 4"),
+    (("settings", "population"), 2, "settings.population", "must be 4 to 100000"),
+    # sizes evaluate once allocated from (issue 16, section 3): 80 GB for population 10^9
+    (("settings", "population"), 10**9, "settings.population", "must be 4 to 100000"),
+    (("settings", "generations"), 10**9, "settings.generations", "must be 1 to 100000"),
+    ((*R,), [{"m": 0}] * 10_001, "stage1.residuals_mm", "10,001 entries; at most 10,000"),
+    ((*OBS, "tablet_px"), [[1.0, 2.0]] * 10_001, "observations.tablet_px", "at most 10,000"),
     (("settings", "loss"), "l3", "settings.loss", "unknown loss"),
     (("settings", "seed"), 2**64, "settings.seed", "must be"),
     (("dataset",), 7, "dataset", "must be a string"),
@@ -116,6 +121,8 @@ BAD_FIELDS = [
     ((*OBS, "hand_xy_mm", 2, 1), 1e9, "observations.hand_xy_mm[2][1]", "at most"),
     ((*OBS, "mm_per_tablet_px"), 1e308, "observations.mm_per_tablet_px", "at most"),
     ((*OBS, "mm_per_tablet_px"), 0.0, "observations.mm_per_tablet_px", "must be > 0"),
+    ((*OBS, "mm_per_tablet_px"), 2540.0, "observations.mm_per_tablet_px", "at most 3"),
+    ((*OBS, "mm_per_tablet_px"), 1e-3, "observations.mm_per_tablet_px", "at least 0.01 mm"),
     # 4. stage-2 scales
     (("stage2", "params", "Sx1"), 0.0, "stage2.params.Sx1", "must be > 0"),
     (("stage2", "params", "Sy2"), -1.0, "stage2.params.Sy2", "must be > 0"),

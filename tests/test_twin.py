@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from handeye_jax import HTMModel, load_dataset, load_result
+from handeye_jax import HTMModel, Settings, load_dataset, load_result, save_dataset
 from handeye_jax.cli import main
 from handeye_jax.dataset import Dataset
 from handeye_jax.errors import InputError
@@ -50,6 +50,12 @@ def test_truth_json_round_trips_and_stays_in_range(tmp_path, seed):
         (lambda d: d.update(scale=1e308), "scale: must be at most 100"),
         (lambda d: d["camera_px"].update(fx=1e-300), "camera_px.fx: must be at least 1 px"),
         (lambda d: d.update(camera_z_mm=10**400), "camera_z_mm: must be finite"),
+        # sizes the renderer would allocate from (issue 16, section 3)
+        (lambda d: d.update(image_size_px=[100_000, 100_000]), "image_size_px: 100000 x 100000"),
+        (lambda d: d.update(lens_blur_px=1e3), "lens_blur_px: must be at most 20"),
+        (lambda d: d.update(dot_px=1e5), "dot_px: must be at most 50"),
+        (lambda d: d.update(landmarks_tablet_px=[[1.0, 1.0]] * 10_001), "landmarks_tablet_px"),
+        (lambda d: d.update(ppi=1.0, scale=100.0), "scale: one tablet px is 25.4 / ppi"),
     ],
 )
 def test_bad_truth_json_names_the_field(tmp_path, change, field):
@@ -156,17 +162,25 @@ def test_heldout_csv_errors(tmp_path):
         load_heldout(p)
 
 
-def test_simulate_detect_calibrate_evaluate_end_to_end(tmp_path, capsys):
-    twin = tmp_path / "twin"
+@pytest.fixture(scope="module")
+def loop(tmp_path_factory):
+    """simulate -> detect -> calibrate through the command line: (twin folder, result file)."""
+    folder = tmp_path_factory.mktemp("loop")
+    twin = folder / "twin"
     assert main(["simulate", str(twin), "--seed", "2", "--preset", "paper"]) == 0
     names = {p.name for p in twin.iterdir()}
     assert names == {"dataset.toml", "capture.png", "depth.png", "truth.json", "heldout.csv"}
     ds = twin / "dataset.toml"
     assert main(["detect", str(twin / "capture.png"), str(twin / "depth.png"),
-                 "--dataset", str(ds), "--out", str(tmp_path / "detected.toml")]) == 0  # fmt: skip
-    assert load_dataset(tmp_path / "detected.toml") == load_dataset(ds)
-    result = tmp_path / "result.json"
-    assert main(["calibrate", str(tmp_path / "detected.toml"), "--out", str(result), *FAST]) == 0
+                 "--dataset", str(ds), "--out", str(folder / "detected.toml")]) == 0  # fmt: skip
+    assert load_dataset(folder / "detected.toml") == load_dataset(ds)
+    result = folder / "result.json"
+    assert main(["calibrate", str(folder / "detected.toml"), "--out", str(result), *FAST]) == 0
+    return twin, result
+
+
+def test_simulate_detect_calibrate_evaluate_end_to_end(loop, capsys):
+    twin, result = loop
     capsys.readouterr()
     assert main(["evaluate", str(result), str(twin)]) == 0
     out = capsys.readouterr().out
@@ -183,6 +197,114 @@ def test_simulate_detect_calibrate_evaluate_end_to_end(tmp_path, capsys):
     held = load_heldout(twin / "heldout.csv")
     assert held.image_px.shape == (20, 2)
     assert load_result(result).dataset.startswith("twin-seed2")
+
+
+def _one_line(capsys, *needles) -> str:
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("handeye-jax: error: "), err
+    for needle in needles:
+        assert needle in err, (needle, err)
+    return err
+
+
+def test_evaluate_refuses_a_result_fitted_on_another_dataset(loop, tmp_path, capsys):
+    twin, result = loop
+    other = tmp_path / "other"
+    write_twin(simulate(_TRUTH, PRESETS["none"], 5, exact=True, n_heldout=2), other)
+    assert main(["evaluate", str(result), str(other)]) == 2
+    _one_line(capsys, f"{result}: dataset: fitted on dataset 'twin-seed2-paper', not on "
+              f"'twin-seed5-none' ({other / 'dataset.toml'})")  # fmt: skip
+    # The same name, one value changed: the data, not only the name, must be the result's.
+    edited = tmp_path / "edited"
+    edited.mkdir()
+    for name in ("dataset.toml", "truth.json", "heldout.csv"):
+        (edited / name).write_bytes((twin / name).read_bytes())
+    ds = load_dataset(edited / "dataset.toml")
+    touched = ds.touch_error_px.copy()
+    touched[4, 0] += 1.0
+    save_dataset(ds.replace(touch_error_px=touched), edited / "dataset.toml")
+    assert main(["evaluate", str(result), str(edited)]) == 2
+    _one_line(capsys, str(result), "whose touch_error_px differs from", str(edited))
+
+
+class _Stop(Exception):
+    pass
+
+
+def test_evaluate_is_not_sized_by_the_results_settings(loop, tmp_path, monkeypatch):
+    import handeye_jax.evaluate as evaluate_module
+
+    twin, result = loop
+    doc = json.loads(result.read_text())
+    doc["settings"].update(population=100_000, generations=100_000)  # the most a file may say
+    big = tmp_path / "big.json"
+    big.write_text(json.dumps(doc))
+    seen = []
+
+    def spy(dataset, model, settings):  # stops before the fit: only the budget is of interest
+        seen.append(settings)
+        raise _Stop
+
+    monkeypatch.setattr(evaluate_module, "fit_correction", spy)
+    with pytest.raises(_Stop):
+        evaluate_module.evaluate_twin(big, twin)
+    default = Settings()
+    assert (seen[0].population, seen[0].generations) == (default.population, default.generations)
+    assert seen[0].seed == doc["seed"] and seen[0].loss == doc["settings"]["loss"]
+    with pytest.raises(_Stop):  # a smaller budget than the default is kept, as calibrated
+        evaluate_module.evaluate_twin(result, twin)
+    assert (seen[1].population, seen[1].generations) == (200, 400)
+
+
+def _snapshot(folder: Path) -> dict:
+    return {p: None if p.is_dir() else p.read_bytes() for p in sorted(folder.rglob("*"))}
+
+
+def test_simulate_refuses_a_folder_that_is_not_empty_unless_forced(tmp_path, capsys):
+    folder = tmp_path / "twin"
+    write_twin(simulate(_TRUTH, PRESETS["none"], 1, exact=True, n_heldout=2), folder)
+    (folder / "result.json").write_text("{}")  # made from the old twin
+    (folder / "result_report").mkdir()
+    (folder / "result_report" / "convergence.png").write_bytes(b"png")
+    (folder / "notes.txt").write_text("mine")
+    before = _snapshot(folder)
+    argv = ["simulate", str(folder), "--exact", "--preset", "none", "--heldout", "2"]
+    assert main(argv) == 2
+    _one_line(capsys, f"{folder}: not empty (holds capture.png, dataset.toml, depth.png, "
+              "heldout.csv and 4 more)", "--force")  # fmt: skip
+    assert _snapshot(folder) == before
+    with pytest.raises(InputError, match="not empty"):
+        write_twin(simulate(_TRUTH, PRESETS["none"], 2, exact=True, n_heldout=2), folder)
+    assert _snapshot(folder) == before
+
+    assert main([*argv, "--seed", "7", "--force"]) == 0
+    out = capsys.readouterr().out
+    removed = "removed what was made from the old twin: result.json, result_report/convergence.png"
+    assert removed in out
+    assert sorted(p.name for p in folder.iterdir()) == [
+        "capture.png", "dataset.toml", "depth.png", "heldout.csv", "notes.txt", "truth.json"
+    ]  # fmt: skip
+    assert (folder / "notes.txt").read_text() == "mine"
+    assert load_truth(folder / "truth.json") == draw_truth(7)
+    assert load_dataset(folder / "dataset.toml").name == "twin-seed7-none"
+
+
+@pytest.mark.parametrize(
+    "option,value,says",
+    [
+        ("--seed", "-1", "must be 0 to 2^63 - 1"),
+        ("--seed", "\uff11", "not a whole number"),  # a full-width 1
+        ("--heldout", "10000000", "must be 1 to 10,000"),
+        ("--dot-px", "1e300", "at most 50"),
+    ],
+)
+def test_simulate_refuses_nonsense_options_by_name(tmp_path, capsys, option, value, says):
+    with pytest.raises(SystemExit) as e:
+        main(["simulate", str(tmp_path / "t"), option, value])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"argument {option}: " in err and says in err, err
+    assert not (tmp_path / "t").exists()
 
 
 def test_simulate_from_a_truth_file_and_exact(tmp_path, capsys):

@@ -6,13 +6,12 @@ targets file (held-out points), or from a new grid drawn on the page.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
-from .._validate import _describe, _Reader
-from ..errors import InputError
+from .._io import load_json
+from .._validate import Reader, describe
 from ..synthetic import snake_grid_px
 from .posts import MAX_SCREEN_PX, MAX_TOUCHES
 
@@ -31,15 +30,12 @@ def load_targets(path: str | Path) -> np.ndarray:
         from ..dataset import load_dataset
 
         return load_dataset(path).tablet_px
-    r = _Reader(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise InputError(path, "", f"cannot read targets: {e}") from None
+    r = Reader(path)
+    doc = load_json(path, what="targets")
     if not isinstance(doc, dict) or "tablet_px" not in doc:
         r.fail("tablet_px", 'missing; expected {"tablet_px": [[x, y], ...]} in px')
     if doc.get("format", TARGETS_FORMAT) != TARGETS_FORMAT:
-        r.fail("format", f"expected {TARGETS_FORMAT!r} (got {_describe(doc['format'])})")
+        r.fail("format", f"expected {TARGETS_FORMAT!r} (got {describe(doc['format'])})")
     points = doc["tablet_px"]
     if not isinstance(points, list) or not 1 <= len(points) <= MAX_TOUCHES:
         r.fail("tablet_px", f"must be an array of 1 to {MAX_TOUCHES} [x, y] points")

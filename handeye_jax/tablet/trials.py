@@ -25,8 +25,8 @@ from typing import Any
 import numpy as np
 
 from .._atomic import write_output
-from .._validate import _describe, _Reader
-from ..errors import InputError
+from .._io import load_json
+from .._validate import Reader, describe
 from ..geometry import mm_per_tablet_px
 from .posts import EvaluationPost
 
@@ -53,22 +53,12 @@ def load_trials(path: str | Path, ppi: float, scale: float) -> dict[str, Any]:
     path = Path(path)
     if not path.exists():
         return new_trials(ppi, scale)
-    r = _Reader(path)
-    try:
-        size = path.stat().st_size
-        text = path.read_text(encoding="utf-8") if size <= MAX_FILE_BYTES else None
-        doc = json.loads(text) if text is not None else None
-    except RecursionError:
-        raise InputError(path, "", "cannot read trials: nested too deep") from None
-    except (OSError, UnicodeDecodeError, ValueError) as e:  # JSONDecodeError is a ValueError
-        raise InputError(path, "", f"cannot read trials: {e}") from None
-    if text is None:
-        r.fail("", f"is {size} bytes, over the limit of {MAX_FILE_BYTES} for a trials file; "
-               "choose another --trials")  # fmt: skip
+    r = Reader(path)
+    doc = load_json(path, cap=MAX_FILE_BYTES, what="trials")
     if not isinstance(doc, dict):
         r.fail("", "must be a JSON object")
     if doc.get("format") != FORMAT:
-        r.fail("format", f"expected {FORMAT!r} (got {_describe(doc.get('format'))})")
+        r.fail("format", f"expected {FORMAT!r} (got {describe(doc.get('format'))})")
     for key in ("tablet", "trials"):
         if key not in doc:
             r.fail(key, "missing")
@@ -78,7 +68,7 @@ def load_trials(path: str | Path, ppi: float, scale: float) -> dict[str, Any]:
         if got != want:
             r.fail(f"tablet.{key}", f"trials were measured at {got}, this tablet is {want}")
     if not isinstance(doc.get("trials"), list):
-        r.fail("trials", f"must be an array (got {_describe(doc.get('trials'))})")
+        r.fail("trials", f"must be an array (got {describe(doc.get('trials'))})")
     for i, t in enumerate(doc["trials"]):
         if not isinstance(t, dict):
             r.fail(f"trials[{i}]", "must be an object")
