@@ -78,7 +78,7 @@ def read_bytes(path: str | Path, cap: int, what: str = "file") -> bytes:
             fail(f"not a regular file ({kind})")
         too_big = f"larger than {size_text(cap)}, the most this toolkit reads for one {what}"
         if info.st_size > cap:
-            fail(f"{size_text(info.st_size)}, {too_big}")
+            fail(f"is {info.st_size:,} bytes, {too_big}")
         chunks, total = [], 0
         while chunk := os.read(fd, min(cap + 1 - total, MiB)):
             chunks.append(chunk)
