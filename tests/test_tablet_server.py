@@ -778,7 +778,8 @@ def test_an_oversized_trials_file_is_refused_before_serving(tmp_path):
 
     path = tmp_path / "t.json"
     path.write_text(" " * (trials_mod.MAX_FILE_BYTES + 1))
-    with pytest.raises(InputError, match=r"t\.json: cannot read trials: is [\d,]+ bytes, larger than 16 MiB"):
+    message = r"t\.json: cannot read trials: is [\d,]+ bytes, larger than 16 MiB"
+    with pytest.raises(InputError, match=message):
         make_server(PAPER, port=0, trials_path=path)
 
 
