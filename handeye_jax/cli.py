@@ -167,6 +167,13 @@ def _positive_mm(text: str) -> float:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
+    import logging
+
+    # Matplotlib logs advice about itself (a temporary cache folder when its own cannot be
+    # written, a slow first font scan); with no handler of ours it would reach stderr.
+    mpl_log = logging.getLogger("matplotlib")
+    if not mpl_log.handlers:
+        mpl_log.addHandler(logging.NullHandler())
     from .report import write_report
 
     written = write_report(args.result, args.out, args.dataset, field="--out")
