@@ -260,9 +260,9 @@ def fig_convergence(result: CalibrationResult):
         ax.axhline(s.F, color="0.3", ls="--", lw=1, label=f"after LM polish: {s.F:.4f} mm")
         ax.set_yscale("log")
         # Plain numbers (2, 5, 10, not 2×10^0); labels between the powers of ten only where
-        # they fit: 2, 3, 4, 6 for up to two decades, none for more (LogFormatter's rule).
+        # they fit: all below 0.7 decades, 2, 3, 4, 6 up to two, none above (LogFormatter).
         ax.yaxis.set_major_formatter(LogFormatter())
-        ax.yaxis.set_minor_formatter(LogFormatter(labelOnlyBase=False, minor_thresholds=(2, 0.4)))
+        ax.yaxis.set_minor_formatter(LogFormatter(labelOnlyBase=False, minor_thresholds=(2, 0.7)))
         ax.set_xlabel("DE generation")
         ax.set_ylabel("F (mm)")
         ax.set_title(f"{name}: {s.de.get('generations', '?')} generations")

@@ -192,7 +192,7 @@ def _label_boxes(ax):
     return [t.get_window_extent() for t in shown if t.get_visible() and t.get_text()]
 
 
-@pytest.mark.parametrize("decades", [0.3, 0.8, 1.3, 1.9, 3.0, 9.0])
+@pytest.mark.parametrize("decades", [0.3, 0.6, 0.8, 1.3, 1.9, 3.0, 9.0])
 def test_log_axis_labels_never_overlap(result_file, tmp_path, decades):
     from handeye_jax.report import fig_convergence
 
