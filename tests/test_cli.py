@@ -228,7 +228,8 @@ def test_too_few_landmarks(tmp_path, capsys):
 
 def test_compilation_cache_goes_where_asked_and_can_be_turned_off(tmp_path):
     cache = tmp_path / "xla-cache"
-    base = [sys.executable, "-m", "handeye_jax.cli", "calibrate", str(PAPER), *FAST]
+    base = [sys.executable, "-m", "handeye_jax.cli", "calibrate", str(PAPER), "--quiet",
+            "--population", "40", "--generations", "5", "--no-diagnostics"]  # fmt: skip
     env = dict(os.environ, HANDEYE_JAX_CACHE_DIR=str(cache))
     p = subprocess.run(base, capture_output=True, text=True, env=env)
     assert p.returncode == 0, p.stderr[-2000:]
@@ -297,7 +298,7 @@ def _ctrl_c_when(tmp_path, python_flags, pattern):
     out = tmp_path / "result.json"
     out.write_text("precious\n")
     cmd = [sys.executable, *python_flags, "-m", "handeye_jax.cli", "calibrate", str(PAPER),
-           "--population", "200", "--generations", "400", "--out", str(out)]  # fmt: skip
+           "--population", "40", "--generations", "70", "--out", str(out)]  # fmt: skip
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     chunks: list[bytes] = []
     reader = threading.Thread(target=lambda: chunks.extend(iter(lambda: p.stderr.read1(), b"")))

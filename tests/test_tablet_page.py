@@ -7,6 +7,7 @@ contacts are real input events (DevTools ``Input.dispatchMouseEvent`` with
 
 import io
 import json
+import os
 import shutil
 import threading
 from pathlib import Path
@@ -21,7 +22,8 @@ from handeye_jax import load_dataset
 from handeye_jax.tablet import grid_targets, make_server
 
 PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
-CHROMIUM = "/usr/bin/chromium"
+# Debian's Chromium (.ci/install-chromium), or another one named by the user (macOS, Fedora).
+CHROMIUM = os.environ.get("HANDEYE_JAX_CHROMIUM") or "/usr/bin/chromium"
 CHROMIUM_ARGS = [
     "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
     "--disable-background-networking", "--disable-component-update", "--disable-sync",
