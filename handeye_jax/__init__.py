@@ -14,32 +14,80 @@ On a robot PC without JAX, ``Predictor`` and ``Frames`` (NumPy only) still impor
 compute hand commands from a result file; everything else needs JAX.
 """
 
-from ._frames import Frames
-from ._predictor import Predictor
-from .errors import InputError
+from __future__ import annotations
 
-try:
-    import jax as _jax  # noqa: F401
-except ImportError as _error:  # a robot PC without JAX: Predictor and Frames still work
-    _JAX_ERROR = f"{type(_error).__name__}: {_error}"
+import importlib
+import sys
+import types
+from typing import TYPE_CHECKING
 
-    def __getattr__(name: str):
-        if name.startswith("__"):
-            raise AttributeError(name)
-        raise ImportError(f"handeye_jax.{name} needs JAX, which cannot be imported here "
-                          f"({_JAX_ERROR}); Predictor and Frames work without it")  # fmt: skip
-else:
+__version__ = "0.1.0"
+
+# The names below load on first use (PEP 562), so that ``import handeye_jax.cli`` is quick:
+# the command line sets up its Ctrl-C handling before JAX (about a second) is imported.
+_SUBMODULES = ("geometry", "models", "objective", "optim")
+_EXPORTS = {
+    "Frames": "_frames",
+    "Predictor": "_predictor",
+    "float64": "_x64",
+    "vectorise_small_loops": "_xla",
+    "Settings": "calibrate",
+    "calibrate": "calibrate",
+    "Dataset": "dataset",
+    "load_dataset": "dataset",
+    "save_dataset": "dataset",
+    "InputError": "errors",
+    "AbstractModel": "models",
+    "AffinePair": "models",
+    "DHModel": "models",
+    "HTMModel": "models",
+    "get_model": "models",
+    "Observations": "observations",
+    "Rig": "observations",
+    "hand_command": "predict",
+    "CalibrationResult": "result",
+    "load_result": "result",
+}
+
+
+def __getattr__(name: str):
+    if name in _SUBMODULES:
+        return importlib.import_module(f"{__name__}.{name}")
+    if name not in _EXPORTS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_SUBMODULES, *_EXPORTS})
+
+
+class _Package(types.ModuleType):
+    # Importing the submodule ``handeye_jax.calibrate`` makes Python set the package's
+    # attribute ``calibrate`` to that module; the package's ``calibrate`` is the function.
+    def __setattr__(self, name: str, value) -> None:
+        if name == "calibrate" and isinstance(value, types.ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package
+
+if TYPE_CHECKING:
     from . import geometry, models, objective, optim
+    from ._frames import Frames
+    from ._predictor import Predictor
     from ._x64 import float64
     from ._xla import vectorise_small_loops
     from .calibrate import Settings, calibrate
     from .dataset import Dataset, load_dataset, save_dataset
+    from .errors import InputError
     from .models import AbstractModel, AffinePair, DHModel, HTMModel, get_model
     from .observations import Observations, Rig
     from .predict import hand_command
     from .result import CalibrationResult, load_result
-
-__version__ = "0.1.0"
 
 __all__ = [
     "AbstractModel",

@@ -15,6 +15,7 @@ import tempfile
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
+from . import _interrupt
 from .errors import InputError
 
 
@@ -42,6 +43,7 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> None:
 
 def _write_temp(path: Path, data: bytes) -> str:
     """``data`` in a new temporary file beside ``path``, with ``path``'s permissions."""
+    _interrupt.before_writing()  # Ctrl-C before the first output: nothing is written
     try:
         mode = stat.S_IMODE(os.stat(path).st_mode)
     except FileNotFoundError:
@@ -286,6 +288,7 @@ def write_folder_atomic(
     """
     folder = Path(folder)
     made = False
+    _interrupt.before_writing()
     if not folder.is_dir():
         try:
             folder.mkdir()

@@ -1,7 +1,11 @@
 """``handeye-jax``: a thin command line over the Python API.
 
 Every failure caused by input prints one line naming the file and field and exits with
-status 2; nothing is written unless it is complete.
+status 2; nothing is written unless it is complete. Ctrl-C at any moment before the outputs
+are written ends the run with status 130 and every file as it was (``_interrupt.py``).
+
+This module imports no JAX at its top, so that the Ctrl-C handling is in place before the
+second or more that importing JAX takes.
 """
 
 from __future__ import annotations
@@ -12,17 +16,46 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from . import _interrupt
 from ._atomic import check_output, write_output
 from ._validate import MAX_GENERATIONS, MAX_POPULATION, parse_float, parse_int
-from ._xla import vectorise_small_loops
 from .errors import InputError
 
 PROG = "handeye-jax"
 
 
+class _HelpFormatter(argparse.HelpFormatter):
+    """Every option's help ends with its default, unless the help already names it."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if not action.option_strings or "default" in text.lower():
+            return text
+        if action.default is False and action.nargs == 0:  # a flag: off unless given
+            return f"{text} (default: off)"
+        if action.default is None or action.default is argparse.SUPPRESS:
+            return text  # such options say in their help what happens without them
+        return f"{text} (default: %(default)s)"
+
+
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", _HelpFormatter)
+        super().__init__(*args, **kwargs)
+
     def error(self, message: str):  # one line, no usage block
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("handeye-jax")
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        from . import __version__
+
+        return __version__
 
 
 def _whole_number(text: str) -> int:
@@ -155,6 +188,13 @@ def _positive_mm(text: str) -> float:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
+    import logging
+
+    # Matplotlib logs advice about itself (a temporary cache folder when its own cannot be
+    # written, a slow first font scan); with no handler of ours it would reach stderr.
+    mpl_log = logging.getLogger("matplotlib")
+    if not mpl_log.handlers:
+        mpl_log.addHandler(logging.NullHandler())
     from .report import write_report
 
     written = write_report(args.result, args.out, args.dataset, field="--out")
@@ -174,6 +214,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog=PROG,
         description="Hand-eye calibration of a camera + pen end-effector from tablet landmarks.",
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     cal = sub.add_parser(
@@ -183,15 +224,19 @@ def build_parser() -> argparse.ArgumentParser:
         "settings are --population 10000 --generations 10000 --no-early-stop.",
     )
     cal.add_argument("dataset", help="dataset file (handeye-jax.dataset/1 TOML; mm, deg, px)")
-    cal.add_argument("--model", choices=sorted(model_registry()), default=d.model)
-    cal.add_argument("--seed", type=_seed, default=d.seed, help=f"PRNG seed (default {d.seed})")
+    cal.add_argument(
+        "--model", choices=sorted(model_registry()), default=d.model,
+        help="the transform chain: htm, six-DoF transforms (eqs. 1-8); dh, the "
+        "Denavit-Hartenberg variant (eqs. 12-16)",
+    )  # fmt: skip
+    cal.add_argument("--seed", type=_seed, default=d.seed, help="PRNG seed")
     cal.add_argument(
         "--population", type=_population, default=d.population,
-        help=f"DE population N, both stages (default {d.population})",
+        help="DE population N, both stages",
     )  # fmt: skip
     cal.add_argument(
         "--generations", type=_generations, default=d.generations,
-        help=f"most DE generations G, both stages (default {d.generations})",
+        help="most DE generations G, both stages",
     )  # fmt: skip
     cal.add_argument(
         "--no-early-stop", action="store_true",
@@ -203,14 +248,17 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     cal.add_argument(
         "--loss-scale-mm", type=_positive_mm, default=d.loss_scale_mm, metavar="MM",
-        help=f"robust loss scale, mm; errors above 3x it are flagged (default {d.loss_scale_mm:g})",
+        help="robust loss scale, mm; errors above 3x it are flagged",
     )  # fmt: skip
     cal.add_argument(
         "--no-diagnostics", action="store_true",
         help="skip uncertainty, leave-one-out and convention check (about a second faster)",
     )  # fmt: skip
-    cal.add_argument("--out", metavar="RESULT.json", help="write the result (JSON) here")
-    cal.add_argument("--quiet", action="store_true", help="no progress bars")
+    cal.add_argument(
+        "--out", metavar="RESULT.json",
+        help="write the result (JSON) here (default: print the summary only)",
+    )  # fmt: skip
+    cal.add_argument("--quiet", action="store_true", help="no progress bars on stderr")
     cal.set_defaults(func=_cmd_calibrate)
     add_twin_commands(sub)  # simulate, detect, evaluate
     add_export_command(sub)
@@ -224,7 +272,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     pre.add_argument("result", help="result file from 'calibrate --out'")
     pre.add_argument("points", help="CSV with header u,v,depth,hand_angle")
-    pre.add_argument("--out", metavar="OUT.csv", help="write here instead of standard output")
+    pre.add_argument(
+        "--out", metavar="OUT.csv", help="write the CSV here (default: standard output)"
+    )
     pre.add_argument(
         "--stage", type=_whole_number, choices=(1, 2), default=2,
         help="2: eq. (25) with the affine correction (default); 1: eq. (8), model only",
@@ -241,21 +291,36 @@ def build_parser() -> argparse.ArgumentParser:
         "opens the printed URL (or scans its QR code) gets in: it carries a secret, new at "
         "each start.",
     )
-    tab.add_argument("--dataset", help="dataset whose landmarks to draw and touch errors to write")
+    tab.add_argument(
+        "--dataset",
+        help="dataset whose landmarks to draw and touch errors to write (default: none; "
+        "calibration mode needs it)",
+    )
     tab.add_argument(
         "--host", default="127.0.0.1",
         help="address to listen on (default 127.0.0.1; 0.0.0.0 lets a tablet on the LAN in, "
         "and the page's URL is printed with this PC's LAN address)",
     )  # fmt: skip
-    tab.add_argument("--port", type=_port, default=8765, help="TCP port (default 8765)")
-    tab.add_argument("--targets", metavar="TARGETS.json", help="evaluation targets, tablet px")
-    tab.add_argument("--result", metavar="RESULT.json", help="the result being evaluated")
-    tab.add_argument("--trials", metavar="TRIALS.json", help="where evaluation trials are saved")
+    tab.add_argument("--port", type=_port, default=8765, help="TCP port")
+    tab.add_argument(
+        "--targets", metavar="TARGETS.json",
+        help="evaluation targets, tablet px (default: none; the page offers the dataset's "
+        "landmarks or a grid)",
+    )  # fmt: skip
+    tab.add_argument(
+        "--result", metavar="RESULT.json",
+        help="the result being evaluated (default: none)",
+    )  # fmt: skip
+    tab.add_argument(
+        "--trials", metavar="TRIALS.json",
+        help="where evaluation trials are saved (default: DATASET_STEM.trials.json beside the "
+        "dataset, or tablet-trials.json)",
+    )  # fmt: skip
     tab.add_argument("--ppi", type=_positive_number,
                      help="tablet px per inch (default: the dataset's)")  # fmt: skip
     tab.add_argument("--scale", type=_positive_number,
                      help="display scale (default: the dataset's)")  # fmt: skip
-    tab.set_defaults(func=_cmd_tablet)
+    tab.set_defaults(func=_cmd_tablet, serves=True)
     rep = sub.add_parser(
         "report",
         help="figures (PNG and SVG) of a calibration result",
@@ -265,7 +330,11 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("result", help="result file from 'calibrate --out'")
     rep.add_argument("--out", metavar="DIR", help="folder for the figures (default: "
                      "RESULT_report next to the result)")  # fmt: skip
-    rep.add_argument("--dataset", help="the dataset, for results that do not carry their data")
+    rep.add_argument(
+        "--dataset",
+        help="the dataset, for results that do not carry their data (default: the result's "
+        "own copy)",
+    )
     rep.set_defaults(func=_cmd_report)
     return parser
 
@@ -294,19 +363,35 @@ def _enable_compilation_cache() -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    """Run the command line on ``argv`` (default: ``sys.argv[1:]``); returns the exit status."""
+    with _interrupt.recording_interrupts():
+        try:
+            return _run_command(argv)
+        except KeyboardInterrupt:
+            print(f"{PROG}: interrupted; nothing was written", file=sys.stderr)
+            return 130
+
+
+def _run_command(argv: Sequence[str] | None) -> int:
     try:
+        with _interrupt.deferred():  # imports JAX, NumPy, OpenCV: a second or more
+            parser = build_parser()
+        args = parser.parse_args(argv)
+        if getattr(args, "serves", False):  # a server: Ctrl-C is how it ends, after its saves
+            _interrupt.stop_recording()
+        from ._xla import vectorise_small_loops
+
         vectorise_small_loops()
         _enable_compilation_cache()
-        return args.func(args)
+        code = args.func(args)
+        _interrupt.check()  # a Ctrl-C that a callback swallowed, and nothing written since
+        return code
     except InputError as e:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted; nothing was written", file=sys.stderr)
-        return 130
     except Exception as e:  # the user gets one line; developers can ask for the traceback
+        if _interrupt.pending():  # a Ctrl-C that C++ code turned into another error
+            raise KeyboardInterrupt from None
         if os.environ.get("HANDEYE_JAX_DEBUG"):
             raise
         what = " ".join(str(e).split())  # one line, even for OpenCV's multi-line messages

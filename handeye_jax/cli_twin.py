@@ -191,7 +191,9 @@ def add_twin_commands(sub: argparse._SubParsersAction) -> None:
         default="paper",
         help="noise preset (default paper: about the spread of Table 2)",
     )
-    sim.add_argument("--truth", metavar="TRUTH.json", help="use this rig truth instead of a draw")
+    sim.add_argument(
+        "--truth", metavar="TRUTH.json", help="use this rig truth (default: a draw from --seed)"
+    )
     sim.add_argument(
         "--exact",
         action="store_true",
@@ -227,14 +229,19 @@ def add_twin_commands(sub: argparse._SubParsersAction) -> None:
     det.add_argument(
         "--out",
         metavar="NEW.toml",
-        help="write here; without it DATASET is updated and the old one kept as .bak",
+        help="write here (default: update DATASET in place, the old one kept as .bak)",
     )
     det.add_argument(
         "--overlay",
         metavar="OVERLAY.png",
-        help="write the picture with the detected centroids numbered in landmark order",
+        help="write the picture with the detected centroids numbered in landmark order "
+        "(default: none)",
     )
-    det.add_argument("--threshold", choices=("otsu", "adaptive"), default="otsu")
+    det.add_argument(
+        "--threshold", choices=("otsu", "adaptive"), default="otsu",
+        help="how dots are told from the background: Otsu's threshold on the top-hat, or "
+        "OpenCV's adaptive threshold",
+    )  # fmt: skip
     det.add_argument("--min-area", type=_positive_int, default=DetectSettings.min_area_px,
                      help="smallest blob, px² (default: %(default)s)")  # fmt: skip
     det.add_argument("--max-area", type=_positive_int, default=DetectSettings.max_area_px,

@@ -475,6 +475,28 @@ def overlay_image(image: np.ndarray, points_px: np.ndarray, labels: list[str]) -
         c = (int(round(u * 16)), int(round(v * 16)))
         cv2.circle(out, c, 8 * 16, (0, 0, 255), 1, cv2.LINE_AA, shift=4)
         cv2.drawMarker(out, (int(round(u)), int(round(v))), (0, 160, 0), cv2.MARKER_CROSS, 5, 1)
-        cv2.putText(out, text, (int(u) + 9, int(v) - 9), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
+        size = cv2.getTextSize(text, _LABEL_FONT, _LABEL_SCALE, 1)
+        cv2.putText(out, text, _label_origin(u, v, size, out.shape), _LABEL_FONT, _LABEL_SCALE,
                     (0, 0, 255), 1, cv2.LINE_AA)  # fmt: skip
     return out
+
+
+_LABEL_FONT = cv2.FONT_HERSHEY_SIMPLEX
+_LABEL_SCALE = 0.5
+
+
+def _label_origin(
+    u: float, v: float, size: tuple[tuple[int, int], int], shape: tuple[int, ...], gap: int = 9
+) -> tuple[int, int]:
+    """Where a label of ``size`` (OpenCV's ``((width, height), baseline)``, px) starts: above
+    and right of the point (u, v), px, or mirrored to the left / below where that would leave
+    the picture; in a corner, inside it however long the label."""
+    (w, h), baseline = size
+    rows, cols = shape[:2]
+    x = int(u) + gap
+    if x + w > cols - 1:
+        x = int(u) - gap - w
+    y = int(v) - gap  # the text's baseline
+    if y - h < 0:
+        y = int(v) + gap + h
+    return max(0, min(x, cols - 1 - w)), max(h, min(y, rows - 1 - baseline))

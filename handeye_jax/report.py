@@ -5,7 +5,8 @@ Each figure is saved as PNG and SVG, all put in place together once all are draw
 * ``fig3_landmarks``: the landmarks in the captured image (px) and the hand positions at the
   touches in the base frame (mm), as the paper's Fig. 3;
 * ``chains_stage1``, ``chains_stage2``: the landmarks taken to the base frame by both chains,
-  with the residual arrows scaled up and labelled, as the paper's Figs. 6 and 7;
+  with the residual arrows scaled up (the same scale in both) and a length key, as the
+  paper's Figs. 6 and 7;
 * ``residuals``: per-landmark error lengths of both terms, for each stage;
 * ``convergence``: DE's best and median F against generation, for each stage;
 * ``loo``: leave-one-out (held-out) errors against the in-sample ones, for each stage.
@@ -16,14 +17,18 @@ without it, pass the dataset it was fitted on.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import io
+import warnings
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
 
+from . import _xla
 from ._atomic import check_folder_output, write_folder_atomic
 from ._x64 import in_float64
 from .dataset import load_dataset
@@ -36,9 +41,10 @@ from .result import CalibrationResult, load_result, observations_to_dict
 FIGURES = ("fig3_landmarks", "chains_stage1", "chains_stage2", "residuals", "convergence", "loo")
 FORMATS = ("png", "svg")
 DPI = 120
-#: Residual arrows are drawn this many times their length (the figures say so).
-ARROW_SCALE = {1: 10.0, 2: 20.0}
-#: The length key beside the arrows shows an error of this many mm.
+#: Residual arrows are drawn this many times their length in both stages' figures (which say
+#: so), so that arrows of the two stages compare at a glance.
+ARROW_SCALE = 10.0
+#: The length key below the arrows shows an error of this many mm.
 KEY_MM = 1.0
 
 
@@ -72,21 +78,34 @@ def _observations(result: CalibrationResult) -> Observations:
 def chain_data(result: CalibrationResult) -> tuple[ChainPlotData, ChainPlotData]:
     """Both stages' points in the base frame, recomputed from the result and its data."""
     obs = _observations(result)
-    points = chain_points(result.fitted_model(), obs)
+    s1, s2 = _chain_arrays(result.fitted_model(), result.fitted_correction(), obs)
+    return ChainPlotData(*map(np.asarray, s1)), ChainPlotData(*map(np.asarray, s2))
+
+
+@_xla.fast_compile  # one small program, not one per operation (2.9 s -> 0.5 s here)
+def _chain_arrays(model, correction, obs: Observations):
+    points = chain_points(model, obs)
     e1 = stage1_errors(points)
-    s1 = ChainPlotData(
-        points.image_xy, points.tablet_xy,
-        points.hand_target_xy + e1.hand, points.hand_target_xy,
-    )  # fmt: skip
-    e2, _ = stage2_errors(result.fitted_correction(), points, result.centre_index)
-    s2 = ChainPlotData(
-        points.tablet_xy + e2.image_vs_tablet, points.tablet_xy,
-        points.hand_target_xy + e2.hand, points.hand_target_xy,
-    )  # fmt: skip
+    e2, _ = stage2_errors(correction, points, obs.centre_index)
+    s1 = (points.image_xy, points.tablet_xy, points.hand_target_xy + e1.hand,
+          points.hand_target_xy)  # fmt: skip
+    s2 = (points.tablet_xy + e2.image_vs_tablet, points.tablet_xy,
+          points.hand_target_xy + e2.hand, points.hand_target_xy)  # fmt: skip
     return s1, s2
 
 
 # -- figures -----------------------------------------------------------------------------
+
+
+@contextlib.contextmanager
+def _drawing() -> Iterator[None]:
+    """Matplotlib's own defaults, whatever the user's matplotlibrc says (a font without "×"
+    or "−" would warn and draw boxes), and no warnings about layout or fonts on stderr."""
+    import matplotlib.style
+
+    with matplotlib.style.context("default"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        yield
 
 
 def _figure(**kwargs):
@@ -138,8 +157,8 @@ def fig_landmarks(result: CalibrationResult):
 
 def fig_chains(result: CalibrationResult, data: ChainPlotData, stage: int):
     """The paper's Figs. 6 / 7: both chains in the base frame with scaled residual arrows."""
-    k = ARROW_SCALE[stage]
-    fig = _figure(figsize=(12, 5.4))
+    k = ARROW_SCALE
+    fig = _figure(figsize=(12, 6))
     ax1, ax2 = fig.subplots(1, 2)
     image_label = "image chain x_bi" if stage == 1 else "image chain after A1"
     for ax, pred, target, names in (
@@ -153,16 +172,17 @@ def fig_chains(result: CalibrationResult, data: ChainPlotData, stage: int):
         d = pred - target
         q = ax.quiver(target[:, 0], target[:, 1], k * d[:, 0], k * d[:, 1], angles="xy",
                       scale_units="xy", scale=1, color="C3", width=0.004,
-                      label=f"error, drawn ×{k:g}")  # fmt: skip
-        # A length key: the arrow an error of KEY_MM would have.
-        ax.quiverkey(q, 0.12, 0.04, k * KEY_MM, f"{KEY_MM:g} mm error", labelpos="E",
-                     coordinates="axes", fontproperties={"size": 8})  # fmt: skip
+                      label=f"error ×{k:g}, arrow from ○ to •")  # fmt: skip
+        key_xy = _chain_limits(ax, np.concatenate([target, pred, target + k * d]), k * KEY_MM)
+        # The length key: the arrow an error of KEY_MM has. With the label on its right
+        # ("E"), quiverkey puts the arrow's tip at the given point.
+        ax.quiverkey(q, *key_xy, k * KEY_MM, f"{KEY_MM:g} mm error", labelpos="E",
+                     coordinates="data", fontproperties={"size": 8})  # fmt: skip
         _label_points(ax, target, dx=2, dy=-14, color="0.3")
-        ax.set_aspect("equal", adjustable="datalim")
         ax.set_xlabel("x, base frame (mm)")
         ax.set_ylabel("y, base frame (mm)")
         ax.grid(alpha=0.3)
-        ax.legend(loc="best", fontsize=8)
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.11), ncols=2, fontsize=8)
     s = result.stage1 if stage == 1 else result.stage2
     ax1.set_title(f"image vs tablet: f1 = {s.f1:.3f} mm")
     ax2.set_title(f"hand vs target: f2 = {s.f2:.3f} mm")
@@ -171,6 +191,20 @@ def fig_chains(result: CalibrationResult, data: ChainPlotData, stage: int):
         f"(errors drawn ×{k:g})"
     )
     return fig
+
+
+def _chain_limits(ax, xy: np.ndarray, key_mm: float) -> tuple[float, float]:
+    """Equal-aspect limits around ``xy`` (mm) with a strip at the bottom for the length key
+    (an arrow ``key_mm`` long and its label); returns where the key's tip goes, mm."""
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    span = max(float((hi - lo).max()), 6.0 * key_mm, 1e-9)
+    pad = 0.06 * span
+    strip = 0.1 * span  # below the data: the key never covers a point or an arrow
+    # Data limits, not fixed ones: the equal aspect then widens one range to fit the panel.
+    ax.update_datalim([(lo[0] - pad, lo[1] - pad - strip), (hi[0] + pad, hi[1] + pad)])
+    ax.autoscale_view()
+    ax.set_aspect("equal", adjustable="datalim")
+    return lo[0] - pad + 0.3 * pad + key_mm, lo[1] - pad - 0.5 * strip
 
 
 def _bars(ax, values: list[np.ndarray], labels: list[str], colors: list[str]):
@@ -183,7 +217,12 @@ def _bars(ax, values: list[np.ndarray], labels: list[str], colors: list[str]):
     ax.set_xlabel("landmark m")
     ax.set_ylabel("error length (mm)")
     ax.grid(axis="y", alpha=0.3)
-    ax.legend(fontsize=9)
+
+
+def _legend_below(fig, ax) -> None:
+    """One legend for both panels, below them: inside an axes it would cover a bar."""
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncols=4,
+               fontsize=9)  # fmt: skip
 
 
 def fig_residuals(result: CalibrationResult):
@@ -197,12 +236,13 @@ def fig_residuals(result: CalibrationResult):
         _bars(ax, [e1, e2], ["|image − tablet|", "|hand − target|"], ["C0", "C1"])
         ax.set_title(f"{name}\nf1 = {s.f1:.3f} mm, f2 = {s.f2:.3f} mm, F = {s.F:.3f} mm")
     fig.suptitle("residual of every landmark (in-sample)")
+    _legend_below(fig, axes[0])
     return fig
 
 
 def fig_convergence(result: CalibrationResult):
     """DE's best and median F against generation, for each stage."""
-    from matplotlib.ticker import ScalarFormatter
+    from matplotlib.ticker import LogFormatter
 
     fig = _figure(figsize=(11, 4.5))
     axes = fig.subplots(1, 2)
@@ -219,8 +259,10 @@ def fig_convergence(result: CalibrationResult):
                     label=f"median F of the population ({every})")  # fmt: skip
         ax.axhline(s.F, color="0.3", ls="--", lw=1, label=f"after LM polish: {s.F:.4f} mm")
         ax.set_yscale("log")
-        ax.yaxis.set_major_formatter(ScalarFormatter())
-        ax.yaxis.set_minor_formatter(ScalarFormatter())
+        # Plain numbers (2, 5, 10, not 2×10^0); labels between the powers of ten only where
+        # they fit: all below 0.7 decades, 2, 3, 4, 6 up to two, none above (LogFormatter).
+        ax.yaxis.set_major_formatter(LogFormatter())
+        ax.yaxis.set_minor_formatter(LogFormatter(labelOnlyBase=False, minor_thresholds=(2, 0.7)))
         ax.set_xlabel("DE generation")
         ax.set_ylabel("F (mm)")
         ax.set_title(f"{name}: {s.de.get('generations', '?')} generations")
@@ -235,6 +277,7 @@ def fig_loo(result: CalibrationResult):
     fig = _figure(figsize=(11, 4.5))
     axes = fig.subplots(1, 2, sharey=True)
     diag = result.diagnostics
+    legend_from = None
     for ax, key, s, name in zip(axes, ("stage1", "stage2"), (result.stage1, result.stage2),
                                 ("stage 1", "stages 1 + 2 (pipeline)"), strict=True):  # fmt: skip
         loo = diag.get(key, {}).get("loo")
@@ -248,7 +291,10 @@ def fig_loo(result: CalibrationResult):
         _bars(ax, [ins, held], ["in-sample", "held out (refit without m)"], ["0.6", "C3"])
         ax.set_ylabel("|image − tablet| + |hand − target| (mm)")
         ax.set_title(f"{name}\nheld-out F = {loo['F']:.3f} mm, in-sample F = {s.F:.3f} mm")
+        legend_from = ax
     fig.suptitle("leave-one-out: does the fit predict a landmark it has not seen?")
+    if legend_from is not None:
+        _legend_below(fig, legend_from)
     return fig
 
 
@@ -258,14 +304,15 @@ def fig_loo(result: CalibrationResult):
 def render(result: CalibrationResult) -> dict[str, Any]:
     """All figures of a result (matplotlib Figures) by name; needs ``result.observations``."""
     s1, s2 = chain_data(result)
-    return {
-        "fig3_landmarks": fig_landmarks(result),
-        "chains_stage1": fig_chains(result, s1, 1),
-        "chains_stage2": fig_chains(result, s2, 2),
-        "residuals": fig_residuals(result),
-        "convergence": fig_convergence(result),
-        "loo": fig_loo(result),
-    }
+    with _drawing():
+        return {
+            "fig3_landmarks": fig_landmarks(result),
+            "chains_stage1": fig_chains(result, s1, 1),
+            "chains_stage2": fig_chains(result, s2, 2),
+            "residuals": fig_residuals(result),
+            "convergence": fig_convergence(result),
+            "loo": fig_loo(result),
+        }
 
 
 def write_report(
@@ -307,11 +354,13 @@ def write_report(
     names = [f"{name}.{ext}" for name in FIGURES for ext in FORMATS]
     check_folder_output(out, names, field, [result_path, dataset])
     rendered = {}
-    for name, fig in render(result).items():
-        for ext in FORMATS:
-            buf = io.BytesIO()
-            fig.savefig(buf, format=ext, dpi=DPI)
-            rendered[f"{name}.{ext}"] = buf.getvalue()
+    figures = render(result)
+    with _drawing():
+        for name, fig in figures.items():
+            for ext in FORMATS:
+                buf = io.BytesIO()
+                fig.savefig(buf, format=ext, dpi=DPI)
+                rendered[f"{name}.{ext}"] = buf.getvalue()
     return write_folder_atomic(out, rendered, field)
 
 

@@ -8,6 +8,12 @@ import pytest
 os.environ.setdefault(
     "HANDEYE_JAX_CACHE_DIR", str(Path(__file__).resolve().parents[1] / ".pytest_cache" / "xla")
 )
+# Every test's programs go to that cache from the start, as the command line's do, so a second
+# run of the suite loads what the first compiled. (The CLI calls would enable it anyway, but
+# only from the first of them on.)
+jax.config.update("jax_compilation_cache_dir", os.environ["HANDEYE_JAX_CACHE_DIR"])
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 
 
 @pytest.fixture(autouse=True)

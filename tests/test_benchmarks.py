@@ -1,9 +1,13 @@
 """Every benchmark runs at a tiny size, so none can rot. No timing is asserted."""
 
+import contextlib
+import io
 import re
+import runpy
 import subprocess
 import sys
 from pathlib import Path
+from unittest import mock
 
 import pytest
 
@@ -11,14 +15,27 @@ BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
 
 
 def _run(script, *args):
+    """``python benchmarks/SCRIPT ARGS`` in a fresh process: for the benchmarks that need one
+    (first_call times fresh processes; de_overhead sets XLA's flags before JAX starts)."""
     p = subprocess.run([sys.executable, str(BENCH / script), *args], capture_output=True,
                        text=True, timeout=600)  # fmt: skip
     assert p.returncode == 0, p.stderr[-3000:]
     return p.stdout
 
 
+def run_in_process(script, *args):
+    """What ``python benchmarks/SCRIPT ARGS`` prints, run in this process: it reuses the
+    suite's imports and compiled programs, where a fresh process would pay for JAX's import
+    and every compilation again."""
+    out = io.StringIO()
+    with mock.patch.object(sys, "argv", [str(BENCH / script), *args]), \
+            contextlib.redirect_stdout(out):  # fmt: skip
+        runpy.run_path(str(BENCH / script), run_name="__main__")
+    return out.getvalue()
+
+
 def test_de_throughput_runs_all_three_des():
-    out = _run("de_throughput.py", "--quick")
+    out = run_in_process("de_throughput.py", "--quick")
     for name in ("handeye-jax", "scipy", "evosax", "objective alone", "full budget", "memory"):
         assert name in out
     # the objective alone, timed in each layout, with the DE's overhead against each
@@ -27,7 +44,7 @@ def test_de_throughput_runs_all_three_des():
 
 
 def test_scaling_runs_and_plots(tmp_path):
-    out = _run("scaling.py", "--quick", "--out-dir", str(tmp_path))
+    out = run_in_process("scaling.py", "--quick", "--out-dir", str(tmp_path))
     assert "| 50 |" in out and "| 16 |" in out
     png = (tmp_path / "scaling.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
@@ -35,12 +52,12 @@ def test_scaling_runs_and_plots(tmp_path):
 
 @pytest.mark.parametrize("seeds", [["--seeds", "1"]])
 def test_reproduce_paper_runs(seeds):
-    out = _run("reproduce_paper.py", *seeds, "--population", "60", "--generations", "80")
+    out = run_in_process("reproduce_paper.py", *seeds, "--population", "60", "--generations", "80")
     assert out.count("| seed 1 |") == 3
 
 
 def test_first_call_reports_cold_and_warm():
-    out = _run("first_call.py", "--quick")
+    out = _run("first_call.py", "--quick", "--no-diagnostics")
     assert "| cold |" in out and "| warm |" in out
     # the per-program table parsed JAX's compile log: the DE loop and the LM polish are in it
     assert "| _chunk_scan | 2 |" in out and "| _lm | 2 |" in out and "| all |" in out
@@ -58,7 +75,7 @@ def test_de_overhead_times_every_ablation_and_reads_xla_ir():
 
 
 def test_robust_flags_the_touched_landmark():
-    out = _run("robust.py", "--quick")
+    out = run_in_process("robust.py", "--quick")
     rows = [line for line in out.splitlines() if line.startswith(("| l1 |", "| cauchy |"))]
     assert len(rows) == 2
     # landmark 6 was touched 5 mm off: both losses flag it, and only it

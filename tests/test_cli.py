@@ -280,7 +280,8 @@ def test_too_few_landmarks(tmp_path, capsys):
 
 def test_compilation_cache_goes_where_asked_and_can_be_turned_off(tmp_path):
     cache = tmp_path / "xla-cache"
-    base = [sys.executable, "-m", "handeye_jax.cli", "calibrate", str(PAPER), *FAST]
+    base = [sys.executable, "-m", "handeye_jax.cli", "calibrate", str(PAPER), "--quiet",
+            "--population", "40", "--generations", "5", "--no-diagnostics"]  # fmt: skip
     env = dict(os.environ, HANDEYE_JAX_CACHE_DIR=str(cache))
     p = subprocess.run(base, capture_output=True, text=True, env=env)
     assert p.returncode == 0, p.stderr[-2000:]
@@ -325,3 +326,123 @@ def test_detect_in_place_keeps_the_users_comments(tmp_path, capsys):
     assert "already holds them" in capsys.readouterr().out
     assert ds_path.read_bytes() == before
     assert (tmp_path / "mine.toml.bak").read_text() == text
+
+
+# -- Ctrl-C, --version, help ---------------------------------------------------------------
+
+INTERRUPTED = "handeye-jax: interrupted; nothing was written"
+#: Moments of a run, each recognised on its stderr: during the imports (seen with
+#: ``-X importtime``), in stage 1's DE, after stage 2's DE (polish, diagnostics). The last
+#: moment, after the summary and before the write, is the in-process test below.
+CTRL_C_MOMENTS = {
+    "importing numpy": (["-X", "importtime"], r"\|\s+numpy\n"),
+    "stage 1 DE": ([], r"stage 1 DE"),
+    "after stage 2 DE": ([], r"stage 2 DE[^\n]*\n"),
+}
+
+
+def _ctrl_c_when(tmp_path, python_flags, pattern):
+    """Start ``calibrate --out`` over an existing file, send SIGINT when stderr matches."""
+    import signal
+    import threading
+    import time
+
+    out = tmp_path / "result.json"
+    out.write_text("precious\n")
+    cmd = [sys.executable, *python_flags, "-m", "handeye_jax.cli", "calibrate", str(PAPER),
+           "--population", "40", "--generations", "70", "--out", str(out)]  # fmt: skip
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    chunks: list[bytes] = []
+    reader = threading.Thread(target=lambda: chunks.extend(iter(lambda: p.stderr.read1(), b"")))
+    reader.start()
+    deadline = time.monotonic() + 120
+    while not re.search(pattern, b"".join(chunks).decode(errors="replace")):
+        assert p.poll() is None, f"the run ended before {pattern!r}"
+        assert time.monotonic() < deadline
+        time.sleep(0.005)
+    p.send_signal(signal.SIGINT)
+    stdout = p.stdout.read()
+    p.wait(timeout=120)
+    reader.join()
+    err = b"".join(chunks).decode()
+    lines = [s for s in re.split(r"[\r\n]+", err) if s.strip() and not s.startswith("import time")]
+    return p.returncode, stdout.decode(), err, lines, out
+
+
+@pytest.mark.parametrize("moment", CTRL_C_MOMENTS)
+def test_ctrl_c_at_any_moment_exits_130_and_keeps_the_out_file(tmp_path, moment):
+    rc, _, err, lines, out = _ctrl_c_when(tmp_path, *CTRL_C_MOMENTS[moment])
+    assert rc == 130, err[-2000:]
+    assert lines[-1] == INTERRUPTED
+    assert "Traceback" not in err and "Exception ignored" not in err
+    assert out.read_text() == "precious\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["result.json"]  # no temporary file left
+
+
+def test_a_ctrl_c_that_a_callback_swallowed_still_stops_before_the_write(
+    tmp_path, capsys, monkeypatch
+):
+    import signal
+
+    import handeye_jax.summary
+
+    summary = handeye_jax.summary.format_summary
+
+    def swallowing(result):  # the last step before the write
+        try:
+            signal.raise_signal(signal.SIGINT)
+        except KeyboardInterrupt:
+            pass  # as JAX's _xla_gc_callback swallows it
+        return summary(result)
+
+    monkeypatch.setattr(handeye_jax.summary, "format_summary", swallowing)
+    out = tmp_path / "result.json"
+    out.write_text("precious\n")
+    assert main(["calibrate", str(PAPER), *FAST, "--no-diagnostics", "--out", str(out)]) == 130
+    assert capsys.readouterr().err.strip() == INTERRUPTED
+    assert out.read_text() == "precious\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["result.json"]
+
+
+def test_version_is_the_installed_packages(capsys):
+    from importlib.metadata import version
+
+    with pytest.raises(SystemExit) as e:
+        main(["--version"])
+    assert e.value.code == 0
+    assert capsys.readouterr().out == f"handeye-jax {version('handeye-jax')}\n"
+
+
+def _subcommands():
+    import argparse
+
+    from handeye_jax.cli import build_parser
+
+    parser = build_parser()
+    (sub,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    return sub.choices
+
+
+@pytest.mark.parametrize("name", ["calibrate", "predict", "report", "tablet", "simulate",
+                                  "detect", "evaluate"])  # fmt: skip
+def test_every_option_has_help_that_states_its_default(name):
+    parser = _subcommands()[name]
+    formatter = parser._get_formatter()
+    for action in parser._actions:
+        if action.help == "show this help message and exit":
+            continue
+        text = formatter._expand_help(action) if action.help else ""
+        assert len(text) > 10, f"{name} {action.dest}: no help"
+        if not action.option_strings or action.required:
+            continue
+        assert "default" in text.lower(), f"{name} {action.option_strings[0]}: {text!r}"
+        d = action.default
+        if d not in (None, False):
+            shown = {str(d), f"{d:g}"} if isinstance(d, float) else {str(d)}
+            assert any(s in text for s in shown), f"{name} {action.option_strings[0]}: {text!r}"
+
+
+def test_the_subcommands_are_the_ones_checked_above():
+    assert sorted(_subcommands()) == sorted(
+        ["calibrate", "predict", "report", "tablet", "simulate", "detect", "evaluate"]
+    )

@@ -31,8 +31,9 @@ class ShiftedSphere(eqx.Module):
 @settings(max_examples=30, deadline=None)
 @given(st.integers(4, 60), st.integers(0, 2**31 - 1))
 def test_index_draws_are_distinct_and_exclude_the_target(n, seed):
-    u = jax.random.uniform(jax.random.PRNGKey(seed), (3, n), dtype=jnp.float64)
-    u = u.at[:, 0].set(0.0).at[:, -1].set(1.0 - 2.0**-53)  # the extremes of [0, 1)
+    # NumPy's uniforms: JAX's would compile three small programs for every new n.
+    u = np.random.default_rng(seed).random((3, n))
+    u[:, 0], u[:, -1] = 0.0, 1.0 - 2.0**-53  # the extremes of [0, 1)
     r = np.asarray(distinct_indices(u))
     i = np.arange(n)
     assert r.min() >= 0 and r.max() < n
@@ -66,14 +67,16 @@ def test_index_draws_are_uniform_over_the_allowed_values():
 @given(st.integers(2, 300), st.integers(0, 2**31 - 1))
 def test_latin_hypercube_fills_every_stratum(n, seed):
     lo, hi = jnp.array([-1.0, 10.0, 0.0]), jnp.array([1.0, 30.0, 1e-3])
-    pop = np.asarray(latin_hypercube(jax.random.PRNGKey(seed), n, lo, hi))
+    # Jitted, as the DE's start uses it: one program per n, not one per operation.
+    lhs = jax.jit(latin_hypercube, static_argnums=1)
+    pop = np.asarray(lhs(jax.random.PRNGKey(seed), n, lo, hi))
     assert pop.shape == (n, 3)
     strata = np.floor((pop - np.asarray(lo)) / np.asarray(hi - lo) * n).astype(int)
     for d in range(3):
         assert sorted(strata[:, d]) == list(range(n))
     if n >= 20:  # each dimension is shuffled on its own
         assert not np.array_equal(strata[:, 0], strata[:, 1])
-    again = np.asarray(latin_hypercube(jax.random.PRNGKey(seed), n, lo, hi))
+    again = np.asarray(lhs(jax.random.PRNGKey(seed), n, lo, hi))
     np.testing.assert_array_equal(pop, again)
 
 

@@ -1,11 +1,15 @@
-"""The README's Python examples run as written, and its set-up commands are the CI's."""
+"""The README's examples run as written, its set-up commands are the CI's and work on Debian's
+own Python, and what it says agrees with the code (the paper it cites, the stage to deploy)."""
 
 import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text()
+SETUP = README[README.index("## Set-up") : README.index("## What you get")]
 
 
 def test_python_examples_run(tmp_path, monkeypatch):
@@ -20,13 +24,66 @@ def test_python_examples_run(tmp_path, monkeypatch):
     assert float(ns["dx_dparams"].xc) != 0.0
 
 
-def test_exactly_two_setup_commands_and_ci_runs_the_test_one():
-    commands = re.findall(r"```sh\n(.*?)\n```", README, flags=re.S)
-    assert len(commands) == 2
-    assert "handeye-jax calibrate data/paper2023.toml" in commands[0]
+def _setup_commands():
+    return re.findall(r"```sh\n(.*?)\n```", SETUP, flags=re.S)
+
+
+def test_three_setup_commands_and_ci_runs_the_test_one():
+    venv, calibrate, tests = _setup_commands()
+    assert venv.startswith("python3 -m venv ")
+    assert "handeye-jax calibrate data/paper2023.toml" in calibrate
     ci = (ROOT / ".ci" / "run").read_text()
-    chromium, install, test = commands[1].split(" && ")
+    chromium, install, test = tests.split(" && ")
     assert chromium in ci
     assert install.replace('"', "") in ci.replace('"', "") or '-e ".[test]"' in ci
     assert test in ci
     assert os.access(ROOT / ".ci" / "run", os.X_OK)
+
+
+def test_the_venv_step_gives_a_pip_of_its_own_on_debians_python(tmp_path):
+    # Debian's /usr/bin/python3 refuses `pip install` outside a virtual environment (PEP 668).
+    debian = Path("/usr/bin/python3")
+    python = debian if (debian.exists() and sys.platform == "linux") else Path(sys.executable)
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    (bin_dir / "python3").symlink_to(python)
+    venv = _setup_commands()[0]
+    check = "python3 -c 'import sys; print(sys.prefix != sys.base_prefix)' && python3 -m pip -V"
+    env = {"PATH": f"{bin_dir}{os.pathsep}/usr/bin:/bin", "HOME": str(tmp_path)}
+    p = subprocess.run(["sh", "-c", f"{venv} && {check}"], cwd=tmp_path, env=env,
+                       capture_output=True, text=True)  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    is_venv, pip = p.stdout.splitlines()
+    assert is_venv == "True" and str(tmp_path / ".venv") in pip
+
+
+def test_the_paper_is_cited_not_a_path_outside_the_repository():
+    assert "Hand–Eye Calibration Using a Tablet Computer" in README
+    assert "*Math. Comput. Appl.* **2023**, 28(1), 22" in README
+    assert "https://doi.org/10.3390/mca28010022" in README
+    assert "shared/seed" not in README
+
+
+def test_the_macos_and_fedora_notes_name_the_variable_the_tests_read():
+    notes = SETUP[SETUP.index("**macOS and Fedora.**") :]
+    assert "HANDEYE_JAX_CHROMIUM" in notes and "dnf install" in notes and "brew" in notes
+    assert "HANDEYE_JAX_CHROMIUM" in (ROOT / "tests" / "test_tablet_page.py").read_text()
+    assert "HANDEYE_JAX_CHROMIUM" in (ROOT / ".ci" / "install-chromium").read_text()
+
+
+def test_one_stage_to_deploy_and_predict_and_the_page_default_to_it():
+    from handeye_jax.cli import build_parser
+
+    advice = set(re.findall(r"[Dd]eploy stage (\d)", README))
+    assert len(advice) == 1, advice
+    (stage,) = advice
+    predict = build_parser().parse_args(["predict", "r.json", "p.csv"])
+    assert predict.stage == int(stage)
+    page = (ROOT / "handeye_jax" / "tablet" / "static" / "index.html").read_text()
+    assert re.search(rf'id="trial-label"[^>]*value="stage {stage}"', page)
+    assert f"--stage {3 - int(stage)}" in README  # and how to send the other one
+
+
+def test_the_suite_time_is_stated_with_its_conditions():
+    m = re.search(r"The suite took (.*?)\.\n", SETUP, flags=re.S)
+    assert m and re.search(r"\d+(\.\d+)? min", m.group(1)) and "core" in m.group(1)

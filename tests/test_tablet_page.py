@@ -9,6 +9,7 @@ Chromium resolves ``attacker.example`` to 127.0.0.1, as a DNS rebinding attack w
 
 import io
 import json
+import os
 import shutil
 import threading
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -25,7 +26,8 @@ from handeye_jax import load_dataset
 from handeye_jax.tablet import grid_targets, make_server
 
 PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
-CHROMIUM = "/usr/bin/chromium"
+# Debian's Chromium (.ci/install-chromium), or another one named by the user (macOS, Fedora).
+CHROMIUM = os.environ.get("HANDEYE_JAX_CHROMIUM") or "/usr/bin/chromium"
 CHROMIUM_ARGS = [
     "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
     "--disable-background-networking", "--disable-component-update", "--disable-sync",
