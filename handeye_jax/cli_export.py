@@ -34,9 +34,14 @@ def add_export_command(sub) -> None:
         "Formats that cannot say 'unknown' write 0 there, say so in the file, and warn.",
     )
     p.add_argument("result", help="result file from 'calibrate --out'")
-    p.add_argument("--format", required=True, choices=export.FORMATS, dest="fmt",
-                   metavar="{" + ",".join(export.FORMATS) + "}")  # fmt: skip
-    p.add_argument("--out", metavar="FILE", help="write here instead of standard output")
+    p.add_argument(
+        "--format", required=True, choices=export.FORMATS, dest="fmt",
+        metavar="{" + ",".join(export.FORMATS) + "}",
+        help="json/yaml: named frames with units and what the data did not determine; urdf: a "
+        "xacro snippet; ros2: static_transform_publisher and a launch snippet; opencv: "
+        "cv2.calibrateHandEye's R_cam2gripper, t_cam2gripper; python: a numpy-only predictor",
+    )  # fmt: skip
+    p.add_argument("--out", metavar="FILE", help="write here (default: standard output)")
     p.add_argument(
         "--parent-link", type=_name, default=export.DEFAULT_PARENT_LINK, metavar="LINK",
         help=f"the flange link (urdf, ros2; default {export.DEFAULT_PARENT_LINK})",

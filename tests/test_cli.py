@@ -423,8 +423,11 @@ def _subcommands():
     return sub.choices
 
 
-@pytest.mark.parametrize("name", ["calibrate", "predict", "report", "tablet", "simulate",
-                                  "detect", "evaluate"])  # fmt: skip
+SUBCOMMANDS = ["calibrate", "predict", "report", "tablet", "simulate", "detect", "evaluate",
+               "export"]  # fmt: skip
+
+
+@pytest.mark.parametrize("name", SUBCOMMANDS)
 def test_every_option_has_help_that_states_its_default(name):
     parser = _subcommands()[name]
     formatter = parser._get_formatter()
@@ -443,6 +446,4 @@ def test_every_option_has_help_that_states_its_default(name):
 
 
 def test_the_subcommands_are_the_ones_checked_above():
-    assert sorted(_subcommands()) == sorted(
-        ["calibrate", "predict", "report", "tablet", "simulate", "detect", "evaluate"]
-    )
+    assert sorted(_subcommands()) == sorted(SUBCOMMANDS)
