@@ -50,12 +50,25 @@ _EXPORTS = {
 }
 
 
+# What a robot PC may lack; Predictor and Frames need none of it.
+_JAX_STACK = ("jax", "jaxlib", "equinox", "optimistix", "jaxtyping", "lineax", "jaxlie")
+
+
 def __getattr__(name: str):
     if name in _SUBMODULES:
         return importlib.import_module(f"{__name__}.{name}")
     if name not in _EXPORTS:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
+    try:
+        module = importlib.import_module(f"{__name__}.{_EXPORTS[name]}")
+    except ImportError as e:
+        if (e.name or "").split(".")[0] not in _JAX_STACK:
+            raise
+        raise ImportError(
+            f"handeye_jax.{name} needs JAX, which cannot be imported here ({e}); Predictor "
+            "and Frames work without it"
+        ) from e
+    value = getattr(module, name)
     globals()[name] = value
     return value
 
