@@ -76,14 +76,16 @@ def noisy_landmarks(n: int, seed: int = 0):
     )  # fmt: skip
 
 
-def calibrate_once(n: int, quick: bool) -> dict:
-    """In this process: calibrate :func:`noisy_landmarks` twice (cold, then warm)."""
+def calibrate_once(n: int, quick: bool, diagnostics: bool = True, warm: bool = True) -> dict:
+    """In this process: calibrate :func:`noisy_landmarks` (cold, then warm again)."""
     from handeye_jax import Settings, calibrate
 
-    settings = Settings(population=50, generations=60) if quick else Settings()
+    settings = Settings(diagnostics=diagnostics)
+    if quick:
+        settings = Settings(population=50, generations=60, diagnostics=diagnostics)
     ds = noisy_landmarks(n)
     out = {"landmarks": n}
-    for run in ("cold", "warm"):
+    for run in ("cold", "warm")[: 1 + warm]:
         t = calibrate(ds, settings).timings_s
         out[run] = {
             "de": t["stage1_de"] + t["stage2_de"],
@@ -95,14 +97,22 @@ def calibrate_once(n: int, quick: bool) -> dict:
     return out
 
 
-def calibration_section(landmarks, quick: bool, timeout_s: float, memory_gb: float) -> list:
-    """Each size in a fresh process with a time and an address-space limit."""
+def calibration_section(
+    landmarks, quick: bool, timeout_s: float, memory_gb: float, diagnostics: bool, warm: bool
+) -> list:
+    """Each size in a fresh process with a time and an address-space limit (``quick``: in
+    this one)."""
     print("\n| landmarks | DE s | LM + restarts s | diagnostics s | total s | total warm s "
           "| peak memory MB |\n|---|---|---|---|---|---|---|")  # fmt: skip
     rows = []
     for n in landmarks:
+        if quick:  # in this process, reusing its compiled programs: a smoke test
+            rows.append(calibrate_once(n, quick, diagnostics, warm))
+            _print_row(rows[-1])
+            continue
         cmd = [sys.executable, __file__, "--one-calibration", str(n), "--memory-gb",
-               str(memory_gb)] + (["--quick"] * quick)  # fmt: skip
+               str(memory_gb)] + ["--no-diagnostics"] * (not diagnostics) + ["--no-warm"] * (
+               not warm)  # fmt: skip
         try:
             p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
         except subprocess.TimeoutExpired:
@@ -115,15 +125,16 @@ def calibration_section(landmarks, quick: bool, timeout_s: float, memory_gb: flo
                   "| | | | | |", flush=True)  # fmt: skip
             rows.append({"landmarks": n, "failed": why})
             continue
-        row = json.loads(p.stdout.strip().splitlines()[-1])
-        c, w = row["cold"], row["warm"]
-        print(
-            f"| {n:,} | {c['de']:.2f} | {c['polish']:.2f} | {c['diagnostics']:.2f} "
-            f"| {c['total']:.2f} | {w['total']:.2f} | {row['peak_rss_mb']:.0f} |",
-            flush=True,
-        )
-        rows.append(row)
+        rows.append(json.loads(p.stdout.strip().splitlines()[-1]))
+        _print_row(rows[-1])
     return rows
+
+
+def _print_row(row: dict) -> None:
+    c = row["cold"]
+    warm = f"{row['warm']['total']:.2f}" if "warm" in row else "-"
+    print(f"| {row['landmarks']:,} | {c['de']:.2f} | {c['polish']:.2f} | {c['diagnostics']:.2f} "
+          f"| {c['total']:.2f} | {warm} | {row['peak_rss_mb']:.0f} |", flush=True)  # fmt: skip
 
 
 def plot_calibration(rows: list, before: list | None, out_dir: Path) -> None:
@@ -207,15 +218,24 @@ def main(argv=None) -> None:
                     help="most seconds per calibration size")  # fmt: skip
     ap.add_argument("--memory-gb", type=float, default=12.0,
                     help="address-space limit of each calibration process, GB")  # fmt: skip
+    ap.add_argument("--no-diagnostics", action="store_true",
+                    help="calibrate without the diagnostics")  # fmt: skip
+    ap.add_argument("--no-warm", action="store_true", help="only the first calibration")
     ap.add_argument("--before", type=Path, help="scaling_calibration.json of another checkout")
     ap.add_argument("--out-dir", type=Path, default=Path(__file__).resolve().parent)
-    ap.add_argument("--quick", action="store_true")
+    ap.add_argument(
+        "--quick",
+        action="store_true",
+        help="tiny sizes, the calibration in this process: for the test suite",
+    )
     ap.add_argument("--one-calibration", type=int, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.one_calibration:
         cap = int(args.memory_gb * 2**30)  # before JAX allocates anything
         resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
-        print(json.dumps(calibrate_once(args.one_calibration, args.quick)))
+        row = calibrate_once(args.one_calibration, args.quick, not args.no_diagnostics,
+                             not args.no_warm)  # fmt: skip
+        print(json.dumps(row))
         return
     if args.quick:
         args.populations, args.grid, args.landmark_population, args.reps = [50, 200], [3, 4], 50, 2
@@ -228,8 +248,12 @@ def main(argv=None) -> None:
     if "de" in args.sections:
         de_section(args)
     if "calibration" in args.sections:
+        print(f"\ncalibrate, default settings{', no diagnostics' * args.no_diagnostics}; "
+              f"each size in a fresh process limited to {args.memory_gb:g} GB and "
+              f"{args.timeout:.0f} s")  # fmt: skip
         rows = calibration_section(args.calibration_landmarks, args.quick, args.timeout,
-                                   args.memory_gb)  # fmt: skip
+                                   args.memory_gb, not args.no_diagnostics,
+                                   not args.no_warm)  # fmt: skip
         (args.out_dir / "scaling_calibration.json").write_text(json.dumps(rows, indent=1) + "\n")
         before = json.loads(args.before.read_text()) if args.before else None
         plot_calibration(rows, before, args.out_dir)

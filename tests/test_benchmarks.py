@@ -54,12 +54,8 @@ def test_scaling_runs_and_plots(tmp_path):
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
 
 
-def test_miss_rate_finds_main_missing_twin_1_and_the_new_defaults_not(capsys):
-    sys.path.insert(0, str(BENCH))  # in process: the calibrations reuse compiled programs
-    import miss_rate
-
-    miss_rate.main(["--quick"])
-    out = capsys.readouterr().out
+def test_miss_rate_finds_main_missing_twin_1_and_the_new_defaults_not():
+    out = run_in_process("miss_rate.py", "--quick")
     assert "| main's defaults (no restarts) | 1 of 1 | 1 |" in out
     assert "| new defaults (restarts 32 + refits) | 0 of 1 | - |" in out
 
