@@ -144,9 +144,9 @@ def plot_calibration(rows: list, before: list | None, out_dir: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7.5, 4.8))
-    parts = (("polish", "LM polish (+ restarts)", "C0"), ("diagnostics", "diagnostics", "C1"),
+    parts = (("polish", "LM polish (and restarts)", "C0"), ("diagnostics", "diagnostics", "C1"),
              ("de", "DE", "C2"), ("total", "total", "k"))  # fmt: skip
-    for data, style, tag in ((rows, "o-", "this run"), (before or [], "x--", "before")):
+    for data, style, tag in ((rows, "o-", "this run"), (before or [], "x--", "--before run")):
         ok = [r for r in data if "cold" in r]
         if not ok:
             continue
@@ -159,11 +159,18 @@ def plot_calibration(rows: list, before: list | None, out_dir: Path) -> None:
         n = np.array([r["landmarks"] for r in ok], float)
         y = ok[-1]["cold"]["total"] * n / n[-1]
         ax.loglog(n, y, ":", color="grey", label="linear (through the last total)")
+    failed = [(tag, r) for tag, data in (("this run", rows), ("--before run", before or []))
+              for r in data if "failed" in r]  # fmt: skip
+    for i, (tag, r) in enumerate(failed):
+        why = r["failed"].split(": ")[-1][:70]  # e.g. XLA's "Out of memory allocating … bytes."
+        ax.annotate(f"{tag}: {r['landmarks']:,} landmarks failed:\n{why}",
+                    xy=(0.02, 0.97 - 0.12 * i), xycoords="axes fraction", va="top",
+                    fontsize=7, color="firebrick")  # fmt: skip
     ax.set_xlabel("landmarks")
     ax.set_ylabel("time of a first calibration (s, compilation included)")
     ax.set_title("calibrate, default settings, against the number of landmarks")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7, ncol=2)
+    ax.legend(fontsize=7, ncol=2, loc="lower right")
     fig.tight_layout()
     for ext in ("png", "svg"):
         fig.savefig(out_dir / f"scaling_calibration.{ext}", dpi=130)

@@ -33,6 +33,7 @@ from .objective import (
 )
 from .optim import differential_evolution, levenberg_marquardt, levenberg_marquardt_starts
 from .optim.de import latin_hypercube
+from .refits import REFIT_LANDMARKS
 from .result import CalibrationResult, StageResult, observations_to_dict, rig_to_dict
 
 
@@ -52,8 +53,9 @@ class Settings:
             ``restarts``; the lowest F any of them reaches is the stage's result.
         restarts: LM starts in each stage besides the best DE member: the best member of each
             other distinct optimum in the final DE population, the rest points of a Latin
-            hypercube of the search box. The DE alone can settle in a basin that is not the
-            lowest (6 of 50 ``paper`` twins with these DE settings, benchmarks/miss_rate.py).
+            hypercube of the search box; 0 runs none. The DE alone can settle in a basin that
+            is not the lowest (6 of 50 ``paper`` twins with these DE settings,
+            ``benchmarks/miss_rate.py``).
         loss: ``"l1"`` (the paper's mean error length), ``"huber"`` or ``"cauchy"``
             (:mod:`handeye_jax.losses`); a robust loss limits the pull of outlier landmarks.
         loss_scale_mm: the robust loss's scale, mm; landmarks with an error above
@@ -127,7 +129,7 @@ def _restart_starts(
     key: jax.Array, lower: np.ndarray, upper: np.ndarray, leaders: np.ndarray, restarts: int
 ) -> np.ndarray:
     """``restarts`` LM starts: the other optima's best members first, then hypercube points."""
-    points = np.array(_lhs(key, restarts, jnp.asarray(lower), jnp.asarray(upper)))
+    points = np.array(_lhs(key, restarts, np.asarray(lower, float), np.asarray(upper, float)))
     k = min(len(leaders), restarts)
     points[:k] = leaders[:k]
     return points
@@ -317,16 +319,31 @@ def _sign_twin(objective, cls, x) -> dict[str, Any]:
 MAX_ADOPTIONS = 2
 
 
-def _better_refit(objective, diagnostics: dict, f: float):
+def _better_refit(objective, diagnostics: dict, f: float, bounds, searched_fewer: bool):
     """The diagnostics' multi-start refit (declared convention) with the lowest value of
-    ``objective``, if it is lower than ``f`` by more than :data:`BETTER_BY_MM`; else None."""
-    best = None
+    ``objective``, if it is lower than ``f`` by more than :data:`BETTER_BY_MM`, as ``(x,
+    value, elsewhere)`` (``elsewhere``: it is another optimum, not the fit's own, refined);
+    else None.
+
+    ``searched_fewer``: the refits searched on fewer landmarks than ``objective`` has, so
+    their end points are polished on all before they are compared (the best one of those
+    that differ from the fit).
+    """
+    found = []
     for mode in diagnostics["stage1"].get("local_optima", []):
         x_r = np.array(list(mode["params"].values()))
-        f_r = _value(objective, x_r)
-        if np.isfinite(f_r) and f_r < f - BETTER_BY_MM and (best is None or f_r < best[1]):
-            best = (x_r, f_r)
-    return best
+        found.append((_value(objective, x_r), x_r, bool(mode["differs_from_fit"])))
+    found = sorted((c for c in found if np.isfinite(c[0])), key=lambda c: c[0])
+    elsewhere = [c for c in found if c[2]]
+    if searched_fewer and elsewhere:
+        f_r, x_r, _ = elsewhere[0]
+        lm = levenberg_marquardt(objective.residuals, x_r, *bounds)
+        f_lm = _value(objective, lm.x)
+        found.append((f_lm, lm.x, True) if np.isfinite(f_lm) and f_lm < f_r else elsewhere[0])
+        found.sort(key=lambda c: c[0])
+    if found and found[0][0] < f - BETTER_BY_MM:
+        return found[0][1], found[0][0], found[0][2]
+    return None
 
 
 @in_float64
@@ -367,6 +384,7 @@ def calibrate(
         subset2 = spread_landmarks(n, RESTART_LANDMARKS, include=obs.centre_index)
     paper1 = Stage1Objective(model_cls, obs)
     obj1 = with_loss(paper1)
+    bounds1 = model_cls.search_bounds(dataset.search)
     x1, de1, pol1, conv1, t1, pop1 = _optimise(
         obj1, model_cls, dataset.search, keys1, settings, progress, "stage 1 DE", subset1
     )
@@ -397,21 +415,24 @@ def calibrate(
                 stage_results=(stage1, stage2), populations=(pop1, pop2),
                 search=dataset.search, seed=settings.seed,
             )  # fmt: skip
-            better = _better_refit(obj1, diagnostics, _value(obj1, x1))
+            better = _better_refit(obj1, diagnostics, _value(obj1, x1), bounds1,
+                                   n > REFIT_LANDMARKS)  # fmt: skip
             if better is None or adoption == MAX_ADOPTIONS:
                 break
-            # The fit missed a lower optimum that the refits found: take it, and refit stage 2
-            # on its points (the diagnostics then run again, from it).
+            # A refit reached a lower F than the fit (another optimum, or the fit's own one
+            # further down): take it, refit stage 2 on its points, and run the diagnostics
+            # again, from it.
             t0 = time.perf_counter()
-            lower, upper = model_cls.search_bounds(dataset.search)
-            x_r, f_r = better
-            lm = levenberg_marquardt(obj1.residuals, x_r, lower, upper)
+            x_r, f_r, elsewhere = better
+            lm = levenberg_marquardt(obj1.residuals, x_r, *bounds1)
             f_lm = _value(obj1, lm.x)
             if np.isfinite(f_lm) and f_lm < f_r:
                 x_r, f_r = lm.x, f_lm
             pol1 = {
                 **pol1, "accepted": bool(f_r < de1["F"]), "F_after": f_r,
-                "found_by": "diagnostics multi-start refit",
+                "found_by": "diagnostics multi-start refit" if elsewhere else
+                f"{pol1['found_by'].split(', refined')[0]}, refined by the diagnostics' refit "
+                "from it",
                 "replaced_F": [*pol1.get("replaced_F", []), _value(obj1, x1)],
             }  # fmt: skip
             x1 = x_r

@@ -67,8 +67,10 @@ def found_by_line(polish: dict) -> str:
                  "1e-4 mm of it")  # fmt: skip
     replaced = polish.get("replaced_F")
     if replaced:
+        F = polish.get("F_after", replaced[-1])
         line += (f"; it replaced the fit's first optimum (F = "
-                 f"{', then '.join(f'{f:.6f}' for f in replaced)} mm)")  # fmt: skip
+                 f"{', then '.join(f'{f:.6f}' for f in replaced)} mm, "
+                 f"{replaced[0] - F:.2g} mm above it)")  # fmt: skip
     return line
 
 
