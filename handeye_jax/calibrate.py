@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _xla
+from ._validate import MAX_RESTARTS
 from ._x64 import in_float64
 from .dataset import Dataset, check_min_landmarks, check_population
 from .diagnostics import MAX_MODES, bound_hits, diagnose, mode_leaders
@@ -367,6 +368,8 @@ def calibrate(
     n_params = max(len(model_cls.param_names), len(AffinePair.param_names))
     check_min_landmarks(dataset, n_params, dataset.source)
     check_population(dataset, settings.population)
+    if not 0 <= settings.restarts <= MAX_RESTARTS:
+        raise ValueError(f"restarts must be 0 to {MAX_RESTARTS:,} (got {settings.restarts})")
     obs = dataset.observations()
     keys1, keys2 = _stage_keys(np.int64(settings.seed))
 

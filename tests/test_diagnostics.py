@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 from handeye_jax import DHModel, HTMModel, Settings, calibrate, load_dataset, load_result
 from handeye_jax.calibrate import RESTART_LANDMARKS, fit_correction
 from handeye_jax.diagnostics import OUTLIER_FACTOR, population_modes
+from handeye_jax.errors import InputError
 from handeye_jax.identifiability import analyse_jacobian, jacobian_diagnostics
 from handeye_jax.losses import LossObjective, get_loss
 from handeye_jax.models import AffinePair
@@ -195,6 +196,19 @@ def test_fit_is_no_worse_than_any_refit_and_off_the_bound(twin1):
     assert not any(w.startswith("xc") for w in r.warnings)
     assert r.stage1.polish["found_by"].startswith("LM from")
     assert r.stage1.polish["F_after"] == pytest.approx(r.stage1.F, abs=1e-12)
+
+
+def test_restarts_are_bounded_in_settings_and_in_result_files(paper_result, tmp_path):
+    with pytest.raises(ValueError, match="restarts"):
+        calibrate(load_dataset(PAPER), Settings(restarts=-1))
+    p = tmp_path / "r.json"
+    paper_result.save(p)
+    doc = json.loads(p.read_text())
+    assert doc["settings"]["restarts"] == Settings().restarts
+    doc["settings"]["restarts"] = 10**6  # an evaluation would refit stage 2 with it
+    p.write_text(json.dumps(doc))
+    with pytest.raises(InputError, match="settings.restarts"):
+        load_result(p)
 
 
 def test_a_refit_lower_than_the_fit_becomes_the_result(twin1):
