@@ -56,6 +56,12 @@ def chain_points(model: AbstractModel, obs: Observations) -> ChainPoints:
     )
 
 
+#: The per-landmark fields of :class:`Observations`.
+_LANDMARK_FIELDS = (
+    "image_px", "depth_mm", "tablet_mm", "hand_xy_mm", "hand_angle_deg", "touch_error_mm",
+)  # fmt: skip
+
+
 def spread_landmarks(n: int, k: int, include: int | None = None) -> Int[np.ndarray, " m"]:
     """Up to ``k`` landmark indices spread evenly over ``0 … n−1`` (touch order), sorted, plus
     ``include`` (e.g. the centre of rotation); all ``n`` when ``n <= k``."""
@@ -72,11 +78,6 @@ def landmark_subset(obs: Observations, idx: Int[np.ndarray, " m"]) -> Observatio
     pick = {f: getattr(obs, f)[idx] for f in _LANDMARK_FIELDS}
     centre = int(np.argmin(np.abs(idx - obs.centre_index)))
     return dataclasses.replace(obs, **pick, centre_index=centre)
-
-
-_LANDMARK_FIELDS = (
-    "image_px", "depth_mm", "tablet_mm", "hand_xy_mm", "hand_angle_deg", "touch_error_mm",
-)  # fmt: skip
 
 
 class Errors(eqx.Module):

@@ -4,9 +4,9 @@ conventions, with two small compiled programs (batched residuals and Jacobians p
 * **Leave-one-out, stage 1.** For each landmark m, Levenberg–Marquardt from the full optimum
   on the stage-1 objective with landmark m's weight set to 0; the held-out error is the refit
   model's error at landmark m. That is n refits of n landmarks each, O(n²): above
-  :data:`EXACT_LOO_LANDMARKS` landmarks the leave-one-out is instead the exact one of the
-  problem linearised at the full fit (one Gauss–Newton step per left-out landmark, from the
-  Jacobian at the fit, O(n); see :func:`linearised_loo`).
+  :data:`EXACT_LOO_LANDMARKS` landmarks each refit is instead one Newton step from the full
+  fit, from every landmark's gradient and Hessian there (O(n); :func:`one_step_loo`), and
+  only the few landmarks that step moves far are refitted by LM (:data:`LOO_REFITS`).
 * **Leave-one-out, stage 2 (the whole pipeline).** Stage 2 is fitted to stage 1's points, so
   an honest held-out error refits both: the stage-1 refit without m gives the points, stage 2
   is refitted on them without m (from the full stage-2 optimum), and landmark m is predicted.
@@ -52,7 +52,7 @@ from .observations import Observations
 from .optim.batched import levenberg_marquardt_batch
 
 #: Up to this many landmarks, leave-one-out refits every stage without each landmark (O(n²));
-#: above, it is the linearised problem's exact leave-one-out (O(n)).
+#: above, it is one Newton step from the fit per landmark (O(n)).
 EXACT_LOO_LANDMARKS = 64
 #: Above this many landmarks the convention refits search on this many (see the docstring).
 REFIT_LANDMARKS = 64
@@ -293,14 +293,14 @@ def refits(
         starts: random LM starts per convention.
         max_steps: most LM iterations of every refit.
         exact_loo_landmarks: up to this many landmarks leave-one-out refits exactly, above it
-            is linearised (:func:`linearised_loo`); at most ``refit_landmarks``.
+            takes one Newton step (:func:`one_step_loo`); at most ``refit_landmarks``.
         refit_landmarks: above this many landmarks the convention refits search on this
             many.
     """
     if exact_loo_landmarks > refit_landmarks:
         raise ValueError("exact_loo_landmarks must not exceed refit_landmarks")
     if obs.n_landmarks > exact_loo_landmarks:
-        return _refits_linear(model_cls, correction_cls, obs, loss, x1, x2, bounds1, bounds2,
+        return _refits_one_step(model_cls, correction_cls, obs, loss, x1, x2, bounds1, bounds2,
                               seed, starts, max_steps, refit_landmarks)  # fmt: skip
     return _refits_exact(model_cls, correction_cls, obs, loss, x1, x2, bounds1, bounds2, seed,
                          starts, max_steps)  # fmt: skip
@@ -324,9 +324,9 @@ def _best_per_convention(F_conv, conv_of):
                      for c in range(len(CONVENTIONS))])  # fmt: skip
 
 
-def _refits_linear(model_cls, correction_cls, obs, loss, x1, x2, bounds1, bounds2, seed, starts,
+def _refits_one_step(model_cls, correction_cls, obs, loss, x1, x2, bounds1, bounds2, seed, starts,
                    max_steps, refit_landmarks) -> Refits:  # fmt: skip
-    """:func:`refits` with the linearised leave-one-out, in O(n)."""
+    """:func:`refits` with the one-step leave-one-out, in O(n)."""
     x1, x2 = np.asarray(x1, float), np.asarray(x2, float)
     n = obs.n_landmarks
     lo1, hi1 = (np.asarray(b, float) for b in bounds1)
@@ -420,23 +420,17 @@ def _refits_exact(model_cls, correction_cls, obs, loss, x1, x2, bounds1, bounds2
     """:func:`refits` with leave-one-out by exact refits, O(n²)."""
     x1, x2 = np.asarray(x1, float), np.asarray(x2, float)
     n, d1 = obs.n_landmarks, x1.shape[0]
-    n_conv = len(CONVENTIONS)
     lo1, hi1 = (np.asarray(b, float) for b in bounds1)
-    zero = np.array([c[0] for c in CONVENTIONS])
-    sign = np.array([float(c[1]) for c in CONVENTIONS])
-    declared = int(np.argmax((zero == float(obs.rig.angle_zero_deg))
-                             & (sign == float(obs.rig.angle_sign))))  # fmt: skip
+    zero, sign, declared, conv_of, x0 = _convention_problems(obs, x1, lo1, hi1, seed, starts)
 
     # Problems: n leave-one-out, then `starts` per convention, then the declared one from x1.
     leave_out = 1.0 - np.eye(n)
-    conv_of = np.concatenate([np.repeat(np.arange(n_conv), starts), [declared]])
-    x_random = np.random.default_rng(seed).uniform(lo1, hi1, size=(n_conv * starts, d1))
     # NumPy arrays throughout: the jitted batches take them as they are, while jnp.asarray
     # would compile a small program per shape.
     all_zero = np.concatenate([np.full(n, float(obs.rig.angle_zero_deg)), zero[conv_of]])
     all_sign = np.concatenate([np.full(n, float(obs.rig.angle_sign)), sign[conv_of]])
     all_w = np.concatenate([leave_out, np.ones((conv_of.shape[0], n))])
-    all_x0 = np.concatenate([np.broadcast_to(x1, (n, d1)), x_random, x1[None]])
+    all_x0 = np.concatenate([np.broadcast_to(x1, (n, d1)), x0])
 
     def stage1(X):
         return _stage1_batch(model_cls, obs, loss, all_zero, all_sign, all_w, np.asarray(X))
@@ -451,8 +445,7 @@ def _refits_exact(model_cls, correction_cls, obs, loss, x1, x2, bounds1, bounds2
     F = F.copy()
     F[-1] = min(F[-1], float(np.asarray(stage1(xs)[5])[-1]))
     F_conv = np.where(np.isfinite(F[n:]), F[n:], np.inf)
-    best = np.array([np.flatnonzero(conv_of == c)[np.argmin(F_conv[conv_of == c])]
-                     for c in range(n_conv)])  # fmt: skip
+    best = _best_per_convention(F_conv, conv_of)
 
     X1, W = xs[:n], leave_out
 
