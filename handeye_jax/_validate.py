@@ -41,6 +41,9 @@ MAX_LANDMARKS = 10_000
 #: paper's 10,000 each.
 MAX_POPULATION = 100_000
 MAX_GENERATIONS = 100_000
+#: LM restarts a stage (calibrate's settings): each holds a Jacobian of at most 4·65 × 12
+#: residuals while the batch runs, so this many take about 1 GB.
+MAX_RESTARTS = 10_000
 #: DE population times landmarks: DE's working memory is about 48 bytes per member and
 #: landmark (measured 37-54 B), so this is about 5 GB. The paper's N = 10,000 fits 10,000
 #: landmarks.

@@ -69,35 +69,30 @@ def bound_hits(
     return out
 
 
-def population_modes(
+def mode_leaders(
     population: np.ndarray,
     fitness: np.ndarray,
     lower: np.ndarray,
     upper: np.ndarray,
-    names: Sequence[str],
-    sign_twin: Sequence[str] = (),
+    names: Sequence[str] = (),
     flat_steps: Sequence[dict[str, float]] = (),
-    reference: np.ndarray | None = None,
-) -> list[dict[str, Any]]:
-    """The distinct optima in a final population, best first (at most :data:`MAX_MODES`).
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The best member of each distinct optimum in a population, best first.
 
     Members are grouped greedily in order of fitness: a member within :data:`MODE_RADIUS` of
     a group's best member in every parameter (as a fraction of its range) joins that group.
-    Groups whose best F is within :data:`MODE_F_MARGIN_MM` of the overall best are reported,
-    each with the parameters in which it differs from ``reference``.
+    Non-finite fitnesses are left out.
 
     Args:
-        population, fitness: the final population ``(N, d)`` and its F (mm).
+        population, fitness: the population ``(N, d)`` and its F (mm).
         lower, upper: the search box.
-        names: parameter names.
-        sign_twin: parameters whose joint sign flip is a known symmetry (named when found).
-        flat_steps: directions along which the data barely or never change F (``{name:
-            step}``, the weak directions of
-            :func:`~handeye_jax.identifiability.analyse_jacobian`); members that differ only
-            along them lie in one valley and are one optimum (e.g. the DH model's θc1 − γc,
-            or the camera's xc–βc trade-off).
-        reference: the reported fit, to which each optimum is compared (by default the
-            population's best member).
+        names, flat_steps: parameter names, and directions along which F barely or never
+            changes (``{name: step}``); members apart only along them are one optimum (see
+            :func:`population_modes`).
+
+    Returns:
+        ``(x, F, members)``: each optimum's best member ``(k, d)``, its F ``(k,)`` and how
+        many members the group holds ``(k,)``.
     """
     ok = np.isfinite(fitness)
     pop, f = np.asarray(population)[ok], np.asarray(fitness)[ok]
@@ -120,13 +115,47 @@ def population_modes(
                 continue
         leaders.append(i)
         counts.append(1)
-    best = pop[leaders[0]] if reference is None else np.asarray(reference, dtype=float)
+    return pop[leaders], f[leaders], np.array(counts, dtype=int)
+
+
+def population_modes(
+    population: np.ndarray,
+    fitness: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    names: Sequence[str],
+    sign_twin: Sequence[str] = (),
+    flat_steps: Sequence[dict[str, float]] = (),
+    reference: np.ndarray | None = None,
+) -> list[dict[str, Any]]:
+    """The distinct optima in a final population, best first (at most :data:`MAX_MODES`).
+
+    Members are grouped as :func:`mode_leaders` does. Groups whose best F is within
+    :data:`MODE_F_MARGIN_MM` of the overall best are reported, each with its best member's
+    parameters and the parameters in which it differs from ``reference``.
+
+    Args:
+        population, fitness: the final population ``(N, d)`` and its F (mm).
+        lower, upper: the search box.
+        names: parameter names.
+        sign_twin: parameters whose joint sign flip is a known symmetry (named when found).
+        flat_steps: directions along which the data barely or never change F (``{name:
+            step}``, the weak directions of
+            :func:`~handeye_jax.identifiability.analyse_jacobian`); members that differ only
+            along them lie in one valley and are one optimum (e.g. the DH model's θc1 − γc,
+            or the camera's xc–βc trade-off).
+        reference: the reported fit, to which each optimum is compared (by default the
+            population's best member).
+    """
+    lead, f, counts = mode_leaders(population, fitness, lower, upper, names, flat_steps)
+    width = np.asarray(upper) - np.asarray(lower)
+    best = lead[0] if reference is None else np.asarray(reference, dtype=float)
     twin_idx = [list(names).index(n) for n in sign_twin]
     modes = []
-    for lead, count in zip(leaders, counts, strict=True):
-        if f[lead] > f[0] + MODE_F_MARGIN_MM:
+    for x, f_lead, count in zip(lead, f, counts, strict=True):
+        if f_lead > f[0] + MODE_F_MARGIN_MM:
             continue
-        delta = pop[lead] - best
+        delta = x - best
         differ = {
             n: float(delta[k])
             for k, n in enumerate(names)
@@ -134,11 +163,12 @@ def population_modes(
         }
         twin = (
             bool(twin_idx)
-            and all(abs(pop[lead][k] + best[k]) <= MODE_PARAM_FRACTION * width[k] for k in twin_idx)
+            and all(abs(x[k] + best[k]) <= MODE_PARAM_FRACTION * width[k] for k in twin_idx)
             and any(abs(delta[k]) > MODE_PARAM_FRACTION * width[k] for k in twin_idx)
         )
-        modes.append({"F": float(f[lead]), "members": count, "differs_from_fit": differ,
-                      "sign_twin": twin})  # fmt: skip
+        modes.append({"F": float(f_lead), "members": int(count), "differs_from_fit": differ,
+                      "sign_twin": twin,
+                      "params": dict(zip(names, (float(v) for v in x), strict=True))})  # fmt: skip
     return modes[:MAX_MODES]
 
 
@@ -162,8 +192,13 @@ def _loo(image_vs_tablet: np.ndarray, hand: np.ndarray, in_sample_F: float) -> d
     }  # fmt: skip
 
 
-def convention_check(F: np.ndarray, declared: tuple[float, int], F_fit: float) -> dict[str, Any]:
-    """Compare F1st under the 8 conventions with the declared one; a warning if beaten."""
+def convention_check(
+    F: np.ndarray, declared: tuple[float, int], F_fit: float, landmarks: int = 0
+) -> dict[str, Any]:
+    """Compare F1st under the 8 conventions with the declared one; a warning if beaten.
+
+    ``landmarks``: how many landmarks the refits searched on, if fewer than all (0: all).
+    """
     fits = [
         {"zero_deg": z, "sign": s, "F": float(f)} for (z, s), f in zip(CONVENTIONS, F, strict=True)
     ]
@@ -193,7 +228,13 @@ def convention_check(F: np.ndarray, declared: tuple[float, int], F_fit: float) -
         "warning": warning,
         "method": f"LM from {CONVENTION_STARTS} uniform starts per convention "
         f"(at most {REFIT_STEPS} iterations each), the declared one also from the fit; the pen's "
-        "search box is kept",
+        "search box is kept"
+        + (
+            f"; the refits searched on {landmarks} landmarks spread over the touch order, and "
+            "F1st is that of all landmarks at their end points"
+            if landmarks
+            else ""
+        ),
     }
 
 
@@ -251,6 +292,7 @@ def diagnose(
             ),
             "bound_hits": bound_hits(sr.params, cls, search),
             "loo": loo[k],
+            "loo_method": out.loo_method,
             "outliers": outliers(sr.residuals_mm, threshold),
         }
     lo, hi = model_cls.search_bounds(search)
@@ -260,9 +302,10 @@ def diagnose(
     )  # fmt: skip
     rig = obs.rig
     declared = (float(rig.angle_zero_deg), int(rig.angle_sign))
+    searched = out.refit_landmarks if out.refit_landmarks < obs.n_landmarks else 0
     return {
         "loss": {"name": loss.name, "scale_mm": float(loss_scale_mm)},
         "outlier_threshold_mm": threshold,
         **stages,
-        "convention": convention_check(out.convention_F, declared, stage_results[0].F),
+        "convention": convention_check(out.convention_F, declared, stage_results[0].F, searched),
     }

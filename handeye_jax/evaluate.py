@@ -161,7 +161,7 @@ def evaluate(
 
 def oracle_settings(result: CalibrationResult) -> Settings:
     """How the oracle's stage 2 is fitted: as the result's stage 2 was (its seed and DE
-    settings), but with at most the default population and generations.
+    settings), but with at most the default population, generations and restarts.
 
     A result file records what its calibration ran, not what an evaluation may allocate: a
     file saying ``population = 10**9`` once made ``evaluate`` allocate 80 GB.
@@ -170,6 +170,7 @@ def oracle_settings(result: CalibrationResult) -> Settings:
     budget = Settings()
     known["population"] = min(known.get("population", budget.population), budget.population)
     known["generations"] = min(known.get("generations", budget.generations), budget.generations)
+    known["restarts"] = min(known.get("restarts", budget.restarts), budget.restarts)
     return Settings(**{**known, "seed": result.seed})
 
 

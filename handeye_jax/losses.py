@@ -17,7 +17,8 @@ from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+import numpy as np
+from jaxtyping import Array, Float, Int
 
 from .objective import NORM_SMOOTHING_MM, AbstractObjective, Errors
 
@@ -108,12 +109,23 @@ class LossObjective(AbstractObjective):
     def errors(self, theta: Float[Array, " d"]) -> Errors:
         return self.base.errors(theta)
 
+    def on_landmarks(self, idx: Int[np.ndarray, " m"]) -> LossObjective:
+        return LossObjective(self.base.on_landmarks(idx), self.loss, self.weights[idx])
+
     def __call__(self, theta: Float[Array, " d"]) -> Float[Array, ""]:
         errors = self.errors(theta)
         w = self.weights / jnp.sum(self.weights)
         return sum(
             jnp.sum(w * self.loss(jnp.linalg.norm(e, axis=-1)))
             for e in (errors.image_vs_tablet, errors.hand)
+        )
+
+    def landmark_terms(self, errors: Errors) -> Float[Array, " n"]:
+        """Each landmark's share of the (smoothed) value, mm: ``w·(ρ(|e1|) + ρ(|e2|))/Σw``;
+        twice differentiable, for derivatives per landmark."""
+        w = self.weights / jnp.sum(self.weights)
+        return w * sum(
+            self.loss(_smoothed_length(e)) for e in (errors.image_vs_tablet, errors.hand)
         )
 
     def residuals(self, theta: Float[Array, " d"]) -> Float[Array, " r"]:

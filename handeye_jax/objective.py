@@ -8,12 +8,14 @@ scalar, so it is a pytree the optimisers can ``jit`` and ``vmap`` without knowin
 from __future__ import annotations
 
 import abc
+import dataclasses
 import functools
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+import numpy as np
+from jaxtyping import Array, Float, Int
 
 from .models import AbstractCorrection, AbstractModel
 from .observations import Observations
@@ -52,6 +54,30 @@ def chain_points(model: AbstractModel, obs: Observations) -> ChainPoints:
         pen_offset_xy=x_off[:, :2],
         hand_target_xy=obs.hand_xy_mm - touch_base[:, :2],
     )
+
+
+#: The per-landmark fields of :class:`Observations`.
+_LANDMARK_FIELDS = (
+    "image_px", "depth_mm", "tablet_mm", "hand_xy_mm", "hand_angle_deg", "touch_error_mm",
+)  # fmt: skip
+
+
+def spread_landmarks(n: int, k: int, include: int | None = None) -> Int[np.ndarray, " m"]:
+    """Up to ``k`` landmark indices spread evenly over ``0 … n−1`` (touch order), sorted, plus
+    ``include`` (e.g. the centre of rotation); all ``n`` when ``n <= k``."""
+    idx = np.arange(n) if n <= k else np.round(np.linspace(0, n - 1, k)).astype(int)
+    if include is not None:
+        idx = np.union1d(idx, [include])
+    return np.unique(idx)
+
+
+def landmark_subset(obs: Observations, idx: Int[np.ndarray, " m"]) -> Observations:
+    """The observations of landmarks ``idx`` (sorted) alone; the centre of rotation becomes
+    the nearest of them to the old one's index if it is not among them."""
+    idx = np.asarray(idx)
+    pick = {f: getattr(obs, f)[idx] for f in _LANDMARK_FIELDS}
+    centre = int(np.argmin(np.abs(idx - obs.centre_index)))
+    return dataclasses.replace(obs, **pick, centre_index=centre)
 
 
 class Errors(eqx.Module):
@@ -147,6 +173,11 @@ class AbstractObjective(eqx.Module):
     def residuals(self, theta: Float[Array, " d"]) -> Float[Array, " r"]:
         return sqrt_residuals(self.errors(theta))
 
+    def on_landmarks(self, idx: Int[np.ndarray, " m"]) -> AbstractObjective:
+        """The same objective on landmarks ``idx`` (sorted indices) alone: a cheaper stand-in
+        for a search over many landmarks."""
+        raise NotImplementedError(f"{type(self).__name__} cannot select landmarks")
+
 
 class Stage1Objective(AbstractObjective):
     """F1st as a function of a model's flat parameter vector."""
@@ -156,6 +187,9 @@ class Stage1Objective(AbstractObjective):
 
     def errors(self, theta: Float[Array, " d"]) -> Errors:
         return _stage1_errors(self.model_cls, self.obs, theta)
+
+    def on_landmarks(self, idx: Int[np.ndarray, " m"]) -> Stage1Objective:
+        return Stage1Objective(self.model_cls, landmark_subset(self.obs, idx))
 
 
 class Stage2Objective(AbstractObjective):
@@ -167,6 +201,15 @@ class Stage2Objective(AbstractObjective):
 
     def errors(self, theta: Float[Array, " d"]) -> Errors:
         return _stage2_errors(self.correction_cls, self.points, self.centre_index, theta)
+
+    def on_landmarks(self, idx: Int[np.ndarray, " m"]) -> Stage2Objective:
+        """See :meth:`AbstractObjective.on_landmarks`; ``idx`` must hold the centre landmark."""
+        idx = np.asarray(idx)
+        if self.centre_index not in idx:
+            raise ValueError(f"landmarks {idx} leave out the centre {self.centre_index}")
+        points = jax.tree.map(lambda a: a[idx], self.points)
+        centre = int(np.flatnonzero(idx == self.centre_index)[0])
+        return Stage2Objective(self.correction_cls, points, centre)
 
 
 # The stages' errors as nested jits: every program that evaluates or differentiates an

@@ -40,6 +40,9 @@ def _stage_lines(
         f"F = {de['F']:.6f} mm; {stop}"
     )
     lines.append(f"  LM polish: {lm}")
+    found = found_by_line(pol)
+    if found:
+        lines.append(found)
     lines.append("  parameters" + (" (± one standard deviation):" if std else ":"))
     for name, unit in zip(names, units, strict=True):
         value = _value(s.params[name], (std or {}).get(name), unit, std is not None)
@@ -49,6 +52,26 @@ def _stage_lines(
     for r in s.residuals_mm:
         lines.append(f"    {r['m']:<3} {r['image_vs_tablet_mm']:>16.4f} {r['hand_mm']:>17.4f}")
     return lines
+
+
+def found_by_line(polish: dict) -> str:
+    """One line: which search found the stage's optimum, and how many restarts reached it."""
+    how = polish.get("found_by")
+    if not how:  # results written before the restarts
+        return ""
+    line = f"  optimum found by: {how}"
+    rs = polish.get("restarts")
+    if rs:
+        where = f" on {rs['landmarks']} landmarks" if rs.get("landmarks") else ""
+        line += (f"; {rs['reached_result']} of {rs['starts']} LM restarts{where} ended within "
+                 "1e-4 mm of it")  # fmt: skip
+    replaced = polish.get("replaced_F")
+    if replaced:
+        F = polish.get("F_after", replaced[-1])
+        line += (f"; it replaced the fit's first optimum (F = "
+                 f"{', then '.join(f'{f:.6f}' for f in replaced)} mm, "
+                 f"{replaced[0] - F:.2g} mm above it)")  # fmt: skip
+    return line
 
 
 def format_summary(result: CalibrationResult) -> str:
@@ -167,6 +190,9 @@ def diagnostic_lines(diag: dict, stage: str, units: dict[str, str]) -> list[str]
             f"{loo['F']:.4f} mm (f1 = {loo['f1']:.4f}, f2 = {loo['f2']:.4f} mm); in-sample "
             f"F = {loo['in_sample_F']:.4f} mm"
         )
+        method = d.get("loo_method", "")
+        if method and not method.startswith("exact"):
+            lines.append(f"    refits approximated: {method}")
         per = "  ".join(
             f"{r['m']}: {r['image_vs_tablet_mm']:.2f}/{r['hand_mm']:.2f}"
             for r in loo["held_out_mm"]

@@ -46,8 +46,18 @@ def test_de_throughput_runs_all_three_des():
 def test_scaling_runs_and_plots(tmp_path):
     out = run_in_process("scaling.py", "--quick", "--out-dir", str(tmp_path))
     assert "| 50 |" in out and "| 16 |" in out
-    png = (tmp_path / "scaling.png").read_bytes()
-    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+    # a whole calibration of 9 landmarks, in its own process: its times and peak memory
+    assert re.search(r"^\| 9 \| \d+\.\d\d \| \d+\.\d\d \| \d+\.\d\d \| [\d.]+ \| [\d.]+ \| \d+ \|$",
+                     out, re.M)  # fmt: skip
+    for name in ("scaling.png", "scaling_calibration.png"):
+        png = (tmp_path / name).read_bytes()
+        assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+
+
+def test_miss_rate_finds_main_missing_twin_1_and_the_new_defaults_not():
+    out = run_in_process("miss_rate.py", "--quick")
+    assert "| main's defaults (no restarts) | 1 of 1 | 1 |" in out
+    assert "| new defaults (restarts 32 + refits) | 0 of 1 | - |" in out
 
 
 @pytest.mark.parametrize("seeds", [["--seeds", "1"]])

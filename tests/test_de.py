@@ -13,7 +13,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from handeye_jax.optim import differential_evolution, levenberg_marquardt
+from handeye_jax.optim import (
+    differential_evolution,
+    levenberg_marquardt,
+    levenberg_marquardt_starts,
+)
+from handeye_jax.optim import polish as polish_module
 from handeye_jax.optim._rng import uniforms
 from handeye_jax.optim.de import CHUNK_GENERATIONS, distinct_indices, latin_hypercube
 
@@ -154,6 +159,60 @@ def test_lm_polish_solves_least_squares_and_respects_bounds():
     np.testing.assert_allclose(boxed.x, [0.2, 1.0, -0.4], atol=1e-6)
     half = levenberg_marquardt(fn.residuals, np.zeros(3), [-1, -np.inf, -1], [1, np.inf, 0])
     np.testing.assert_allclose(half.x, [0.2, 3.0, -0.4], atol=1e-8)
+
+
+class Curve(eqx.Module):
+    """Least squares of a 6-parameter curve through ``n`` noisy points: r = n residuals."""
+
+    t: jax.Array
+    y: jax.Array
+
+    def residuals(self, x):
+        t = self.t
+        return (
+            (x[0] + x[1] * t + x[2] * t**2) * jnp.exp(x[3] * t) + x[4] * jnp.sin(x[5] * t) - self.y
+        )
+
+
+def _polish_temp_bytes(n: int) -> int:
+    """Scratch memory XLA plans for the LM polish of ``Curve`` with n residuals."""
+    t = jnp.linspace(0.0, 1.0, n)
+    fn = Curve(t, jnp.sin(3.0 * t))
+    box = polish_module._Box(-5.0 * jnp.ones(6), 5.0 * jnp.ones(6))
+    lowered = jax.jit(polish_module._lm, static_argnums=(3, 4, 5)).lower(
+        fn.residuals, jnp.zeros(6), box, 1e-12, 1e-12, 100
+    )
+    return lowered.compile().memory_analysis().temp_size_in_bytes
+
+
+def test_lm_polish_memory_is_linear_in_the_residuals():
+    """Issue 16, item 5: a Jacobian in reverse mode built an r × r basis (60 GB at 10,000
+    landmarks). With 4× the residuals the polish may need about 4× the memory, not 16×."""
+    with jax.enable_x64(True):
+        small, large = _polish_temp_bytes(200), _polish_temp_bytes(800)
+    assert large < 6 * small, (small, large)
+
+
+class DoubleWell(eqx.Module):
+    """``|r|² = (x² − 1)² + 0.09·(x − 1)²`` per coordinate: the global minimum at x = 1, a
+    local one near x = −1."""
+
+    def residuals(self, x):
+        return jnp.concatenate([x**2 - 1.0, 0.3 * (x - 1.0)])
+
+
+def test_lm_from_many_starts_finds_the_basin_one_start_misses():
+    lo, hi = -2.0 * np.ones(2), 2.0 * np.ones(2)
+    with jax.enable_x64(True):
+        one = levenberg_marquardt(DoubleWell().residuals, [-1.5, -1.5], lo, hi)
+        starts = np.array([[-1.5, -1.5], [1.5, -1.5], [-1.5, 1.5], [0.5, 0.5]])
+        ends, cost = levenberg_marquardt_starts(DoubleWell().residuals, starts, lo, hi)
+    np.testing.assert_allclose(one.x, [-1.0, -1.0], atol=0.1)  # the local minimum
+    assert ends.shape == starts.shape and cost.shape == (4,)
+    np.testing.assert_allclose(ends[3], [1.0, 1.0], atol=1e-8)  # one start reaches the global
+    np.testing.assert_allclose(ends[1, 0], 1.0, atol=1e-8)
+    np.testing.assert_allclose(ends[1, 1], ends[0, 1], atol=1e-8)  # each start on its own
+    assert int(np.argmin(cost)) == 3 and cost[3] < 1e-16 < cost[0]
 
 
 def test_uniforms_are_uniform_independent_and_stream_separated():

@@ -5,14 +5,21 @@ from typing import ClassVar
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from jaxtyping import Array, Float
 
 from handeye_jax import Settings, calibrate
 from handeye_jax import geometry as geo
+from handeye_jax.losses import LossObjective, get_loss
 from handeye_jax.models import AbstractModel, AffinePair, model_registry
-from handeye_jax.objective import Stage1Objective, Stage2Objective, chain_points
+from handeye_jax.objective import (
+    Stage1Objective,
+    Stage2Objective,
+    chain_points,
+    spread_landmarks,
+)
 from handeye_jax.observations import Rig
 from handeye_jax.synthetic import snake_grid_px, synthesize_dataset
 
@@ -52,6 +59,42 @@ def test_squared_residuals_sum_to_f(seed):
     obj = Stage1Objective(model_registry()["htm"], _paper_like_obs())
     x = jnp.asarray(np.random.default_rng(seed).uniform(*obj.model_cls.search_bounds()))
     assert abs(float(jnp.sum(obj.residuals(x) ** 2)) - float(obj(x))) < 1e-8
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(4, 9))
+def test_an_objective_on_some_landmarks_is_the_objective_of_those_landmarks(seed, k):
+    """What the restarts search on many landmarks: the same objective, fewer landmarks."""
+    from handeye_jax import load_dataset
+    from tests.test_paper import PAPER
+
+    rng = np.random.default_rng(seed)
+    ds = load_dataset(PAPER)
+    centre = ds.observations().centre_index
+    idx = spread_landmarks(9, k, include=centre)
+    assert centre in idx and np.all(np.diff(idx) > 0) and len(idx) in (k, k + 1)
+    fields = ("tablet_px", "image_px", "depth_mm", "hand_xy_mm", "hand_angle_deg",
+              "touch_error_px")  # fmt: skip
+    few = ds.replace(**{f: getattr(ds, f)[idx] for f in fields})
+    x1 = jnp.asarray(rng.uniform(*model_registry()["htm"].search_bounds()))
+    x2 = jnp.asarray(rng.uniform(*AffinePair.search_bounds()))
+    with jax.enable_x64(True):
+        obs, obs_few = ds.observations(), few.observations()
+        htm = model_registry()["htm"]
+        one, one_few = Stage1Objective(htm, obs), Stage1Objective(htm, obs_few)
+        assert float(one.on_landmarks(idx)(x1)) == pytest.approx(float(one_few(x1)), rel=1e-12)
+        points = chain_points(htm.from_vector(x1), obs)
+        two = Stage2Objective(AffinePair, points, obs.centre_index)
+        # the centre of rotation is the same landmark, at its new place in the subset
+        two_few = Stage2Objective(AffinePair, chain_points(htm.from_vector(x1), obs_few),
+                                  int(np.flatnonzero(idx == centre)[0]))  # fmt: skip
+        assert float(two.on_landmarks(idx)(x2)) == pytest.approx(float(two_few(x2)), rel=1e-12)
+        robust = LossObjective(one, get_loss("cauchy", 0.5), jnp.ones(9))
+        robust_few = LossObjective(one_few, get_loss("cauchy", 0.5), jnp.ones(len(idx)))
+        assert float(robust.on_landmarks(idx)(x1)) == pytest.approx(float(robust_few(x1)))
+    assert list(spread_landmarks(5, 9)) == [0, 1, 2, 3, 4]
+    with pytest.raises(ValueError, match="centre"):
+        two.on_landmarks(np.array([i for i in range(9) if i != obs.centre_index]))
 
 
 class YawOnlyModel(AbstractModel):

@@ -9,7 +9,8 @@ residuals and Jacobians are compiled (the caller's ``fn``, a single small progra
 iterations run on the host in NumPy over the whole batch, one call of ``fn`` per iteration.
 
 It keeps :mod:`.polish`'s box transform ``x = lo + (hi − lo)(sin z + 1)/2`` and knows nothing
-about what the residuals compute.
+about what the residuals compute. :func:`levenberg_marquardt_starts` is the same LM from many
+starts of one problem (a multi-start search for the best local optimum).
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ from collections.abc import Callable
 import jax
 import numpy as np
 from jaxtyping import Array, Float
+
+from .. import _xla
 
 #: Damping: start, and the factors after a step that lowers the cost and one that does not.
 _LAMBDA0 = 1e-3
@@ -100,3 +103,37 @@ def levenberg_marquardt_batch(
         if quiet >= 10:
             break
     return lo + half * (np.sin(z) + 1.0), cost
+
+
+# Called once per LM iteration, hence LLVM level 1 (see handeye_jax._xla).
+@_xla.fast_compile(llvm_opt_level=1)
+def _starts_rj(residuals, X):
+    return jax.vmap(lambda x: residuals_and_jacobian(residuals, x))(X)
+
+
+def levenberg_marquardt_starts(
+    residuals: Callable[[Float[Array, " d"]], Float[Array, " r"]],
+    starts: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    *,
+    max_steps: int = 300,
+    rtol: float = 1e-10,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`levenberg_marquardt_batch` of one problem from several starts at once.
+
+    Args:
+        residuals: residual vector as a function of the parameters; pass an equinox Module's
+            method (a pytree) so that repeated calls reuse the compiled program. Its Jacobian
+            is taken in forward mode (``d`` JVPs), so the work is linear in the residuals.
+        starts: start points ``(B, d)`` inside the box; a fixed ``B`` reuses the program.
+        lower, upper: the box, ``(d,)``, finite.
+        max_steps, rtol: as for :func:`levenberg_marquardt_batch`.
+
+    Returns:
+        ``(x, cost)``: the end points ``(B, d)`` and their ``|r|²`` ``(B,)``.
+    """
+    return levenberg_marquardt_batch(
+        lambda X: _starts_rj(residuals, np.asarray(X)), np.asarray(starts, float), lower, upper,
+        max_steps=max_steps, rtol=rtol,
+    )  # fmt: skip

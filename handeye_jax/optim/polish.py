@@ -53,23 +53,29 @@ class _Box(eqx.Module):
         return jnp.where(self.bounded, jnp.arcsin(jnp.clip(u, -1.0, 1.0)), x)
 
 
-@_xla.fast_compile
 def _lm(residuals: Callable, x0, box: _Box, rtol: float, atol: float, max_steps: int):
     solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
     # optimistix evaluates and differentiates the residuals several times while it traces;
     # as a nested jit they are traced once and the rest is reused: about 0.4 s less tracing
     # for the paper's stage 1 (measured).
     residuals = eqx.filter_jit(residuals)
-    # Reverse-mode Jacobians compile about 30 % faster here than forward mode (measured).
+    # Forward mode: the Jacobian is d JVPs, O(r·d) time and memory for r residuals, and the
+    # QR of the damped system is O(r·d²). Reverse mode materialised it with one backward pass
+    # per residual from an r × r basis: O(r²), 95 s of a 300-landmark fit and a 60 GB
+    # allocation at 10,000 (benchmarks/RESULTS.md, "Scaling with landmarks").
     sol = optx.least_squares(
         lambda z, _: residuals(box.to_x(z)),
         solver,
         box.to_z(x0),
         max_steps=max_steps,
         throw=False,
-        options={"jac": "bwd"},
+        options={"jac": "fwd"},
     )
     return box.to_x(sol.value), sol.stats["num_steps"], sol.result == optx.RESULTS.successful
+
+
+#: :func:`_lm` compiled (named so in JAX's compile log).
+_lm_compiled = _xla.fast_compile(_lm)
 
 
 def levenberg_marquardt(
@@ -95,5 +101,5 @@ def levenberg_marquardt(
     d = x0.shape[0]
     lower = jnp.full(d, -jnp.inf) if lower is None else jnp.asarray(lower, dtype=float)
     upper = jnp.full(d, jnp.inf) if upper is None else jnp.asarray(upper, dtype=float)
-    x, steps, ok = _lm(residuals, x0, _Box(lower, upper), rtol, atol, max_steps)
+    x, steps, ok = _lm_compiled(residuals, x0, _Box(lower, upper), rtol, atol, max_steps)
     return PolishResult(x=np.asarray(x), steps=int(steps), solver_ok=bool(ok))
