@@ -54,8 +54,7 @@ import optimistix as optx
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from handeye_jax import HTMModel, Settings, load_dataset, vectorise_small_loops
-from handeye_jax.objective import Stage1Objective
+from handeye_jax import HTMModel, Settings, Stage1Objective, load_dataset, vectorise_small_loops
 from handeye_jax.optim import differential_evolution, levenberg_marquardt
 from handeye_jax.optim.polish import _Box
 

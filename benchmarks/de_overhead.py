@@ -48,9 +48,12 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from handeye_jax import HTMModel, load_dataset  # noqa: E402
+from handeye_jax import (  # noqa: E402
+    HTMModel,
+    Stage1Objective,  # noqa: E402
+    load_dataset,
+)
 from handeye_jax._xla import loop_compiler_options  # noqa: E402
-from handeye_jax.objective import Stage1Objective  # noqa: E402
 from handeye_jax.optim import _rng, de  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -42,9 +42,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from handeye_jax import HTMModel, load_dataset
+from handeye_jax import HTMModel, Stage1Objective, load_dataset
 from handeye_jax._xla import loop_compiler_options
-from handeye_jax.objective import Stage1Objective
 from handeye_jax.optim import de, differential_evolution
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -156,7 +155,7 @@ MEMORY_PROBE = textwrap.dedent(
     """
     import sys, jax
     from handeye_jax import HTMModel, load_dataset
-    from handeye_jax.objective import Stage1Objective
+    from handeye_jax import Stage1Objective
     from handeye_jax.optim import differential_evolution
     with jax.enable_x64(True):
         obj = Stage1Objective(HTMModel, load_dataset(sys.argv[1]).observations())

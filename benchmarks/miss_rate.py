@@ -37,9 +37,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from handeye_jax import HTMModel, Settings, calibrate, vectorise_small_loops
+from handeye_jax import HTMModel, Settings, Stage1Objective, calibrate, vectorise_small_loops
 from handeye_jax.dataset import dataset_to_toml
-from handeye_jax.objective import Stage1Objective
 from handeye_jax.optim import (
     differential_evolution,
     levenberg_marquardt,

@@ -36,9 +36,8 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from handeye_jax import HTMModel, Rig, load_dataset
+from handeye_jax import HTMModel, Rig, Stage1Objective, load_dataset
 from handeye_jax import geometry as geo
-from handeye_jax.objective import Stage1Objective
 from handeye_jax.synthetic import snake_grid_px, synthesize_dataset
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -25,8 +25,25 @@ __version__ = "0.1.0"
 
 # The names below load on first use (PEP 562), so that ``import handeye_jax.cli`` is quick:
 # the command line sets up its Ctrl-C handling before JAX (about a second) is imported.
-_SUBMODULES = ("geometry", "models", "objective", "optim")
+_SUBMODULES = ("geometry", "models", "optim")
 _EXPORTS = {
+    "AbstractBlock": "_objective",
+    "AbstractObjective": "_objective",
+    "LengthBlock": "_objective",
+    "LossObjective": "_objective",
+    "PriorObjective": "_objective",
+    "SquaresBlock": "_objective",
+    "Stage1Objective": "_objective",
+    "Stage2Objective": "_objective",
+    "StageErrors": "_objective",
+    "WeightedLengthBlock": "_objective",
+    "chain_points": "_objective",
+    "errors_of": "_objective",
+    "fitness": "_objective",
+    "ParameterSpace": "_params",
+    "Prior": "_params",
+    "put": "_params",
+    "resolve_names": "_params",
     "Frames": "_frames",
     "Predictor": "_predictor",
     "float64": "_x64",
@@ -89,8 +106,24 @@ class _Package(types.ModuleType):
 sys.modules[__name__].__class__ = _Package
 
 if TYPE_CHECKING:
-    from . import geometry, models, objective, optim
+    from . import geometry, models, optim
     from ._frames import Frames
+    from ._objective import (
+        AbstractBlock,
+        AbstractObjective,
+        LengthBlock,
+        LossObjective,
+        PriorObjective,
+        SquaresBlock,
+        Stage1Objective,
+        Stage2Objective,
+        StageErrors,
+        WeightedLengthBlock,
+        chain_points,
+        errors_of,
+        fitness,
+    )
+    from ._params import ParameterSpace, Prior, put, resolve_names
     from ._predictor import Predictor
     from ._x64 import float64
     from ._xla import vectorise_small_loops
@@ -103,7 +136,9 @@ if TYPE_CHECKING:
     from .result import CalibrationResult, load_result
 
 __all__ = [
+    "AbstractBlock",
     "AbstractModel",
+    "AbstractObjective",
     "AffinePair",
     "CalibrationResult",
     "DHModel",
@@ -111,11 +146,24 @@ __all__ = [
     "Frames",
     "HTMModel",
     "InputError",
+    "LengthBlock",
+    "LossObjective",
     "Observations",
+    "ParameterSpace",
     "Predictor",
+    "Prior",
+    "PriorObjective",
     "Rig",
     "Settings",
+    "SquaresBlock",
+    "Stage1Objective",
+    "Stage2Objective",
+    "StageErrors",
+    "WeightedLengthBlock",
     "calibrate",
+    "chain_points",
+    "errors_of",
+    "fitness",
     "float64",
     "geometry",
     "get_model",
@@ -123,8 +171,9 @@ __all__ = [
     "load_dataset",
     "load_result",
     "models",
-    "objective",
     "optim",
+    "put",
+    "resolve_names",
     "save_dataset",
     "vectorise_small_loops",
 ]

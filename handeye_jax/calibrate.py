@@ -15,23 +15,25 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _xla
-from ._validate import MAX_RESTARTS
-from ._x64 import in_float64
-from .dataset import Dataset, check_min_landmarks, check_population
-from .diagnostics import MAX_MODES, bound_hits, diagnose, mode_leaders
-from .errors import InputError
-from .losses import L1Loss, LossObjective, get_loss
-from .models import AbstractModel, AbstractParametric, AffinePair, get_model
-from .objective import (
+from ._objective import (
     AbstractObjective,
+    LossObjective,
     Stage1Objective,
     Stage2Objective,
     chain_points,
+    errors_of,
     fitness,
     norms,
     spread_landmarks,
     stage2_errors,
 )
+from ._validate import MAX_RESTARTS
+from ._x64 import in_float64
+from .dataset import Dataset, check_min_landmarks, check_population
+from .diagnostics import MAX_MODES, bound_hits, diagnose, mode_leaders
+from .errors import InputError
+from .losses import L1Loss, get_loss
+from .models import AbstractModel, AbstractParametric, AffinePair, get_model
 from .optim import differential_evolution, levenberg_marquardt, levenberg_marquardt_starts
 from .optim.de import latin_hypercube
 from .refits import REFIT_LANDMARKS
@@ -87,7 +89,7 @@ class Settings:
 def _report(objective: AbstractObjective, x):
     # Every evaluation of a stage's objective outside the optimisers goes through this one
     # program, so each stage compiles one (not one for F and one for the residuals).
-    errors = objective.errors(x)
+    errors = errors_of(objective, x)
     return errors, fitness(errors), norms(errors), objective(x)
 
 

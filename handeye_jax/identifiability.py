@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .objective import AbstractObjective
+from ._objective import AbstractObjective, errors_of
 
 #: A scaled singular value below this fraction of the largest marks a weak direction.
 WEAK_RATIO = 1e-2
@@ -40,7 +40,7 @@ def error_jacobian(
     """The stacked error vectors ``e`` (mm, ``r = 4n``) and their Jacobian ``∂e/∂theta``."""
 
     def flat(t):
-        errors = objective.errors(t)
+        errors = errors_of(objective, t)
         return jnp.concatenate([errors.image_vs_tablet.reshape(-1), errors.hand.reshape(-1)])
 
     return flat(theta), jax.jacfwd(flat)(theta)

@@ -7,7 +7,8 @@ length ``r`` of each error vector by ``ρ(r)`` (mm), so one bad touch pulls the 
 * ``huber``: ``r²/(2c)`` below the scale ``c``, ``r − c/2`` above it;
 * ``cauchy``: ``(c/2)·log(1 + (r/c)²)``, which grows only logarithmically for ``r ≫ c``.
 
-Per-landmark weights (0 or 1 for leave-one-out) multiply each landmark's terms.
+Per-landmark weights (0 or 1 for leave-one-out) multiply each landmark's terms: see
+:class:`~handeye_jax.LossObjective`.
 """
 
 from __future__ import annotations
@@ -17,10 +18,7 @@ from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
-import numpy as np
-from jaxtyping import Array, Float, Int
-
-from .objective import NORM_SMOOTHING_MM, AbstractObjective, Errors
+from jaxtyping import Array, Float
 
 LOSS_NAMES = ("l1", "huber", "cauchy")
 
@@ -83,63 +81,3 @@ def get_loss(name: str, scale_mm: float = 1.0) -> AbstractLoss:
     if name == "cauchy":
         return CauchyLoss(float(scale_mm))
     raise ValueError(f"unknown loss {name!r}; known: {', '.join(LOSS_NAMES)}")
-
-
-def _smoothed_length(e: Float[Array, "n 2"]) -> Float[Array, " n"]:
-    return jnp.sqrt(jnp.sum(e**2, axis=-1) + NORM_SMOOTHING_MM**2)
-
-
-class LossObjective(AbstractObjective):
-    """A stage's objective with a loss on each error length and a weight on each landmark.
-
-    Calling it gives ``Σ w·ρ(|e1|)/Σ w + Σ w·ρ(|e2|)/Σ w`` (mm): with ``l1`` and unit
-    weights, the paper's F. :meth:`errors` are the base objective's, so reports computed from
-    them (F, f1, f2, residuals) stay in the paper's measure.
-
-    Attributes:
-        base: the stage's objective (gives the error vectors).
-        loss: ``ρ``.
-        weights: one non-negative weight per landmark (1 = use, 0 = leave out).
-    """
-
-    base: AbstractObjective
-    loss: AbstractLoss
-    weights: Float[Array, " n"]
-
-    def errors(self, theta: Float[Array, " d"]) -> Errors:
-        return self.base.errors(theta)
-
-    def on_landmarks(self, idx: Int[np.ndarray, " m"]) -> LossObjective:
-        return LossObjective(self.base.on_landmarks(idx), self.loss, self.weights[idx])
-
-    def __call__(self, theta: Float[Array, " d"]) -> Float[Array, ""]:
-        errors = self.errors(theta)
-        w = self.weights / jnp.sum(self.weights)
-        return sum(
-            jnp.sum(w * self.loss(jnp.linalg.norm(e, axis=-1)))
-            for e in (errors.image_vs_tablet, errors.hand)
-        )
-
-    def landmark_terms(self, errors: Errors) -> Float[Array, " n"]:
-        """Each landmark's share of the (smoothed) value, mm: ``w·(ρ(|e1|) + ρ(|e2|))/Σw``;
-        twice differentiable, for derivatives per landmark."""
-        w = self.weights / jnp.sum(self.weights)
-        return w * sum(
-            self.loss(_smoothed_length(e)) for e in (errors.image_vs_tablet, errors.hand)
-        )
-
-    def residuals(self, theta: Float[Array, " d"]) -> Float[Array, " r"]:
-        """Residuals whose sum of squares is the (smoothed) value: ``e·sqrt(w·ρ(|e|))/|e|``."""
-        return self.residuals_of(self.errors(theta))
-
-    def residuals_of(self, errors: Errors) -> Float[Array, " r"]:
-        """:meth:`residuals` from error vectors already computed (one pass of the chain for a
-        caller that needs both)."""
-        w = self.weights / jnp.sum(self.weights)
-
-        def scaled(e):
-            r = _smoothed_length(e)
-            # sqrt(w) apart: a zero weight must give a zero gradient, not 0·∞.
-            return (e * (jnp.sqrt(w) * jnp.sqrt(self.loss(r)) / r)[:, None]).reshape(-1)
-
-        return jnp.concatenate([scaled(errors.image_vs_tablet), scaled(errors.hand)])

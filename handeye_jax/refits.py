@@ -37,17 +37,21 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from . import _xla
-from .losses import AbstractLoss, LossObjective
-from .models import AbstractCorrection, AbstractModel
-from .objective import (
+from ._objective import (
+    LossObjective,
     Stage1Objective,
     Stage2Objective,
+    StageErrors,
     chain_points,
+    errors_of,
     fitness,
     landmark_subset,
+    landmark_terms,
     norms,
     spread_landmarks,
 )
+from .losses import AbstractLoss
+from .models import AbstractCorrection, AbstractModel
 from .observations import Observations
 from .optim.batched import levenberg_marquardt_batch
 
@@ -117,8 +121,9 @@ def _two_jacobians(objective: LossObjective, x):
     vectors themselves: one forward-mode pass, and one trace of the transform chain."""
 
     def f(x):
-        errors = objective.errors(x)
-        out = (objective.residuals_of(errors), _flat(errors))
+        blocks = objective.blocks(x)
+        errors = StageErrors(image_vs_tablet=blocks["f1"].errors, hand=blocks["f2"].errors)
+        out = (jnp.concatenate([b.residuals() for b in blocks.values()]), _flat(errors))
         return out, (out, errors)
 
     (J_r, J_e), ((r, e), errors) = jax.jacfwd(f, has_aux=True)(x)
@@ -159,7 +164,7 @@ def _stage1_F(model_cls, obs, zero, sign, X):
 
     def one(zero_deg, sgn, x):
         base = Stage1Objective(model_cls, _with_convention(obs, zero_deg, sgn))
-        return fitness(base.errors(x))[0]
+        return fitness(errors_of(base, x))[0]
 
     return jax.vmap(one)(zero, sign, X)
 
@@ -174,15 +179,13 @@ def _loo_derivatives(model_cls, correction_cls, obs, loss, x1, x2):
 
     def stage1(x1):
         objective = LossObjective(Stage1Objective(model_cls, obs), loss, ones)
-        errors = objective.errors(x1)
-        return objective.landmark_terms(errors), _flat(errors)
+        return landmark_terms(objective, x1), _flat(errors_of(objective, x1))
 
     def stage2(x):
         points = chain_points(model_cls.from_vector(x[:d1]), obs)
         base = Stage2Objective(correction_cls, points, obs.centre_index)
         objective = LossObjective(base, loss, ones)
-        errors = objective.errors(x[d1:])
-        return objective.landmark_terms(errors), _flat(errors)
+        return landmark_terms(objective, x[d1:]), _flat(errors_of(objective, x[d1:]))
 
     def derivatives(f, x):
         def both(x):
@@ -193,7 +196,7 @@ def _loo_derivatives(model_cls, correction_cls, obs, loss, x1, x2):
         H = jax.jacfwd(jax.jacfwd(lambda y: f(y)[0]))(x)
         return g, H, e, E
 
-    F1 = fitness(Stage1Objective(model_cls, obs).errors(x1))[0]
+    F1 = fitness(errors_of(Stage1Objective(model_cls, obs), x1))[0]
     return derivatives(stage1, x1), derivatives(stage2, jnp.concatenate([x1, x2])), F1
 
 

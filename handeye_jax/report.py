@@ -30,10 +30,10 @@ import numpy as np
 
 from . import _xla
 from ._atomic import check_folder_output, write_folder_atomic
+from ._objective import chain_points, stage1_errors, stage2_errors
 from ._x64 import in_float64
 from .dataset import load_dataset
 from .errors import InputError
-from .objective import chain_points, stage1_errors, stage2_errors
 from .observations import Observations
 from .optim.de import CHUNK_GENERATIONS
 from .result import CalibrationResult, load_result, observations_to_dict

@@ -235,7 +235,7 @@ import jax
 import numpy as np
 import handeye_jax
 from handeye_jax import HTMModel, load_dataset
-from handeye_jax.objective import Stage1Objective
+from handeye_jax import Stage1Objective
 from handeye_jax.optim import differential_evolution
 applied = handeye_jax.vectorise_small_loops() if sys.argv[2] == "on" else False
 with jax.enable_x64(True):

@@ -10,14 +10,27 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from handeye_jax import DHModel, HTMModel, Settings, calibrate, load_dataset, load_result
+from handeye_jax import (
+    AbstractObjective,
+    DHModel,
+    HTMModel,
+    LengthBlock,
+    LossObjective,
+    Settings,
+    Stage1Objective,
+    StageErrors,
+    calibrate,
+    errors_of,
+    fitness,
+    load_dataset,
+    load_result,
+)
 from handeye_jax.calibrate import RESTART_LANDMARKS, fit_correction
 from handeye_jax.diagnostics import OUTLIER_FACTOR, population_modes
 from handeye_jax.errors import InputError
 from handeye_jax.identifiability import analyse_jacobian, jacobian_diagnostics
-from handeye_jax.losses import LossObjective, get_loss
+from handeye_jax.losses import get_loss
 from handeye_jax.models import AffinePair
-from handeye_jax.objective import AbstractObjective, Errors, Stage1Objective, fitness
 from handeye_jax.observations import Rig
 from handeye_jax.optim import levenberg_marquardt
 from handeye_jax.optim.batched import levenberg_marquardt_batch, residuals_and_jacobian
@@ -247,7 +260,7 @@ def test_leave_one_out_matches_an_explicit_refit(paper_result):
         x1 = np.array([paper_result.stage1.params[n] for n in HTMModel.param_names])
         lo, hi = HTMModel.search_bounds()
         ref = levenberg_marquardt(obj.residuals, x1, lo, hi)
-        e = obj.errors(jnp.asarray(ref.x))
+        e = errors_of(obj, jnp.asarray(ref.x))
         want = float(jnp.linalg.norm(e.image_vs_tablet[m])), float(jnp.linalg.norm(e.hand[m]))
     got = paper_result.diagnostics["stage1"]["loo"]["held_out_mm"][m]
     assert got["image_vs_tablet_mm"] == pytest.approx(want[0], abs=2e-3)
@@ -345,10 +358,13 @@ def test_a_wrong_declared_convention_is_named():
 
 
 class _FixedErrors(AbstractObjective):
-    e: Errors
+    e: StageErrors
 
-    def errors(self, theta):
-        return self.e
+    def blocks(self, theta):
+        return {"f1": LengthBlock(self.e.image_vs_tablet), "f2": LengthBlock(self.e.hand)}
+
+    def on_landmarks(self, idx):
+        return _FixedErrors(StageErrors(self.e.image_vs_tablet[idx], self.e.hand[idx]))
 
 
 @settings(max_examples=30, deadline=None)
@@ -356,7 +372,9 @@ class _FixedErrors(AbstractObjective):
        st.floats(0.1, 5.0))  # fmt: skip
 def test_loss_residuals_square_to_the_loss_value(seed, name, scale):
     rng = np.random.default_rng(seed)
-    errors = Errors(jnp.asarray(rng.normal(0, 2, (7, 2))), jnp.asarray(rng.normal(0, 2, (7, 2))))
+    errors = StageErrors(
+        jnp.asarray(rng.normal(0, 2, (7, 2))), jnp.asarray(rng.normal(0, 2, (7, 2)))
+    )
     weights = jnp.asarray(rng.integers(0, 2, 7).astype(float)).at[0].set(1.0)
 
     with jax.enable_x64(True):

@@ -28,12 +28,15 @@ class AbstractParametric(eqx.Module):
         param_names: parameter names, in vector order; also the field names.
         param_units: unit of each parameter, ``"mm"``, ``"deg"`` or ``"1"``.
         default_ranges: the search range ``(lo, hi)`` of each parameter, in its unit.
+        groups: named groups of parameters that are refitted together when a part of the rig
+            changes (``camera``, ``tablet``, ``pen`` for a model), by name.
     """
 
     name: eqx.AbstractClassVar[str]
     param_names: eqx.AbstractClassVar[tuple[str, ...]]
     param_units: eqx.AbstractClassVar[tuple[str, ...]]
     default_ranges: eqx.AbstractClassVar[Mapping[str, tuple[float, float]]]
+    groups: eqx.AbstractClassVar[Mapping[str, tuple[str, ...]]]
 
     @classmethod
     def from_vector(cls, theta: Float[Array, " d"], **static):
@@ -44,6 +47,13 @@ class AbstractParametric(eqx.Module):
     def from_dict(cls, values: Mapping[str, float], **static):
         """Build from a name → value map holding exactly ``param_names``."""
         return cls(**{n: jnp.asarray(values[n], dtype=float) for n in cls.param_names}, **static)
+
+    @classmethod
+    def nominal(cls, **static):
+        """The middle of every parameter's default search range (a template whose values do
+        not matter, e.g. when every parameter is free)."""
+        return cls.from_dict({n: sum(cls.default_ranges[n]) / 2 for n in cls.param_names},
+                             **static)  # fmt: skip
 
     def to_vector(self) -> Float[Array, " d"]:
         """The parameters as a flat vector in ``param_names`` order."""

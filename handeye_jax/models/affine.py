@@ -48,6 +48,11 @@ class AffinePair(AbstractCorrection):
     param_names: ClassVar[tuple[str, ...]] = (
         "X1", "Y1", "theta1", "Sx1", "Sy1", "X2", "Y2", "theta2", "Sx2", "Sy2",
     )  # fmt: skip
+    # A1 corrects the image chain, A2 the hand positions.
+    groups: ClassVar[dict[str, tuple[str, ...]]] = {
+        "first": ("X1", "Y1", "theta1", "Sx1", "Sy1"),
+        "second": ("X2", "Y2", "theta2", "Sx2", "Sy2"),
+    }
     param_units: ClassVar[tuple[str, ...]] = (
         "mm", "mm", "deg", "1", "1", "mm", "mm", "deg", "1", "1",
     )  # fmt: skip

@@ -50,6 +50,11 @@ class DHModel(AbstractModel):
     )  # fmt: skip
     # Flipping both tablet tilts mirrors the tablet through its own plane (Tables 7, 8).
     sign_twin: ClassVar[tuple[str, ...]] = ("alpha_t", "beta_t")
+    groups: ClassVar[dict[str, tuple[str, ...]]] = {
+        "camera": ("theta_c1", "a_c1", "alpha_c", "beta_c", "gamma_c"),
+        "tablet": ("theta_t1", "a_t1", "alpha_t", "beta_t", "gamma_t"),
+        "pen": ("xp", "yp"),
+    }
     param_units: ClassVar[tuple[str, ...]] = (
         "deg", "mm", "deg", "deg", "deg", "deg", "mm", "deg", "deg", "deg", "mm", "mm",
     )  # fmt: skip

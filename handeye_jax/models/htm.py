@@ -41,6 +41,11 @@ class HTMModel(AbstractModel):
     )  # fmt: skip
     # Flipping both tablet tilts mirrors the tablet through its own plane (Tables 7, 8).
     sign_twin: ClassVar[tuple[str, ...]] = ("alpha_t", "beta_t")
+    groups: ClassVar[dict[str, tuple[str, ...]]] = {
+        "camera": ("xc", "yc", "alpha_c", "beta_c", "gamma_c"),
+        "tablet": ("xt", "yt", "alpha_t", "beta_t", "gamma_t"),
+        "pen": ("xp", "yp"),
+    }
     param_units: ClassVar[tuple[str, ...]] = (
         "mm", "mm", "deg", "deg", "deg", "mm", "mm", "deg", "deg", "deg", "mm", "mm",
     )  # fmt: skip

@@ -1,0 +1,469 @@
+"""The fitness functions F1st (eqs. 17–20) and F2nd (eqs. 21–25) as named blocks of residuals.
+
+An objective maps the flat vector ``theta`` of a fit's free parameters to named *blocks*:
+``f1`` (image chain against tablet chain) and ``f2`` (hand positions) for both stages, and
+``prior`` when a Gaussian prior is given. Its value (what DE minimises, mm) is the sum of the
+blocks' values, and its least-squares residuals (what Levenberg–Marquardt minimises the squares
+of) are theirs stacked: both are defined once, on :class:`AbstractObjective`, from
+:meth:`~AbstractObjective.blocks`. The robust loss with the leave-one-out weights
+(:class:`LossObjective`) and the prior (:class:`PriorObjective`) are wrappers that change or
+add blocks.
+
+The model enters as a *template* and the names of its free parameters: ``theta`` is put into
+the template (:func:`~handeye_jax.put`); every other parameter keeps the template's value.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+import functools
+import math
+import operator
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from ._params import put
+from .losses import AbstractLoss
+from .models import AbstractCorrection, AbstractModel, AbstractParametric
+from .observations import Observations
+
+# Smoothing of |e| for the least-squares form of a length block, mm. Below it the polish sees a
+# quadratic, so noise-free data still converges quadratically to zero; above it, the sum of
+# squared residuals equals the block's value to within this many mm per landmark.
+NORM_SMOOTHING_MM = 1e-9
+
+#: Up to this many error vectors, a block's mean length is written as a sum of single terms.
+UNROLL_LANDMARKS = 64
+
+
+class ChainPoints(eqx.Module):
+    """The four point sets the objectives compare, in the base frame, x-y only, mm.
+
+    Attributes:
+        image_xy: landmarks through the image chain, ``x_bi`` of eq. (5).
+        tablet_xy: landmarks through the tablet chain, ``x_bt`` of eq. (10).
+        pen_offset_xy: the pen offset ``x'`` at each touch, eqs. (6)–(7).
+        hand_target_xy: the touch-compensated hand positions ``x_r'`` of eq. (20).
+    """
+
+    image_xy: Float[Array, "n 2"]
+    tablet_xy: Float[Array, "n 2"]
+    pen_offset_xy: Float[Array, "n 2"]
+    hand_target_xy: Float[Array, "n 2"]
+
+
+def chain_points(model: AbstractModel, obs: Observations) -> ChainPoints:
+    """Evaluate the model's transform chain on one calibration's observations."""
+    x_bi = model.image_to_base(obs.image_px, obs.depth_mm, obs.rig)
+    x_bt = model.tablet_to_base(obs.tablet_mm)
+    x_off = model.pen_offset(obs.phi_deg())
+    touch_base = model.tablet_vector_to_base(obs.touch_error_mm)
+    return ChainPoints(
+        image_xy=x_bi[:, :2],
+        tablet_xy=x_bt[:, :2],
+        pen_offset_xy=x_off[:, :2],
+        hand_target_xy=obs.hand_xy_mm - touch_base[:, :2],
+    )
+
+
+class StageErrors(eqx.Module):
+    """A stage's per-landmark error vectors, mm: eqs. (18)–(19) or (22)–(23)."""
+
+    image_vs_tablet: Float[Array, "n 2"]
+    hand: Float[Array, "n 2"]
+
+
+def stage1_errors(points: ChainPoints) -> StageErrors:
+    """Eqs. (18)–(19): ``x_bi − x_bt`` and ``(x_bi − x') − x_r'``."""
+    return StageErrors(
+        image_vs_tablet=points.image_xy - points.tablet_xy,
+        hand=points.image_xy - points.pen_offset_xy - points.hand_target_xy,
+    )
+
+
+def stage2_errors(
+    correction: AbstractCorrection, points: ChainPoints, centre_index: int
+) -> tuple[StageErrors, Float[Array, "2 2"]]:
+    """Eqs. (22)–(23) with A2 acting on A1's output, as eq. (25) deploys it (notes, item 5).
+
+    Returns the errors and the two centres of rotation (rows: A1's, A2's), mm. Each centre is
+    landmark ``centre_index`` of the points that map turns.
+    """
+    centre1 = points.image_xy[centre_index]
+    a1 = correction.first(points.image_xy, centre1)
+    hand_cmd = a1 - points.pen_offset_xy
+    centre2 = hand_cmd[centre_index]
+    a2 = correction.second(hand_cmd, centre2)
+    errors = StageErrors(image_vs_tablet=a1 - points.tablet_xy, hand=a2 - points.hand_target_xy)
+    return errors, jnp.stack([centre1, centre2])
+
+
+def _length(e: Float[Array, "n 2"]) -> Float[Array, " n"]:
+    return jnp.sqrt(e[:, 0] ** 2 + e[:, 1] ** 2)
+
+
+def _smoothed_length(e: Float[Array, "n k"]) -> Float[Array, " n"]:
+    return jnp.sqrt(jnp.sum(e**2, axis=-1) + NORM_SMOOTHING_MM**2)
+
+
+def _mean(x: Float[Array, " n"]) -> Float[Array, ""]:
+    # Under vmap over a population, a reduction inside a fused loop runs as a scalar inner loop;
+    # a sum of n separate terms fuses into one elementwise, vectorised loop over the members
+    # instead (benchmarks/RESULTS.md, "the unrolled mean").
+    n = x.shape[0]
+    if n > UNROLL_LANDMARKS:
+        return jnp.mean(x)
+    return sum(x[m] for m in range(n)) / n
+
+
+def norms(errors: StageErrors) -> tuple[Float[Array, " n"], Float[Array, " n"]]:
+    """Per-landmark Euclidean error lengths ``(|e1|, |e2|)``, mm."""
+    return _length(errors.image_vs_tablet), _length(errors.hand)
+
+
+def fitness(errors: StageErrors) -> tuple[Float[Array, ""], Float[Array, ""], Float[Array, ""]]:
+    """``(F, f1, f2)``: the mean error lengths and their sum, eqs. (17) and (21), mm."""
+    n1, n2 = norms(errors)
+    f1, f2 = _mean(n1), _mean(n2)
+    return f1 + f2, f1, f2
+
+
+# -- blocks --------------------------------------------------------------------------------
+
+
+class AbstractBlock(eqx.Module):
+    """A named part of an objective: a value (mm) and residuals whose squares sum to it."""
+
+    @abc.abstractmethod
+    def value(self) -> Float[Array, ""]:
+        """The block's contribution to the objective, mm."""
+
+    @abc.abstractmethod
+    def residuals(self) -> Float[Array, " r"]:
+        """Residuals whose sum of squares is :meth:`value` (up to the length smoothing)."""
+
+
+class LengthBlock(AbstractBlock):
+    """Error vectors whose mean Euclidean length is the block's value: the paper's f1 or f2.
+
+    Attributes:
+        errors: one error vector per landmark, mm.
+    """
+
+    errors: Float[Array, "n 2"]
+
+    def value(self):
+        return _mean(_length(self.errors))
+
+    def residuals(self):
+        # Each error vector scaled by (|e|² + ε²)^(-1/4): a least-squares solver then minimises
+        # the same mean of Euclidean lengths that DE does, not a sum of squares.
+        e = self.errors
+        n = e.shape[0]
+        w = (jnp.sum(e**2, axis=-1, keepdims=True) + NORM_SMOOTHING_MM**2) ** -0.25
+        return (e * w / jnp.sqrt(n)).reshape(-1)
+
+
+class WeightedLengthBlock(AbstractBlock):
+    """``Σ w·ρ(|e|) / Σ w`` over the error vectors: a loss ρ and a weight per landmark.
+
+    With ``ρ(r) = r`` and unit weights this is :class:`LengthBlock`'s value.
+    """
+
+    errors: Float[Array, "n 2"]
+    weights: Float[Array, " n"]
+    loss: AbstractLoss
+
+    def terms(self) -> Float[Array, " n"]:
+        """Each landmark's share of the (smoothed) value, mm; twice differentiable."""
+        w = self.weights / jnp.sum(self.weights)
+        return w * self.loss(_smoothed_length(self.errors))
+
+    def value(self):
+        w = self.weights / jnp.sum(self.weights)
+        return jnp.sum(w * self.loss(jnp.linalg.norm(self.errors, axis=-1)))
+
+    def residuals(self):
+        w = self.weights / jnp.sum(self.weights)
+        r = _smoothed_length(self.errors)
+        # sqrt(w) apart: a zero weight must give a zero gradient, not 0·∞.
+        scale = jnp.sqrt(w) * jnp.sqrt(self.loss(r)) / r
+        return (self.errors * scale[:, None]).reshape(-1)
+
+
+class SquaresBlock(AbstractBlock):
+    """Residuals whose plain sum of squares is the block's value (a prior's)."""
+
+    r: Float[Array, " k"]
+
+    def value(self):
+        return jnp.sum(self.r**2)
+
+    def residuals(self):
+        return self.r
+
+
+# -- objectives ----------------------------------------------------------------------------
+
+
+class AbstractObjective(eqx.Module):
+    """An objective: named blocks as a function of the free parameters ``theta``.
+
+    Final subclasses implement :meth:`blocks` and :meth:`on_landmarks` and nothing else; the
+    value, the residuals and the terms are defined here once, from the blocks.
+    """
+
+    @abc.abstractmethod
+    def blocks(self, theta: Float[Array, " d"]) -> dict[str, AbstractBlock]:
+        """The objective's blocks at ``theta``, by name (``f1``, ``f2``, ``prior``…)."""
+
+    @abc.abstractmethod
+    def on_landmarks(self, idx: Int[np.ndarray, " m"]) -> AbstractObjective:
+        """The same objective on landmarks ``idx`` (sorted indices) alone: a cheaper stand-in
+        for a search over many landmarks."""
+
+    def __call__(self, theta: Float[Array, " d"]) -> Float[Array, ""]:
+        return functools.reduce(operator.add, (b.value() for b in self.blocks(theta).values()))
+
+    def residuals(self, theta: Float[Array, " d"]) -> Float[Array, " r"]:
+        return jnp.concatenate([b.residuals() for b in self.blocks(theta).values()])
+
+    def terms(self, theta: Float[Array, " d"]) -> dict[str, Float[Array, ""]]:
+        """Each block's value at ``theta``, mm."""
+        return {k: b.value() for k, b in self.blocks(theta).items()}
+
+
+def _template(
+    template: AbstractParametric | type[AbstractParametric],
+) -> AbstractParametric:
+    """A template given as a class stands for every parameter free: any values do."""
+    if isinstance(template, type):
+        return template.nominal()
+    return template
+
+
+def _free(template: AbstractParametric, free: Sequence[str] | None) -> tuple[str, ...]:
+    names = type(template).param_names
+    if free is None:
+        return names
+    free = tuple(free)
+    unknown = [n for n in free if n not in names]
+    if unknown:
+        raise ValueError(f"unknown parameter {unknown[0]!r}; known: {', '.join(names)}")
+    return free
+
+
+class Stage1Objective(AbstractObjective):
+    """F1st (eq. 17): blocks ``f1`` (eq. 18) and ``f2`` (eq. 19).
+
+    Attributes:
+        template: the model; parameters not in ``free`` keep its values.
+        obs: the observations.
+        free: the names of the parameters ``theta`` holds, in order (default: all of the
+            model's, in its ``param_names`` order).
+    """
+
+    template: AbstractModel
+    obs: Observations
+    free: tuple[str, ...] = eqx.field(static=True)
+
+    def __init__(
+        self,
+        template: AbstractModel | type[AbstractModel],
+        obs: Observations,
+        free: Sequence[str] | None = None,
+    ):
+        self.template = _template(template)
+        self.obs = obs
+        self.free = _free(self.template, free)
+
+    def model(self, theta: Float[Array, " d"]) -> AbstractModel:
+        """The template with ``theta`` put in."""
+        return put(self.template, self.free, theta)
+
+    def blocks(self, theta):
+        e = _stage1_errors(self.template, self.free, self.obs, theta)
+        return {"f1": LengthBlock(e.image_vs_tablet), "f2": LengthBlock(e.hand)}
+
+    def on_landmarks(self, idx):
+        return Stage1Objective(self.template, landmark_subset(self.obs, idx), self.free)
+
+
+class Stage2Objective(AbstractObjective):
+    """F2nd (eq. 21): blocks ``f1`` (eq. 22) and ``f2`` (eq. 23) of a correction, the stage-1
+    model held fixed (its chain's points are given).
+
+    Attributes:
+        template: the correction; parameters not in ``free`` keep its values.
+        points: the stage-1 model's chain points.
+        centre_index: the landmark whose mapped points are the centres of rotation.
+        free: the names of the parameters ``theta`` holds (default: all).
+    """
+
+    template: AbstractCorrection
+    points: ChainPoints
+    centre_index: int = eqx.field(static=True)
+    free: tuple[str, ...] = eqx.field(static=True)
+
+    def __init__(
+        self,
+        template: AbstractCorrection | type[AbstractCorrection],
+        points: ChainPoints,
+        centre_index: int,
+        free: Sequence[str] | None = None,
+    ):
+        self.template = _template(template)
+        self.points = points
+        self.centre_index = int(centre_index)
+        self.free = _free(self.template, free)
+
+    def model(self, theta: Float[Array, " d"]) -> AbstractCorrection:
+        """The template with ``theta`` put in."""
+        return put(self.template, self.free, theta)
+
+    def blocks(self, theta):
+        e = _stage2_errors(self.template, self.free, self.points, self.centre_index, theta)
+        return {"f1": LengthBlock(e.image_vs_tablet), "f2": LengthBlock(e.hand)}
+
+    def on_landmarks(self, idx):
+        """See :meth:`AbstractObjective.on_landmarks`; ``idx`` must hold the centre landmark."""
+        idx = np.asarray(idx)
+        if self.centre_index not in idx:
+            raise ValueError(f"landmarks {idx} leave out the centre {self.centre_index}")
+        points = jax.tree.map(lambda a: a[idx], self.points)
+        centre = int(np.flatnonzero(idx == self.centre_index)[0])
+        return Stage2Objective(self.template, points, centre, self.free)
+
+
+# The stages' errors as nested jits: every program that evaluates or differentiates an
+# objective (DE, LM, reports, diagnostics) then reuses one trace of the transform chain.
+# XLA inlines the call, so the compiled loops are unchanged.
+@functools.partial(jax.jit, static_argnums=1)
+def _stage1_errors(template, free, obs: Observations, theta) -> StageErrors:
+    return stage1_errors(chain_points(put(template, free, theta), obs))
+
+
+@functools.partial(jax.jit, static_argnums=(1, 3))
+def _stage2_errors(template, free, points: ChainPoints, centre_index: int, theta) -> StageErrors:
+    return stage2_errors(put(template, free, theta), points, centre_index)[0]
+
+
+class LossObjective(AbstractObjective):
+    """Another objective with a loss ρ on each error length and a weight on each landmark.
+
+    Every :class:`LengthBlock` of ``base`` becomes ``Σ w·ρ(|e|)/Σ w``: with ``l1`` and unit
+    weights, the paper's F. Other blocks (a prior's) pass through unchanged.
+
+    Attributes:
+        base: the objective whose length blocks are weighted.
+        loss: ``ρ``.
+        weights: one non-negative weight per landmark (1 = use, 0 = leave out).
+    """
+
+    base: AbstractObjective
+    loss: AbstractLoss
+    weights: Float[Array, " n"]
+
+    def blocks(self, theta):
+        return {
+            name: WeightedLengthBlock(b.errors, self.weights, self.loss)
+            if isinstance(b, LengthBlock)
+            else b
+            for name, b in self.base.blocks(theta).items()
+        }
+
+    def on_landmarks(self, idx):
+        return LossObjective(self.base.on_landmarks(idx), self.loss, self.weights[idx])
+
+
+class PriorObjective(AbstractObjective):
+    """Another objective plus a Gaussian prior's block ``prior``: the MAP objective.
+
+    The data blocks are mean error lengths (mm): ``s/n`` times the negative log-likelihood of
+    ``n`` landmarks' error vectors with density ``∝ exp(−|e|/s)``. The prior block's residuals
+    are ``√(s/n)·W·(θ_P − μ)/√2`` with ``WᵀW = Σ⁻¹``, whose squares sum to ``s/n`` times the
+    prior's negative log-density (less its constant). So the whole objective is ``s/n`` times
+    the negative log-posterior, in mm, and its minimiser is the MAP estimate.
+
+    Attributes:
+        base: the data objective.
+        index: the positions in ``theta`` of the prior's parameters.
+        mean: the prior mean ``μ``, in the parameters' units.
+        whitener: ``W``.
+        weight: ``s/n``, mm: the data's error scale over the number of landmarks.
+    """
+
+    base: AbstractObjective
+    index: tuple[int, ...] = eqx.field(static=True)
+    mean: Float[Array, " k"]
+    whitener: Float[Array, "k k"]
+    weight: Float[Array, ""]
+
+    def nll_residuals(self, theta: Float[Array, " d"]) -> Float[Array, " k"]:
+        """``W·(θ_P − μ)/√2``: squares summing to the prior's negative log-density, less its
+        constant ``(k/2)·log(2π) + ½·log det Σ``."""
+        d = jnp.stack([theta[i] for i in self.index]) - self.mean
+        return (self.whitener @ d) / math.sqrt(2.0)
+
+    def blocks(self, theta):
+        out = dict(self.base.blocks(theta))
+        out["prior"] = SquaresBlock(jnp.sqrt(self.weight) * self.nll_residuals(theta))
+        return out
+
+    def on_landmarks(self, idx):
+        return PriorObjective(
+            self.base.on_landmarks(idx), self.index, self.mean, self.whitener, self.weight
+        )
+
+
+def data_objective(objective: AbstractObjective) -> AbstractObjective:
+    """The paper's objective inside any wrappers (its blocks are the data's error vectors)."""
+    while isinstance(objective, LossObjective | PriorObjective):
+        objective = objective.base
+    return objective
+
+
+def errors_of(objective: AbstractObjective, theta: Float[Array, " d"]) -> StageErrors:
+    """The data's error vectors of ``objective``'s stage at ``theta`` (the paper's measure,
+    whatever loss or prior wraps it)."""
+    blocks = data_objective(objective).blocks(theta)
+    return StageErrors(image_vs_tablet=blocks["f1"].errors, hand=blocks["f2"].errors)
+
+
+def landmark_terms(objective: LossObjective, theta: Float[Array, " d"]) -> Float[Array, " n"]:
+    """Each landmark's share of a :class:`LossObjective`'s data blocks at ``theta``, mm
+    (smoothed, so twice differentiable: for derivatives per landmark)."""
+    blocks = objective.blocks(theta)
+    return sum(b.terms() for b in blocks.values() if isinstance(b, WeightedLengthBlock))
+
+
+# -- landmark subsets --------------------------------------------------------------------------
+
+#: The per-landmark fields of :class:`Observations`.
+_LANDMARK_FIELDS = (
+    "image_px", "depth_mm", "tablet_mm", "hand_xy_mm", "hand_angle_deg", "touch_error_mm",
+)  # fmt: skip
+
+
+def spread_landmarks(n: int, k: int, include: int | None = None) -> Int[np.ndarray, " m"]:
+    """Up to ``k`` landmark indices spread evenly over ``0 … n−1`` (touch order), sorted, plus
+    ``include`` (e.g. the centre of rotation); all ``n`` when ``n <= k``."""
+    idx = np.arange(n) if n <= k else np.round(np.linspace(0, n - 1, k)).astype(int)
+    if include is not None:
+        idx = np.union1d(idx, [include])
+    return np.unique(idx)
+
+
+def landmark_subset(obs: Observations, idx: Int[np.ndarray, " m"]) -> Observations:
+    """The observations of landmarks ``idx`` (sorted) alone; the centre of rotation becomes
+    the nearest of them to the old one's index if it is not among them."""
+    idx = np.asarray(idx)
+    pick = {f: getattr(obs, f)[idx] for f in _LANDMARK_FIELDS}
+    centre = int(np.argmin(np.abs(idx - obs.centre_index)))
+    return dataclasses.replace(obs, **pick, centre_index=centre)
