@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from handeye_jax import HTMModel, vectorise_small_loops
-from handeye_jax.optim import de
+from handeye_jax.optim import _de as de
 
 # As the command line does, before JAX's first computation (handeye_jax._xla says why).
 vectorise_small_loops()
@@ -49,7 +49,7 @@ def interleaved_ms(fns: dict, rounds: int) -> dict[str, list[float]]:
 
 def de_start(objective, n: int, key: int = 0):
     """A DE run's initial state at population ``n`` in the HTM box, the box, and the settings
-    ``optim.de._chunk`` takes (no generation limit, CR 0.9, F 0.5, early stop off)."""
+    ``optim._de._chunk`` takes (no generation limit, CR 0.9, F 0.5, early stop off)."""
     lower, upper = (jnp.asarray(b) for b in HTMModel.search_bounds())
     state = de._init(objective, jax.random.PRNGKey(key), lower, upper, n)
     settings = [np.asarray(v) for v in (10**9, 0.9, 0.5, 0.0, 0.0, False)]

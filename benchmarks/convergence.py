@@ -21,12 +21,12 @@ Methods and accounting:
   The same DE without the early stop is shown as well; with the same key it is the same run
   continued, since generation ``g`` always draws from random stream ``g``.
 * **DE for k generations, then LM**: DE with ``early_stop=False``, ``generations=k``, then
-  ``levenberg_marquardt`` from the best member inside the box. Evaluations are
+  ``LevenbergMarquardt`` from the best member inside the box. Evaluations are
   ``N·(k + 1) + steps·(1 + D)``.
 * **Multi-start LM / BFGS**: M starts uniform in the box (the same starts for both), solved in
   one ``jax.vmap``-ed call of ``optimistix.least_squares`` (LevenbergMarquardt on F1st's
   residuals) or ``optimistix.minimise`` (BFGS on F1st itself), both in the sine-transformed
-  box coordinates of ``handeye_jax.optim.polish``. The expected evaluations to a first success
+  box coordinates of ``handeye_jax.optim._box``. The expected evaluations to a first success
   are (mean cost per start) / (success fraction), and the expected wall time likewise
   (batch wall time / M) / (success fraction).
 
@@ -55,8 +55,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from handeye_jax import HTMModel, Settings, Stage1Objective, load_dataset, vectorise_small_loops
-from handeye_jax.optim import differential_evolution, levenberg_marquardt
-from handeye_jax.optim.polish import _Box
+from handeye_jax.optim import Bounds, Box, LevenbergMarquardt, differential_evolution, minimise
 
 PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
 TARGET = 1.675  # mm, success threshold on F1st
@@ -65,7 +64,7 @@ D = len(HTMModel.param_names)
 STEP_COST = 1 + D  # objective-evaluation equivalents per LM / BFGS step
 WARMUP_SEED = 10_000  # compiles every configuration; never in the table
 TWIN = [HTMModel.param_names.index(n) for n in HTMModel.sign_twin]  # alpha_t, beta_t
-RTOL = ATOL = 1e-12  # LM and BFGS tolerances, as levenberg_marquardt's defaults
+RTOL = ATOL = 1e-12  # LM and BFGS tolerances, as LevenbergMarquardt's defaults
 MAX_STEPS = 1000
 
 
@@ -113,8 +112,8 @@ def de_alone(obj, lo, hi, seed, n, g_max, tol, early_stop, label) -> Run:
     )  # fmt: skip
     hist = de.best_history
     gens = np.arange(1, len(hist) + 1)
-    run = Run(label, seed, de.f, de.evaluations, wall, twin=_twin(de.x),
-              curve=(n * (gens + 1), hist), extra={"generations": de.generations})  # fmt: skip
+    run = Run(label, seed, de.value, de.evaluations, wall, twin=_twin(de.x),
+              curve=(n * (gens + 1), hist), extra={"generations": de.steps})  # fmt: skip
     hit = np.nonzero(hist <= TARGET)[0]
     if hit.size:
         g = int(hit[0]) + 1
@@ -124,7 +123,7 @@ def de_alone(obj, lo, hi, seed, n, g_max, tol, early_stop, label) -> Run:
             differential_evolution, obj, lo, hi, key=key, population=n, generations=g,
             tol=tol, early_stop=early_stop,
         )  # fmt: skip
-    run.note = f"{de.generations} generations" + (", early stop" if de.converged else "")
+    run.note = f"{de.steps} generations" + (", early stop" if de.converged else "")
     return run
 
 
@@ -134,13 +133,13 @@ def de_then_lm(obj, lo, hi, seed, n, k) -> Run:
         generations=k, early_stop=False,
     )  # fmt: skip
     t0 = time.perf_counter()
-    lm = levenberg_marquardt(obj.residuals, de.x, lo, hi)
-    f_lm = float(obj(jnp.asarray(lm.x)))
+    lm = minimise(obj, LevenbergMarquardt(rtol=RTOL, atol=ATOL), Bounds(lo, hi), x0=de.x)
+    f_lm = lm.value
     t_lm = time.perf_counter() - t0
-    x, f = (lm.x, f_lm) if f_lm < de.f else (de.x, de.f)
+    x, f = (lm.x, f_lm) if f_lm < de.value else (de.x, de.value)
     evals = n * (k + 1) + lm.steps * STEP_COST
     run = Run(f"DE {k} gen + LM", seed, f, evals, t_de + t_lm, twin=_twin(x),
-              note=f"DE F {de.f:.4f}, LM {lm.steps} steps")  # fmt: skip
+              note=f"DE F {de.value:.4f}, LM {lm.steps} steps")  # fmt: skip
     if run.ok:
         run.evals, run.wall = evals, t_de + t_lm
     return run
@@ -346,7 +345,7 @@ def main() -> None:
     with jax.enable_x64(True):
         obj = Stage1Objective(HTMModel, ds.observations())
         lo, hi = HTMModel.search_bounds(ds.search)
-        box = _Box(jnp.asarray(lo), jnp.asarray(hi))
+        box = Box(jnp.asarray(lo), jnp.asarray(hi))
 
         de_label = f"DE alone, calibrate defaults (N {n}, G ≤ {g_max}, tol {args.tol:g})"
         de_full = f"DE alone, early stop off (N {n}, G = {g_max})"

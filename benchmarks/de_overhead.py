@@ -4,7 +4,7 @@
     python benchmarks/de_overhead.py --vectors    # also: which XLA fusions are vectorised
     python benchmarks/de_overhead.py --quick      # tiny sizes, for the test suite
 
-Every variant runs inside the DE's own compiled loop (``optim.de._chunk_scan``, with the same
+Every variant runs inside the DE's own compiled loop (``optim._de._chunk_scan``, with the same
 bookkeeping, selection and XLA options); only the way a generation makes its trial vectors
 changes. The variants are ablations for measurement, not alternative algorithms:
 
@@ -54,7 +54,8 @@ from handeye_jax import (  # noqa: E402
     load_dataset,
 )
 from handeye_jax._xla import loop_compiler_options  # noqa: E402
-from handeye_jax.optim import _rng, de  # noqa: E402
+from handeye_jax.optim import _de as de  # noqa: E402
+from handeye_jax.optim import _rng  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import PAPER, de_start, interleaved_ms  # noqa: E402

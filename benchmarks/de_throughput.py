@@ -44,7 +44,8 @@ import numpy as np
 
 from handeye_jax import HTMModel, Stage1Objective, load_dataset
 from handeye_jax._xla import loop_compiler_options
-from handeye_jax.optim import de, differential_evolution
+from handeye_jax.optim import _de as de
+from handeye_jax.optim import differential_evolution
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import PAPER, de_start, interleaved_ms  # noqa: E402

@@ -17,7 +17,7 @@ import sys
 
 import numpy as np
 
-from handeye_jax import Settings, calibrate, vectorise_small_loops
+from handeye_jax import Settings, calibrate, diagnose, vectorise_small_loops
 from handeye_jax.simulate import PRESETS, simulate
 from handeye_jax.twin import draw_truth
 
@@ -62,7 +62,7 @@ def main() -> None:
     for loss, scale_mm in cases:
         s = Settings(population=args.population, generations=args.generations, seed=args.seed,
                      loss=loss, loss_scale_mm=scale_mm)  # fmt: skip
-        a, b = calibrate(clean, s), calibrate(touched, s)
+        a, b = calibrate(clean, s), diagnose(calibrate(touched, s))
         flagged = b.diagnostics["stage1"]["outliers"]
         diff = f_others(b) - f_others(a)
         print(

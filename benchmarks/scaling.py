@@ -77,19 +77,20 @@ def noisy_landmarks(n: int, seed: int = 0):
 
 def calibrate_once(n: int, quick: bool, diagnostics: bool = True, warm: bool = True) -> dict:
     """In this process: calibrate :func:`noisy_landmarks` (cold, then warm again)."""
-    from handeye_jax import Settings, calibrate
+    from handeye_jax import Settings, calibrate, diagnose
 
-    settings = Settings(diagnostics=diagnostics)
+    settings = Settings()
     if quick:
-        settings = Settings(population=50, generations=60, diagnostics=diagnostics)
+        settings = Settings(population=50, generations=60)
     ds = noisy_landmarks(n)
     out = {"landmarks": n}
     for run in ("cold", "warm")[: 1 + warm]:
-        t = calibrate(ds, settings).timings_s
+        r = calibrate(ds, settings)
+        t = (diagnose(r, search=ds.search) if diagnostics else r).timings_s
         out[run] = {
             "de": t["stage1_de"] + t["stage2_de"],
             "polish": t["stage1_polish"] + t["stage2_polish"],
-            "diagnostics": t["diagnostics"],
+            "diagnostics": t.get("diagnostics", 0.0),
             "total": t["total"],
         }
     out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024

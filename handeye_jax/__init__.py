@@ -50,6 +50,8 @@ _EXPORTS = {
     "vectorise_small_loops": "_xla",
     "Settings": "calibrate",
     "calibrate": "calibrate",
+    "diagnose": "calibrate",
+    "recalibrate": "calibrate",
     "Dataset": "dataset",
     "load_dataset": "dataset",
     "save_dataset": "dataset",
@@ -127,7 +129,7 @@ if TYPE_CHECKING:
     from ._predictor import Predictor
     from ._x64 import float64
     from ._xla import vectorise_small_loops
-    from .calibrate import Settings, calibrate
+    from .calibrate import Settings, calibrate, diagnose, recalibrate
     from .dataset import Dataset, load_dataset, save_dataset
     from .errors import InputError
     from .models import AbstractModel, AffinePair, DHModel, HTMModel, get_model
@@ -162,6 +164,7 @@ __all__ = [
     "WeightedLengthBlock",
     "calibrate",
     "chain_points",
+    "diagnose",
     "errors_of",
     "fitness",
     "float64",
@@ -173,6 +176,7 @@ __all__ = [
     "models",
     "optim",
     "put",
+    "recalibrate",
     "resolve_names",
     "save_dataset",
     "vectorise_small_loops",

@@ -18,7 +18,7 @@ from pathlib import Path
 
 from . import _interrupt
 from ._atomic import check_output, write_output
-from ._validate import MAX_GENERATIONS, MAX_POPULATION, parse_float, parse_int
+from ._validate import MAX_GENERATIONS, MAX_POPULATION, MAX_RESTARTS, parse_float, parse_int
 from .errors import InputError
 
 PROG = "handeye-jax"
@@ -98,6 +98,13 @@ def _positive_number(text: str) -> float:
     return v
 
 
+def _restarts(text: str) -> int:
+    v = _whole_number(text)
+    if not 0 <= v <= MAX_RESTARTS:
+        raise argparse.ArgumentTypeError(f"must be 0 to {MAX_RESTARTS:,} (got {v})")
+    return v
+
+
 def _seed(text: str) -> int:
     v = _whole_number(text)
     if not -(2**63) <= v < 2**63:
@@ -114,23 +121,47 @@ def _output_path(
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from .calibrate import Settings, calibrate
+    from .calibrate import Settings, calibrate, diagnose, recalibrate
     from .dataset import load_dataset
+    from .result import load_result
     from .summary import format_summary
 
-    out = _output_path(args.out, "--out", [args.dataset])
+    out = _output_path(args.out, "--out", [args.dataset, args.prior])
+    if (args.refit or args.fix) and not args.prior:
+        raise InputError(None, "--refit" if args.refit else "--fix",
+                         "needs --prior OLD.result.json, the result to start from")  # fmt: skip
+    if args.prior and not args.refit:
+        raise InputError(None, "--refit", "name what changed: camera, tablet, pen or parameters")
+    previous = load_result(args.prior) if args.prior else None
+    model = args.model or (previous.model if previous else Settings().model)
+    if previous is not None and model != previous.model:
+        raise InputError(args.prior, "model", f"is {previous.model!r}; --model says {model!r}")
     dataset = load_dataset(args.dataset)
     settings = Settings(
-        model=args.model,
+        model=model,
         seed=args.seed,
         population=args.population,
         generations=args.generations,
         early_stop=not args.no_early_stop,
+        restarts=args.restarts,
         loss=args.loss,
         loss_scale_mm=args.loss_scale_mm,
-        diagnostics=not args.no_diagnostics,
     )
-    result = calibrate(dataset, settings, progress=not args.quiet)
+    if previous is None:
+        result = calibrate(dataset, settings, progress=not args.quiet)
+    else:
+        from ._params import resolve_names
+        from .models import get_model
+
+        refit = tuple(g.strip() for g in args.refit.split(",") if g.strip())
+        try:
+            resolve_names(get_model(model), refit)
+        except ValueError as e:
+            raise InputError(None, "--refit", str(e)) from None
+        result = recalibrate(dataset, previous, refit, settings, fix=args.fix,
+                             source=Path(args.prior).name, progress=not args.quiet)  # fmt: skip
+    if not args.no_diagnostics:
+        result = diagnose(result, search=dataset.search)
     print(format_summary(result))
     if out is not None:
         write_output(out, result.to_json(), "--out")
@@ -223,11 +254,11 @@ def build_parser() -> argparse.ArgumentParser:
         description="Fit a dataset by DE + Levenberg-Marquardt in two stages. The paper's own "
         "settings are --population 10000 --generations 10000 --no-early-stop.",
     )
-    cal.add_argument("dataset", help="dataset file (handeye-jax.dataset/1 TOML; mm, deg, px)")
+    cal.add_argument("dataset", help="dataset file (handeye-jax.dataset TOML; mm, deg, px)")
     cal.add_argument(
-        "--model", choices=sorted(model_registry()), default=d.model,
-        help="the transform chain: htm, six-DoF transforms (eqs. 1-8); dh, the "
-        "Denavit-Hartenberg variant (eqs. 12-16)",
+        "--model", choices=sorted(model_registry()), default=None,
+        help=f"the transform chain: htm, six-DoF transforms (eqs. 1-8); dh, the "
+        f"Denavit-Hartenberg variant (eqs. 12-16) (default: {d.model}, or --prior's)",
     )  # fmt: skip
     cal.add_argument("--seed", type=_seed, default=d.seed, help="PRNG seed")
     cal.add_argument(
@@ -249,6 +280,26 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument(
         "--loss-scale-mm", type=_positive_mm, default=d.loss_scale_mm, metavar="MM",
         help="robust loss scale, mm; errors above 3x it are flagged",
+    )  # fmt: skip
+    cal.add_argument(
+        "--restarts", type=_restarts, default=d.restarts,
+        help="LM restarts per stage besides the best DE member (other optima of the final "
+        "population, then Latin-hypercube starts); 0 runs none",
+    )  # fmt: skip
+    cal.add_argument(
+        "--prior", metavar="OLD.result.json",
+        help="recalibrate from this earlier result of the same rig (default: none, calibrate "
+        "from scratch): the parameters not in --refit take its posterior as their prior",
+    )  # fmt: skip
+    cal.add_argument(
+        "--refit", metavar="GROUPS",
+        help="with --prior: what changed, comma-separated groups (camera, tablet, pen) or "
+        "parameter names, searched afresh (default: none)",
+    )  # fmt: skip
+    cal.add_argument(
+        "--fix", action="store_true",
+        help="with --prior: hold the parameters not in --refit at its values instead of "
+        "giving them its posterior as a prior",
     )  # fmt: skip
     cal.add_argument(
         "--no-diagnostics", action="store_true",

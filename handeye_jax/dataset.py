@@ -334,7 +334,7 @@ def _parse(doc: dict[str, Any], path: Path | None) -> Dataset:
         rows["touch_error_px"].append(
             r.vector(mark["touch_error_px"], f"{where}.touch_error_px", 2, MAX_PX)
         )
-    _check_distinct(rows["tablet_px"], path)
+    check_distinct(rows["tablet_px"], path)
 
     return Dataset(
         name=name,
@@ -383,7 +383,7 @@ def _check_ray(r: Reader, uv: list[float], camera: Camera, where: str) -> None:
                f"check image_px and [camera] (got [{uv[0]:g}, {uv[1]:g}])")  # fmt: skip
 
 
-def _check_distinct(tablet_px: Any, path: str | Path | None) -> None:
+def check_distinct(tablet_px: Any, path: str | Path | None) -> None:
     """Two landmarks drawn at the same place are one landmark measured twice: reject."""
     first: dict[tuple[float, float], int] = {}
     for j, xy in enumerate(np.asarray(tablet_px, dtype=np.float64).reshape(-1, 2)):
@@ -429,7 +429,7 @@ def check_min_landmarks(ds: Dataset, n_params: int, path: str | Path | None = No
             path, "landmarks",
             f"needs at least {need} landmarks to fit {n_params} parameters (got {ds.n_landmarks})",
         )  # fmt: skip
-    _check_distinct(ds.tablet_px, path)
+    check_distinct(ds.tablet_px, path)
 
 
 def check_population(ds: Dataset, population: int, path: str | Path | None = None) -> None:

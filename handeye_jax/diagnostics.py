@@ -13,10 +13,12 @@ from typing import Any
 
 import numpy as np
 
+from ._objective import AbstractObjective
+from ._params import ParameterSpace
 from .identifiability import analyse_jacobian
 from .losses import AbstractLoss
-from .models import AbstractCorrection, AbstractModel, AbstractParametric
-from .observations import Observations
+from .models import AbstractParametric
+from .optim import Bounds
 from .refits import CONVENTIONS, refits
 
 # A parameter closer than this fraction of its range to a bound is reported as on the bound.
@@ -238,71 +240,96 @@ def convention_check(
     }
 
 
-def diagnose(
+def _prior_precision(space: ParameterSpace) -> np.ndarray | None:
+    """The prior's precision in the space's free coordinates (zeros elsewhere), or None."""
+    if space.prior is None:
+        return None
+    P = np.zeros((space.d, space.d))
+    idx = space.prior_indices()
+    P[np.ix_(idx, idx)] = space.prior.precision
+    return P
+
+
+def diagnostics_of(
     *,
-    model_cls: type[AbstractModel],
-    correction_cls: type[AbstractCorrection],
-    obs: Observations,
+    stage1: AbstractObjective,
+    stage2: AbstractObjective,
+    spaces: tuple[ParameterSpace, ParameterSpace],
     loss: AbstractLoss,
     loss_scale_mm: float,
     x: tuple[np.ndarray, np.ndarray],
     stage_results: tuple[Any, Any],
-    populations: tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
+    populations: tuple[Any, Any],
     search: dict,
     seed: int,
+    depth_mm: np.ndarray,
+    declared: tuple[float, int],
 ) -> dict[str, Any]:
-    """The ``diagnostics`` object of a result.
+    """The ``diagnostics`` object of a result, on each stage's free parameters.
 
     Args:
-        model_cls, correction_cls: the stage-1 and stage-2 classes.
-        obs: the observations (declared convention).
+        stage1, stage2: the stages' objectives as fitted (prior included, loss not).
+        spaces: the stages' parameter spaces.
         loss, loss_scale_mm: the loss the fit used, and its scale in mm.
-        x: each stage's optimum.
+        x: each stage's optimum (free parameters).
         stage_results: each stage's :class:`~handeye_jax.result.StageResult`.
-        populations: each stage's final DE ``(population, fitness)``.
+        populations: each stage's final DE ``(population, fitness, names searched)``, or
+            ``None`` where it is not known (a result read from a file).
         search: the dataset's ``[search]`` overrides.
         seed: the calibration's seed (the convention multi-starts draw from it).
+        depth_mm: the landmarks' depths, mm (to explain a shift–tilt trade-off).
+        declared: the dataset's hand-angle convention ``(zero deg, sign)``.
     """
-    classes = (model_cls, correction_cls)
-    bounds = [c.search_bounds(search) for c in classes]
+    bounds = [Bounds(sp.lower, sp.upper) for sp in spaces]
     out = refits(
-        model_cls, correction_cls, obs, loss, np.asarray(x[0]), np.asarray(x[1]),
-        bounds[0], bounds[1], seed, CONVENTION_STARTS, REFIT_STEPS,
+        stage1, stage2, loss, np.asarray(x[0]), np.asarray(x[1]), bounds[0], bounds[1], seed,
+        CONVENTION_STARTS, REFIT_STEPS,
     )  # fmt: skip
     loo = (
         _loo(out.loo1_image_vs_tablet, out.loo1_hand, stage_results[0].F),
         _loo(out.loo2_image_vs_tablet, out.loo2_hand, stage_results[1].F),
     )
     threshold = OUTLIER_FACTOR * loss_scale_mm
-    depth = np.asarray(obs.depth_mm)
     stages = {}
     jacobians = ((out.errors1, out.jacobian1), (out.errors2, out.jacobian2))
     flat: dict[int, list[dict[str, float]]] = {}
-    for k, (cls, (e, J), sr, (pop, fit)) in enumerate(
-        zip(classes, jacobians, stage_results, populations, strict=True)
+    for k, (space, (e, J), sr, pop) in enumerate(
+        zip(spaces, jacobians, stage_results, populations, strict=True)
     ):
-        lo, hi = cls.search_bounds(search)
-        twin = getattr(cls, "sign_twin", ())
-        jac = analyse_jacobian(e, J, cls.param_names, cls.param_units, depth)
+        cls = type(space.template)
+        units = [cls.param_units[cls.param_names.index(n)] for n in space.free]
+        jac = analyse_jacobian(e, J, space.free, units, depth_mm, _prior_precision(space))
         flat[k] = [w["step"] for w in jac["weak_directions"]]
+        modes = []
+        if pop is not None and pop[2]:
+            members, fitness_, names = pop
+            idx = [space.free.index(n) for n in names]
+            twin = tuple(n for n in getattr(cls, "sign_twin", ()) if n in names)
+            steps = [{n: v for n, v in st.items() if n in names} for st in flat[k]]
+            modes = population_modes(
+                members, fitness_, space.lower[idx], space.upper[idx], names, twin,
+                [st for st in steps if st], np.asarray(x[k])[idx],
+            )  # fmt: skip
         stages[f"stage{k + 1}"] = {
             **jac,
-            "modes": population_modes(
-                pop, fit, lo, hi, cls.param_names, twin, flat[k], np.asarray(x[k])
-            ),
-            "bound_hits": bound_hits(sr.params, cls, search),
+            "free": list(space.free),
+            "modes": modes,
+            "bound_hits": [
+                h for h in bound_hits(sr.params, cls, search) if h["param"] in space.free
+            ],  # fmt: skip
             "loo": loo[k],
             "loo_method": out.loo_method,
             "outliers": outliers(sr.residuals_mm, threshold),
         }
-    lo, hi = model_cls.search_bounds(search)
+    space1 = spaces[0]
+    cls1 = type(space1.template)
     stages["stage1"]["local_optima"] = population_modes(
-        out.declared_params, out.declared_F, lo, hi, model_cls.param_names,
-        getattr(model_cls, "sign_twin", ()), flat[0], np.asarray(x[0]),
+        out.declared_params, out.declared_F, space1.lower, space1.upper, space1.free,
+        tuple(n for n in getattr(cls1, "sign_twin", ()) if n in space1.free), flat[0],
+        np.asarray(x[0]),
     )  # fmt: skip
-    rig = obs.rig
-    declared = (float(rig.angle_zero_deg), int(rig.angle_sign))
-    searched = out.refit_landmarks if out.refit_landmarks < obs.n_landmarks else 0
+    n = len(depth_mm)
+    searched = out.refit_landmarks if out.refit_landmarks < n else 0
     return {
         "loss": {"name": loss.name, "scale_mm": float(loss_scale_mm)},
         "outlier_threshold_mm": threshold,

@@ -89,6 +89,7 @@ def analyse_jacobian(
     names: Sequence[str],
     units: Sequence[str],
     depth_mm: np.ndarray | None = None,
+    prior_precision: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """Standard deviations, singular values and weak directions at an optimum.
 
@@ -97,15 +98,24 @@ def analyse_jacobian(
         jacobian: their Jacobian, shape ``(r, d)`` (mm per parameter unit).
         names, units: the parameters' names and units.
         depth_mm: the landmarks' depths, mm, to explain a shift–tilt trade-off (optional).
+        prior_precision: the inverse covariance of a Gaussian prior on the parameters,
+            ``(d, d)`` (zero rows and columns for those without one), or ``None``.
 
     Returns:
         A JSON-ready dict: ``sigma_mm`` (residual standard deviation), ``dof``, ``std``
-        (name → std in the parameter's unit, ``None`` when undetermined),
-        ``singular_values`` (of the scaled Jacobian, largest first) and ``weak_directions``.
+        (name → std in the parameter's unit, ``None`` when undetermined; with a prior, the
+        posterior's), ``precision`` (the posterior inverse covariance, ``JᵀJ/σ²`` plus the
+        prior's: what a recalibration takes as its prior), ``singular_values`` (of the scaled
+        Jacobian, largest first) and ``weak_directions``.
     """
     errors = np.asarray(errors, dtype=float)
     J = np.asarray(jacobian, dtype=float)
     r, d = J.shape
+    if d == 0:  # every parameter held fixed: nothing to analyse
+        dof = max(r, 1)
+        sigma = float(np.sqrt(np.sum(errors**2) / dof))
+        return {"sigma_mm": sigma, "dof": dof, "std": {}, "precision": [],
+                "singular_values": [], "weak_directions": []}  # fmt: skip
     col = np.linalg.norm(J, axis=0)
     col = np.where(col > 0, col, 1.0)
     U, s, Vt = np.linalg.svd(J / col, full_matrices=False)
@@ -121,6 +131,11 @@ def analyse_jacobian(
     std = np.sqrt(np.diag(cov_scaled)) * sigma / col
     null_share = np.abs(V[:, ~keep]).max(axis=1) if (~keep).any() else np.zeros(d)
     std_out = {n: (None if null_share[i] > 1e-3 else float(std[i])) for i, n in enumerate(names)}
+    precision = (J.T @ J) / sigma**2 if sigma > 0 else np.zeros((d, d))
+    if prior_precision is not None:
+        # Gauss–Newton with the prior's information added: the posterior of a MAP fit.
+        precision = precision + np.asarray(prior_precision, dtype=float)
+        std_out = _std_of_precision(precision, names)
 
     weak = []
     Js = J / col
@@ -171,8 +186,24 @@ def analyse_jacobian(
         "sigma_mm": sigma,
         "dof": dof,
         "std": std_out,
+        "precision": precision.tolist(),
         "singular_values": [float(v) for v in s],
         "weak_directions": weak,
+    }
+
+
+def _std_of_precision(precision: np.ndarray, names: Sequence[str]) -> dict[str, float | None]:
+    """Standard deviations from an inverse covariance; ``None`` where it has no information."""
+    d = len(names)
+    scale = np.sqrt(np.maximum(np.diag(precision), 0.0))
+    scale = np.where(scale > 0, scale, 1.0)
+    w, V = np.linalg.eigh(precision / np.outer(scale, scale))
+    keep = w > NULL_RATIO**2 * max(float(w.max()), 1e-300)
+    cov = (V[:, keep] / w[keep]) @ V[:, keep].T / np.outer(scale, scale)
+    null = np.abs(V[:, ~keep]).max(axis=1) if (~keep).any() else np.zeros(d)
+    return {
+        n: (None if null[i] > 1e-3 else float(np.sqrt(max(cov[i, i], 0.0))))
+        for i, n in enumerate(names)
     }
 
 

@@ -1,6 +1,10 @@
 """Batched refits for the diagnostics: leave-one-out for both stages, and the hand-angle
 conventions, with two small compiled programs (batched residuals and Jacobians per stage).
 
+Every refit works on the fit's free parameters, with its prior if it has one: the stage
+objectives come in as built for the fit (:class:`~handeye_jax.Stage1Objective`,
+:class:`~handeye_jax.Stage2Objective`, maybe inside a :class:`~handeye_jax.PriorObjective`).
+
 * **Leave-one-out, stage 1.** For each landmark m, Levenberg–Marquardt from the full optimum
   on the stage-1 objective with landmark m's weight set to 0; the held-out error is the refit
   model's error at landmark m. That is n refits of n landmarks each, O(n²): above
@@ -22,7 +26,7 @@ conventions, with two small compiled programs (batched residuals and Jacobians p
   over the touch order (their cost stays bounded), and their F is then that of all landmarks.
 
 Up to :data:`EXACT_LOO_LANDMARKS` landmarks, all stage-1 refits (n leave-one-out + 8 × starts
-+ 1) are one batch of :func:`~handeye_jax.optim.batched.levenberg_marquardt_batch`, the n
++ 1) are one batch of :func:`~handeye_jax.optim.minimise_batch`, the n
 stage-2 refits another.
 """
 
@@ -38,11 +42,11 @@ from jaxtyping import Array, Float
 
 from . import _xla
 from ._objective import (
+    AbstractObjective,
     LossObjective,
-    Stage1Objective,
-    Stage2Objective,
     StageErrors,
     chain_points,
+    data_objective,
     errors_of,
     fitness,
     landmark_subset,
@@ -51,9 +55,7 @@ from ._objective import (
     spread_landmarks,
 )
 from .losses import AbstractLoss
-from .models import AbstractCorrection, AbstractModel
-from .observations import Observations
-from .optim.batched import levenberg_marquardt_batch
+from .optim import Bounds, LevenbergMarquardt, minimise_batch
 
 #: Up to this many landmarks, leave-one-out refits every stage without each landmark (O(n²));
 #: above, it is one Newton step from the fit per landmark (O(n)).
@@ -105,11 +107,35 @@ class Refits:
     refit_landmarks: int = 0
 
 
-def _with_convention(obs: Observations, zero_deg, sign) -> Observations:
-    rig = eqx.tree_at(
-        lambda r: (r.angle_zero_deg, r.angle_sign), obs.rig, (jnp.asarray(zero_deg), sign * 1.0)
+def _with_convention(objective: AbstractObjective, zero_deg, sign) -> AbstractObjective:
+    """A stage-1 objective (its wrappers kept) under another hand-angle convention."""
+    return eqx.tree_at(
+        lambda o: (data_objective(o).obs.rig.angle_zero_deg, data_objective(o).obs.rig.angle_sign),
+        objective,
+        (jnp.asarray(zero_deg, dtype=float), sign * 1.0),
     )
-    return eqx.tree_at(lambda o: o.rig, obs, rig)
+
+
+def _stage2_at(stage1: AbstractObjective, stage2: AbstractObjective, x1) -> AbstractObjective:
+    """``stage2`` (its wrappers kept) on the chain points of stage 1's parameters ``x1``."""
+    inner = data_objective(stage1)
+    points = chain_points(inner.model(x1), inner.obs)
+    return eqx.tree_at(lambda o: data_objective(o).points, stage2, points)
+
+
+def _subset1(stage1: AbstractObjective, idx) -> AbstractObjective:
+    """``stage1`` on landmarks ``idx`` (its wrappers kept)."""
+    obs = landmark_subset(data_objective(stage1).obs, idx)
+    return eqx.tree_at(lambda o: data_objective(o).obs, stage1, obs)
+
+
+def _lm(max_steps: int) -> LevenbergMarquardt:
+    # The batch's rule: stop once no problem's cost fell by a fraction 1e-10 for 10 iterations.
+    return LevenbergMarquardt(rtol=1e-10, atol=0.0, max_steps=max_steps)
+
+
+def _obs(stage1: AbstractObjective):
+    return data_objective(stage1).obs
 
 
 def _flat(errors) -> Float[Array, " r"]:
@@ -131,60 +157,57 @@ def _two_jacobians(objective: LossObjective, x):
 
 
 # jax.jit rather than eqx.filter_jit: these are called once per LM iteration, and jax.jit's
-# dispatch is the cheaper one (every argument but the classes is a pytree of arrays).
-@_xla.fast_compile(jit=jax.jit, llvm_opt_level=1, static_argnums=0)
-def _stage1_batch(model_cls, obs, loss, zero, sign, weights, X):
+# dispatch is the cheaper one (every argument is a pytree of arrays with static metadata).
+@_xla.fast_compile(jit=jax.jit, llvm_opt_level=1)
+def _stage1_batch(stage1, loss, zero, sign, weights, X):
     """Per problem: LM residuals and Jacobian, error vectors and Jacobian, error lengths and
     the paper's F1st at ``X``."""
 
     def one(zero_deg, sgn, w, x):
-        base = Stage1Objective(model_cls, _with_convention(obs, zero_deg, sgn))
-        r, J_r, e, J_e, errors = _two_jacobians(LossObjective(base, loss, w), x)
+        objective = LossObjective(_with_convention(stage1, zero_deg, sgn), loss, w)
+        r, J_r, e, J_e, errors = _two_jacobians(objective, x)
         return r, J_r, e, J_e, norms(errors), fitness(errors)[0]
 
     return jax.vmap(one)(zero, sign, weights, X)
 
 
-@_xla.fast_compile(jit=jax.jit, llvm_opt_level=1, static_argnums=(0, 1))
-def _stage2_batch(model_cls, correction_cls, obs, loss, X1, weights, X2):
+@_xla.fast_compile(jit=jax.jit, llvm_opt_level=1)
+def _stage2_batch(stage1, stage2, loss, X1, weights, X2):
     """Per problem: stage 2 on the points of stage-1 parameters ``X1``; as above."""
 
     def one(x1, w, x2):
-        points = chain_points(model_cls.from_vector(x1), obs)
-        base = Stage2Objective(correction_cls, points, obs.centre_index)
-        r, J_r, e, J_e, errors = _two_jacobians(LossObjective(base, loss, w), x2)
+        objective = LossObjective(_stage2_at(stage1, stage2, x1), loss, w)
+        r, J_r, e, J_e, errors = _two_jacobians(objective, x2)
         return r, J_r, e, J_e, norms(errors)
 
     return jax.vmap(one)(X1, weights, X2)
 
 
-@_xla.fast_compile(jit=jax.jit, static_argnums=0)
-def _stage1_F(model_cls, obs, zero, sign, X):
+@_xla.fast_compile(jit=jax.jit)
+def _stage1_F(stage1, zero, sign, X):
     """The paper's F1st of each problem at ``X``."""
 
     def one(zero_deg, sgn, x):
-        base = Stage1Objective(model_cls, _with_convention(obs, zero_deg, sgn))
-        return fitness(errors_of(base, x))[0]
+        return fitness(errors_of(_with_convention(stage1, zero_deg, sgn), x))[0]
 
     return jax.vmap(one)(zero, sign, X)
 
 
-@_xla.fast_compile(jit=jax.jit, static_argnums=(0, 1))
-def _loo_derivatives(model_cls, correction_cls, obs, loss, x1, x2):
+@_xla.fast_compile(jit=jax.jit)
+def _loo_derivatives(stage1, stage2, loss, x1, x2):
     """At the full fit: each landmark's loss term's gradient and Hessian, for stage 1 in
     ``x1`` and for stage 2 in ``(x1, x2)`` (its points move with ``x1``), each stage's error
-    vectors and their Jacobian, and F1st. Forward mode throughout: O(n·d²), no n × n array."""
+    vectors and their Jacobian, and F1st. Forward mode throughout: O(n·d²), no n × n array.
+    A prior's block is left out of the terms: it belongs to no landmark."""
     d1 = x1.shape[0]
-    ones = jnp.ones(obs.n_landmarks)
+    ones = jnp.ones(_obs(stage1).n_landmarks)
 
-    def stage1(x1):
-        objective = LossObjective(Stage1Objective(model_cls, obs), loss, ones)
+    def stage1_terms(x1):
+        objective = LossObjective(stage1, loss, ones)
         return landmark_terms(objective, x1), _flat(errors_of(objective, x1))
 
-    def stage2(x):
-        points = chain_points(model_cls.from_vector(x[:d1]), obs)
-        base = Stage2Objective(correction_cls, points, obs.centre_index)
-        objective = LossObjective(base, loss, ones)
+    def stage2_terms(x):
+        objective = LossObjective(_stage2_at(stage1, stage2, x[:d1]), loss, ones)
         return landmark_terms(objective, x[d1:]), _flat(errors_of(objective, x[d1:]))
 
     def derivatives(f, x):
@@ -196,8 +219,8 @@ def _loo_derivatives(model_cls, correction_cls, obs, loss, x1, x2):
         H = jax.jacfwd(jax.jacfwd(lambda y: f(y)[0]))(x)
         return g, H, e, E
 
-    F1 = fitness(errors_of(Stage1Objective(model_cls, obs), x1))[0]
-    return derivatives(stage1, x1), derivatives(stage2, jnp.concatenate([x1, x2])), F1
+    F1 = fitness(errors_of(stage1, x1))[0]
+    return derivatives(stage1_terms, x1), derivatives(stage2_terms, jnp.concatenate([x1, x2])), F1
 
 
 def _per_landmark(v: np.ndarray, n: int) -> np.ndarray:
@@ -269,14 +292,13 @@ def one_step_loo(
 
 
 def refits(
-    model_cls: type[AbstractModel],
-    correction_cls: type[AbstractCorrection],
-    obs: Observations,
+    stage1: AbstractObjective,
+    stage2: AbstractObjective,
     loss: AbstractLoss,
     x1: Float[Array, " d1"],
     x2: Float[Array, " d2"],
-    bounds1: tuple[np.ndarray, np.ndarray],
-    bounds2: tuple[np.ndarray, np.ndarray],
+    bounds1: Bounds,
+    bounds2: Bounds,
     seed: int,
     starts: int,
     max_steps: int,
@@ -287,11 +309,12 @@ def refits(
     """Leave-one-out refits of both stages and the convention refits of stage 1.
 
     Args:
-        model_cls, correction_cls: the stage-1 model and the stage-2 correction classes.
-        obs: the observations, with the dataset's declared convention.
+        stage1: the stage-1 objective the fit used, on its free parameters (a prior kept), with
+            the dataset's declared convention; without the loss.
+        stage2: the stage-2 objective likewise, at the fit's stage-1 points.
         loss: the loss the calibration used.
-        x1, x2: the full fit's stage-1 and stage-2 parameters.
-        bounds1, bounds2: each stage's search box ``(lower, upper)``.
+        x1, x2: the full fit's free stage-1 and stage-2 parameters.
+        bounds1, bounds2: each stage's box.
         seed: seed of the convention multi-starts' uniform draws (NumPy's PCG64).
         starts: random LM starts per convention.
         max_steps: most LM iterations of every refit.
@@ -302,14 +325,14 @@ def refits(
     """
     if exact_loo_landmarks > refit_landmarks:
         raise ValueError("exact_loo_landmarks must not exceed refit_landmarks")
-    if obs.n_landmarks > exact_loo_landmarks:
-        return _refits_one_step(model_cls, correction_cls, obs, loss, x1, x2, bounds1, bounds2,
-                              seed, starts, max_steps, refit_landmarks)  # fmt: skip
-    return _refits_exact(model_cls, correction_cls, obs, loss, x1, x2, bounds1, bounds2, seed,
-                         starts, max_steps)  # fmt: skip
+    x1, x2 = np.asarray(x1, float), np.asarray(x2, float)
+    args = (stage1, stage2, loss, x1, x2, bounds1, bounds2, seed, starts, max_steps)
+    if _obs(stage1).n_landmarks > exact_loo_landmarks:
+        return _refits_one_step(*args, refit_landmarks)
+    return _refits_exact(*args)
 
 
-def _convention_problems(obs, x1, lo1, hi1, seed, starts):
+def _convention_problems(obs, x1, bounds: Bounds, seed, starts):
     """Each convention's zero and sign, and the LM starts: ``starts`` uniform draws per
     convention, then the declared convention from the fit."""
     n_conv, d1 = len(CONVENTIONS), x1.shape[0]
@@ -318,7 +341,8 @@ def _convention_problems(obs, x1, lo1, hi1, seed, starts):
     declared = int(np.argmax((zero == float(obs.rig.angle_zero_deg))
                              & (sign == float(obs.rig.angle_sign))))  # fmt: skip
     conv_of = np.concatenate([np.repeat(np.arange(n_conv), starts), [declared]])
-    x_random = np.random.default_rng(seed).uniform(lo1, hi1, size=(n_conv * starts, d1))
+    rng = np.random.default_rng(seed)
+    x_random = rng.uniform(bounds.lower, bounds.upper, size=(n_conv * starts, d1))
     return zero, sign, declared, conv_of, np.concatenate([x_random, x1[None]])
 
 
@@ -327,44 +351,39 @@ def _best_per_convention(F_conv, conv_of):
                      for c in range(len(CONVENTIONS))])  # fmt: skip
 
 
-def _refits_one_step(model_cls, correction_cls, obs, loss, x1, x2, bounds1, bounds2, seed, starts,
-                   max_steps, refit_landmarks) -> Refits:  # fmt: skip
+def _refits_one_step(stage1, stage2, loss, x1, x2, bounds1, bounds2, seed, starts, max_steps,
+                     refit_landmarks) -> Refits:  # fmt: skip
     """:func:`refits` with the one-step leave-one-out, in O(n)."""
-    x1, x2 = np.asarray(x1, float), np.asarray(x2, float)
+    obs = _obs(stage1)
     n = obs.n_landmarks
-    lo1, hi1 = (np.asarray(b, float) for b in bounds1)
-    lo2, hi2 = (np.asarray(b, float) for b in bounds2)
-    zero, sign, declared, conv_of, x0 = _convention_problems(obs, x1, lo1, hi1, seed, starts)
-    searched = obs
+    zero, sign, declared, conv_of, x0 = _convention_problems(obs, x1, bounds1, seed, starts)
+    searched = stage1
     if n > refit_landmarks:
-        searched = landmark_subset(obs, spread_landmarks(n, refit_landmarks))
-    m = searched.n_landmarks
+        searched = _subset1(stage1, spread_landmarks(n, refit_landmarks))
+    m = _obs(searched).n_landmarks
     w = np.ones((conv_of.shape[0], m))
 
-    def stage1(X):
-        out = _stage1_batch(model_cls, searched, loss, zero[conv_of], sign[conv_of], w,
-                            np.asarray(X))  # fmt: skip
+    def batch1(X):
+        out = _stage1_batch(searched, loss, zero[conv_of], sign[conv_of], w, np.asarray(X))
         return out[:2]
 
-    xs, _ = levenberg_marquardt_batch(stage1, x0, lo1, hi1, max_steps=max_steps)
-    F = np.asarray(_stage1_F(model_cls, obs, zero[conv_of], sign[conv_of], xs)).copy()
+    xs = minimise_batch(batch1, _lm(max_steps), bounds1, x0).x
+    F = np.asarray(_stage1_F(stage1, zero[conv_of], sign[conv_of], xs)).copy()
     # At the fit, on all landmarks: its F (the declared refit from it is never worse), and
     # the derivatives for the leave-one-out and the identifiability analysis.
     d1 = x1.shape[0]
-    one, two, F_fit = jax.tree.map(
-        np.asarray, _loo_derivatives(model_cls, correction_cls, obs, loss, x1, x2)
-    )
+    one, two, F_fit = jax.tree.map(np.asarray, _loo_derivatives(stage1, stage2, loss, x1, x2))
     if not F[-1] <= F_fit:
         xs[-1], F[-1] = x1, F_fit
-    *loo, moved = one_step_loo(one, two, x1, x2, (lo1, hi1), (lo2, hi2))
+    box1, box2 = (bounds1.lower, bounds1.upper), (bounds2.lower, bounds2.upper)
+    *loo, moved = one_step_loo(one, two, x1, x2, box1, box2)
     # A shift–tilt valley can stretch Newton's step far past where its quadratic model holds
     # (tens of mm where a refit moves the held-out error by hundredths): refit those exactly.
     rms = float(np.sqrt(np.mean(np.sum(_per_landmark(one[2], n).reshape(n, 2, 2) ** 2, -1))))
     far = np.argsort(-moved, kind="stable")[:LOO_REFITS]
     far = np.sort(far[moved[far] > rms])
     if far.size:
-        exact = _exact_loo_at(model_cls, correction_cls, obs, loss, x1, x2, (lo1, hi1),
-                              (lo2, hi2), far, max_steps)  # fmt: skip
+        exact = _exact_loo_at(stage1, stage2, loss, x1, x2, bounds1, bounds2, far, max_steps)
         for held, refit in zip(loo, exact, strict=True):
             held[far] = refit
     F_conv = np.where(np.isfinite(F), F, np.inf)
@@ -390,10 +409,11 @@ def _refits_one_step(model_cls, correction_cls, obs, loss, x1, x2, bounds1, boun
     )
 
 
-def _exact_loo_at(model_cls, correction_cls, obs, loss, x1, x2, bounds1, bounds2, landmarks,
+def _exact_loo_at(stage1, stage2, loss, x1, x2, bounds1, bounds2, landmarks,
                   max_steps) -> tuple[np.ndarray, ...]:  # fmt: skip
     """Leave-one-out by LM refits of both stages for ``landmarks`` only (as the exact
     path does for all), batched in :data:`LOO_REFITS` problems; O(LOO_REFITS · n) a step."""
+    obs = _obs(stage1)
     n, k = obs.n_landmarks, len(landmarks)
     which = np.concatenate([landmarks, np.full(LOO_REFITS - k, landmarks[-1])])
     W = np.ones((LOO_REFITS, n))
@@ -401,30 +421,28 @@ def _exact_loo_at(model_cls, correction_cls, obs, loss, x1, x2, bounds1, bounds2
     zero = np.full(LOO_REFITS, float(obs.rig.angle_zero_deg))
     sign = np.full(LOO_REFITS, float(obs.rig.angle_sign))
 
-    def stage1(X):
-        return _stage1_batch(model_cls, obs, loss, zero, sign, W, np.asarray(X))
+    def batch1(X):
+        return _stage1_batch(stage1, loss, zero, sign, W, np.asarray(X))
 
-    X1, _ = levenberg_marquardt_batch(lambda X: stage1(X)[:2], np.tile(x1, (LOO_REFITS, 1)),
-                                      *bounds1, max_steps=max_steps)  # fmt: skip
+    lm = _lm(max_steps)
+    X1 = minimise_batch(lambda X: batch1(X)[:2], lm, bounds1, np.tile(x1, (LOO_REFITS, 1))).x
 
-    def stage2(X):
-        return _stage2_batch(model_cls, correction_cls, obs, loss, X1, W, np.asarray(X))
+    def batch2(X):
+        return _stage2_batch(stage1, stage2, loss, X1, W, np.asarray(X))
 
-    X2, _ = levenberg_marquardt_batch(lambda X: stage2(X)[:2], np.tile(x2, (LOO_REFITS, 1)),
-                                      *bounds2, max_steps=max_steps)  # fmt: skip
+    X2 = minimise_batch(lambda X: batch2(X)[:2], lm, bounds2, np.tile(x2, (LOO_REFITS, 1))).x
     rows = np.arange(k)
-    n1, n2 = (np.asarray(v)[rows, landmarks] for v in stage1(X1)[4])
-    m1, m2 = (np.asarray(v)[rows, landmarks] for v in stage2(X2)[4])
+    n1, n2 = (np.asarray(v)[rows, landmarks] for v in batch1(X1)[4])
+    m1, m2 = (np.asarray(v)[rows, landmarks] for v in batch2(X2)[4])
     return n1, n2, m1, m2
 
 
-def _refits_exact(model_cls, correction_cls, obs, loss, x1, x2, bounds1, bounds2, seed, starts,
+def _refits_exact(stage1, stage2, loss, x1, x2, bounds1, bounds2, seed, starts,
                   max_steps) -> Refits:  # fmt: skip
     """:func:`refits` with leave-one-out by exact refits, O(n²)."""
-    x1, x2 = np.asarray(x1, float), np.asarray(x2, float)
+    obs = _obs(stage1)
     n, d1 = obs.n_landmarks, x1.shape[0]
-    lo1, hi1 = (np.asarray(b, float) for b in bounds1)
-    zero, sign, declared, conv_of, x0 = _convention_problems(obs, x1, lo1, hi1, seed, starts)
+    zero, sign, declared, conv_of, x0 = _convention_problems(obs, x1, bounds1, seed, starts)
 
     # Problems: n leave-one-out, then `starts` per convention, then the declared one from x1.
     leave_out = 1.0 - np.eye(n)
@@ -435,32 +453,31 @@ def _refits_exact(model_cls, correction_cls, obs, loss, x1, x2, bounds1, bounds2
     all_w = np.concatenate([leave_out, np.ones((conv_of.shape[0], n))])
     all_x0 = np.concatenate([np.broadcast_to(x1, (n, d1)), x0])
 
-    def stage1(X):
-        return _stage1_batch(model_cls, obs, loss, all_zero, all_sign, all_w, np.asarray(X))
+    def batch1(X):
+        return _stage1_batch(stage1, loss, all_zero, all_sign, all_w, np.asarray(X))
 
-    xs, _ = levenberg_marquardt_batch(lambda X: stage1(X)[:2], all_x0, lo1, hi1,
-                                      max_steps=max_steps)  # fmt: skip
+    lm = _lm(max_steps)
+    xs = minimise_batch(lambda X: batch1(X)[:2], lm, bounds1, all_x0).x
     # The last problem (declared convention, all landmarks) evaluated at the fit itself gives
     # the fit's error vectors and Jacobian from the same compiled program.
     at_fit = np.concatenate([xs[:-1], x1[None]])
-    _, _, e1, J1, (n1, n2), F = (jax.tree.map(np.asarray, v) for v in stage1(at_fit))
+    _, _, e1, J1, (n1, n2), F = (jax.tree.map(np.asarray, v) for v in batch1(at_fit))
     e1, J1 = e1[-1], J1[-1]
     F = F.copy()
-    F[-1] = min(F[-1], float(np.asarray(stage1(xs)[5])[-1]))
+    F[-1] = min(F[-1], float(np.asarray(batch1(xs)[5])[-1]))
     F_conv = np.where(np.isfinite(F[n:]), F[n:], np.inf)
     best = _best_per_convention(F_conv, conv_of)
 
     X1, W = xs[:n], leave_out
 
-    def stage2(X, X1=X1):
-        return _stage2_batch(model_cls, correction_cls, obs, loss, X1, W, np.asarray(X))
+    def batch2(X, X1=X1):
+        return _stage2_batch(stage1, stage2, loss, X1, W, np.asarray(X))
 
-    x2s, _ = levenberg_marquardt_batch(lambda X: stage2(X)[:2], np.broadcast_to(x2, (n, x2.size)),
-                                       *bounds2, max_steps=max_steps)  # fmt: skip
-    m1, m2 = (np.asarray(v) for v in stage2(x2s)[4])
+    x2s = minimise_batch(lambda X: batch2(X)[:2], lm, bounds2, np.broadcast_to(x2, (n, x2.size))).x
+    m1, m2 = (np.asarray(v) for v in batch2(x2s)[4])
     # Row 0 at the full fit (x1, x2) gives stage 2's error vectors and Jacobian there.
     x2_fit = np.concatenate([x2[None], x2s[1:]])
-    _, _, e2, J2, _ = stage2(x2_fit, np.concatenate([x1[None], xs[1:n]]))
+    _, _, e2, J2, _ = batch2(x2_fit, np.concatenate([x1[None], xs[1:n]]))
     e2, J2 = np.asarray(e2)[0], np.asarray(J2)[0]
     mine = n + np.flatnonzero(conv_of == declared)
     diag = np.arange(n)

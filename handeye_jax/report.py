@@ -25,7 +25,6 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import jax.numpy as jnp
 import numpy as np
 
 from . import _xla
@@ -35,8 +34,8 @@ from ._x64 import in_float64
 from .dataset import load_dataset
 from .errors import InputError
 from .observations import Observations
-from .optim.de import CHUNK_GENERATIONS
-from .result import CalibrationResult, load_result, observations_to_dict
+from .optim import CHUNK_GENERATIONS
+from .result import CalibrationResult, load_result, observations_from_dict, observations_to_dict
 
 FIGURES = ("fig3_landmarks", "chains_stage1", "chains_stage2", "residuals", "convergence", "loo")
 FORMATS = ("png", "svg")
@@ -59,19 +58,7 @@ class ChainPlotData:
 
 
 def _observations(result: CalibrationResult) -> Observations:
-    o = result.observations
-    mm = float(o["mm_per_tablet_px"])
-    arr = {k: jnp.asarray(np.asarray(o[k], dtype=float)) for k in o if k != "mm_per_tablet_px"}
-    return Observations(
-        rig=result.fitted_rig(),
-        image_px=arr["image_px"],
-        depth_mm=arr["depth_mm"],
-        tablet_mm=arr["tablet_px"] * mm,
-        hand_xy_mm=arr["hand_xy_mm"],
-        hand_angle_deg=arr["hand_angle_deg"],
-        touch_error_mm=arr["touch_error_px"] * mm,
-        centre_index=result.centre_index,
-    )
+    return observations_from_dict(result.observations, result.fitted_rig(), result.centre_index)
 
 
 @in_float64

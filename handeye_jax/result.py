@@ -19,6 +19,7 @@ from jaxtyping import Array, Float
 from ._atomic import write_output
 from ._frames import Frames
 from ._io import MAX_RESULT_BYTES, load_json
+from ._params import Prior
 from ._validate import (
     MAX_DEG,
     MAX_GENERATIONS,
@@ -33,6 +34,7 @@ from ._validate import (
     join_key,
 )
 from ._x64 import in_float64
+from .errors import InputError
 from .frames import compute_frames
 from .losses import LOSS_NAMES
 from .models import AbstractCorrection, AbstractModel, AffinePair, get_model, model_registry
@@ -66,6 +68,18 @@ class StageResult:
     de: dict[str, Any]
     polish: dict[str, Any]
     convergence: dict[str, list[float]] = field(default_factory=dict)
+    status: dict[str, str] = field(default_factory=dict)
+    fixed_source: dict[str, str] = field(default_factory=dict)
+    prior: dict[str, Any] | None = None
+    prior_F: float | None = None
+
+    def __post_init__(self):
+        if not self.status:  # every parameter free: the paper's fit, and every older result
+            object.__setattr__(self, "status", dict.fromkeys(self.params, "free"))
+
+    def free(self) -> tuple[str, ...]:
+        """The parameters the fit moved (free or with a prior), in ``params`` order."""
+        return tuple(n for n in self.params if self.status.get(n, "free") != "fixed")
 
 
 @dataclass(frozen=True)
@@ -86,7 +100,11 @@ class CalibrationResult:
     warnings: list[str]
     diagnostics: dict[str, Any] = field(default_factory=dict)
     observations: dict[str, Any] = field(default_factory=dict)
+    recalibration: dict[str, Any] | None = None
     format: str = FORMAT
+    #: The stages' fits in memory (objectives, final DE populations), for the diagnostics of a
+    #: result that was just computed; not written to the file.
+    fits: tuple[Any, Any] | None = field(default=None, compare=False, repr=False)
 
     # -- use -----------------------------------------------------------------------------
     @in_float64
@@ -126,6 +144,49 @@ class CalibrationResult:
         )
         return np.asarray(out)
 
+    @in_float64
+    def posterior(self, stage: str = "stage1", source: str | None = None) -> Prior:
+        """The fit's Gaussian posterior of a stage's free parameters (Gauss–Newton at the
+        optimum, its prior included): what a recalibration takes as its prior.
+
+        Taken from the diagnostics' ``precision`` when present, else computed from the
+        result's observations.
+        """
+        s: StageResult = getattr(self, stage)
+        free = s.free()
+        diag = self.diagnostics.get(stage, {}) if self.diagnostics else {}
+        P = diag.get("precision")
+        if P is None or np.shape(P) != (len(free), len(free)):
+            P = self._posterior_precision(stage, free)
+        return Prior(free, [s.params[n] for n in free], np.asarray(P, dtype=float),
+                     source or f"previous result ({self.dataset})",
+                     max(s.F, 1e-6) / 4.0)  # fmt: skip
+
+    def _posterior_precision(self, stage: str, free: tuple[str, ...]) -> np.ndarray:
+        from ._objective import Stage1Objective, Stage2Objective, chain_points
+        from .identifiability import analyse_jacobian, error_jacobian
+
+        if not self.observations:
+            raise InputError(None, "observations", "the result does not carry its data, so "
+                             "its posterior cannot be computed; calibrate again")  # fmt: skip
+        obs = observations_from_dict(self.observations, self.fitted_rig(), self.centre_index)
+        s: StageResult = getattr(self, stage)
+        model = self.fitted_model()
+        if stage == "stage1":
+            objective = Stage1Objective(model, obs, free)
+        else:
+            points = chain_points(model, obs)
+            objective = Stage2Objective(self.fitted_correction(), points, self.centre_index, free)
+        x = jnp.asarray([s.params[n] for n in free])
+        e, J = (np.asarray(a) for a in error_jacobian(objective, x))
+        P_prior = None
+        if s.prior:
+            P_prior = np.zeros((len(free), len(free)))
+            idx = [free.index(n) for n in s.prior["names"]]
+            P_prior[np.ix_(idx, idx)] = np.asarray(s.prior["precision"])
+        out = analyse_jacobian(e, J, free, ["1"] * len(free), None, P_prior)
+        return np.asarray(out["precision"])
+
     def frames(self) -> Frames:
         """The fitted frames as plain numbers (NumPy), from the parameters and the rig."""
         return compute_frames(
@@ -135,11 +196,16 @@ class CalibrationResult:
     # -- files ---------------------------------------------------------------------------
     def to_json(self) -> str:
         def stage(s: StageResult) -> dict[str, Any]:
-            return {
+            out = {
                 "F": s.F, "f1": s.f1, "f2": s.f2, "params": s.params,
                 "residuals_mm": s.residuals_mm, "de": s.de, "polish": s.polish,
-                "convergence": s.convergence,
+                "convergence": s.convergence, "status": s.status,
             }  # fmt: skip
+            if s.fixed_source:
+                out["fixed_source"] = s.fixed_source
+            if s.prior is not None:
+                out["prior"], out["prior_F"] = s.prior, s.prior_F
+            return out
 
         doc = {
             "format": self.format,
@@ -158,6 +224,8 @@ class CalibrationResult:
             # The numbers a robot needs, for the NumPy predictor (handeye_jax._predictor).
             "frames": self.frames().to_dict(),
         }
+        if self.recalibration:
+            doc["recalibration"] = self.recalibration
         # Optional sections (older results lack them): see handeye_jax.diagnostics.
         if self.diagnostics:
             doc["diagnostics"] = self.diagnostics
@@ -194,6 +262,26 @@ def observations_to_dict(dataset: Dataset) -> dict[str, Any]:
     doc: dict[str, Any] = {k: np.asarray(getattr(dataset, k)).tolist() for k in OBSERVATION_ARRAYS}
     doc["mm_per_tablet_px"] = float(dataset.mm_per_tablet_px)
     return doc
+
+
+def observations_from_dict(o: dict[str, Any], rig: Rig, centre_index: int | None = None):
+    """The :class:`~handeye_jax.Observations` of a result's ``observations`` section."""
+    from .observations import Observations, centre_landmark
+
+    mm = float(o["mm_per_tablet_px"])
+    arr = {k: jnp.asarray(np.asarray(o[k], dtype=float)) for k in o if k != "mm_per_tablet_px"}
+    if centre_index is None:
+        centre_index = centre_landmark(np.asarray(o["tablet_px"], dtype=float))
+    return Observations(
+        rig=rig,
+        image_px=arr["image_px"],
+        depth_mm=arr["depth_mm"],
+        tablet_mm=arr["tablet_px"] * mm,
+        hand_xy_mm=arr["hand_xy_mm"],
+        hand_angle_deg=arr["hand_angle_deg"],
+        touch_error_mm=arr["touch_error_px"] * mm,
+        centre_index=centre_index,
+    )
 
 
 def rig_from_dict(d: dict[str, Any]) -> Rig:
@@ -260,7 +348,7 @@ def load_result(path: str | Path) -> CalibrationResult:
                    f"{len(s.residuals_mm)})")  # fmt: skip
     centre_index = _integer(r, doc["centre_index"], "centre_index", 0, None if n is None else n - 1)
     settings = _optional_table(r, doc, "settings")
-    for key, check in _SETTINGS.items():
+    for key, check in {**_SETTINGS, **_LEGACY_SETTINGS}.items():
         if key in settings:
             check(r, settings[key], f"settings.{key}")
     dataset = doc.get("dataset", "")
@@ -368,8 +456,9 @@ _SETTINGS: dict[str, Callable[[Reader, Any, str], Any]] = {
     "restarts": lambda r, x, w: _integer(r, x, w, 0, MAX_RESTARTS),
     "loss": _loss_name,
     "loss_scale_mm": lambda r, x, w: r.number(x, w, positive=True),
-    "diagnostics": _boolean,
 }
+#: Settings older results recorded and the fit no longer has (checked, then ignored).
+_LEGACY_SETTINGS = {"diagnostics": _boolean}
 #: Checks of the DE and LM summaries of a stage, by key; other keys are kept unchecked.
 _DE = {"F": Reader.number, "generations": _count, "evaluations": _count, "converged": _boolean}
 _POLISH = {

@@ -14,13 +14,18 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from handeye_jax.optim import (
+    CHUNK_GENERATIONS,
+    Bounds,
+    DifferentialEvolution,
+    LevenbergMarquardt,
     differential_evolution,
-    levenberg_marquardt,
-    levenberg_marquardt_starts,
+    latin_hypercube,
+    minimise,
+    minimise_starts,
 )
-from handeye_jax.optim import polish as polish_module
+from handeye_jax.optim._de import distinct_indices
+from handeye_jax.optim._lm import _lm
 from handeye_jax.optim._rng import uniforms
-from handeye_jax.optim.de import CHUNK_GENERATIONS, distinct_indices, latin_hypercube
 
 
 class ShiftedSphere(eqx.Module):
@@ -90,11 +95,11 @@ def test_de_finds_a_sphere_minimum():
     r = differential_evolution(fn, -5 * np.ones(4), 5 * np.ones(4), key=jax.random.PRNGKey(0),
                                population=60, generations=2000, tol=1e-10)  # fmt: skip
     np.testing.assert_allclose(r.x, fn.centre, atol=1e-3)
-    assert r.converged and r.generations < 2000
-    assert r.evaluations == 60 * (r.generations + 1)
-    assert len(r.best_history) == r.generations
-    every = list(range(CHUNK_GENERATIONS, r.generations, CHUNK_GENERATIONS))
-    assert list(r.median_generations) == [*every, r.generations]
+    assert r.converged and r.steps < 2000
+    assert r.evaluations == 60 * (r.steps + 1)
+    assert len(r.best_history) == r.steps
+    every = list(range(CHUNK_GENERATIONS, r.steps, CHUNK_GENERATIONS))
+    assert list(r.median_generations) == [*every, r.steps]
     assert np.all(r.median_history >= r.best_history[r.median_generations - 1])
     assert np.all(np.diff(r.best_history) <= 0)  # the best never gets worse
 
@@ -152,13 +157,28 @@ def test_de_rejects_too_small_population():
 
 def test_lm_polish_solves_least_squares_and_respects_bounds():
     fn = ShiftedSphere(jnp.array([0.2, 3.0, -0.4]))
-    free = levenberg_marquardt(fn.residuals, np.zeros(3))
-    np.testing.assert_allclose(free.x, [0.2, 3.0, -0.4], atol=1e-10)
-    boxed = levenberg_marquardt(fn.residuals, np.zeros(3), -np.ones(3), np.ones(3))
+    lm = LevenbergMarquardt()
+    wide = minimise(fn, lm, Bounds(-10 * np.ones(3), 10 * np.ones(3)), x0=np.zeros(3))
+    np.testing.assert_allclose(wide.x, [0.2, 3.0, -0.4], atol=1e-8)
+    assert wide.converged and wide.value < 1e-14 < wide.start_value
+    boxed = minimise(fn, lm, Bounds(-np.ones(3), np.ones(3)), x0=np.zeros(3))
     assert np.all(boxed.x >= -1) and np.all(boxed.x <= 1)
     np.testing.assert_allclose(boxed.x, [0.2, 1.0, -0.4], atol=1e-6)
-    half = levenberg_marquardt(fn.residuals, np.zeros(3), [-1, -np.inf, -1], [1, np.inf, 0])
-    np.testing.assert_allclose(half.x, [0.2, 3.0, -0.4], atol=1e-8)
+
+
+def test_de_solver_object_is_the_function():
+    """``minimise(fn, DifferentialEvolution(...), bounds)`` is ``differential_evolution``."""
+    fn = ShiftedSphere(jnp.array([0.3, -0.2]))
+    key = jax.random.PRNGKey(4)
+    solver = DifferentialEvolution(population=40, generations=200, tol=1e-8)
+    a = minimise(fn, solver, Bounds([-1.0, -1.0], [1.0, 1.0]), key=key)
+    b = differential_evolution(fn, [-1.0, -1.0], [1.0, 1.0], key=key, population=40,
+                               generations=200, tol=1e-8)  # fmt: skip
+    assert a.x.tobytes() == b.x.tobytes() and a.steps == b.steps
+    with pytest.raises(ValueError, match="key"):
+        minimise(fn, solver, Bounds([-1.0, -1.0], [1.0, 1.0]))
+    with pytest.raises(ValueError, match="lower < upper"):
+        Bounds([0.0, 1.0], [1.0, 1.0])
 
 
 class Curve(eqx.Module):
@@ -166,6 +186,9 @@ class Curve(eqx.Module):
 
     t: jax.Array
     y: jax.Array
+
+    def __call__(self, x):
+        return jnp.sum(self.residuals(x) ** 2)
 
     def residuals(self, x):
         t = self.t
@@ -178,9 +201,8 @@ def _polish_temp_bytes(n: int) -> int:
     """Scratch memory XLA plans for the LM polish of ``Curve`` with n residuals."""
     t = jnp.linspace(0.0, 1.0, n)
     fn = Curve(t, jnp.sin(3.0 * t))
-    box = polish_module._Box(-5.0 * jnp.ones(6), 5.0 * jnp.ones(6))
-    lowered = jax.jit(polish_module._lm, static_argnums=(3, 4, 5)).lower(
-        fn.residuals, jnp.zeros(6), box, 1e-12, 1e-12, 100
+    lowered = jax.jit(_lm, static_argnums=(4, 5, 6)).lower(
+        fn, jnp.zeros(6), -5.0 * jnp.ones(6), 5.0 * jnp.ones(6), 1e-12, 1e-12, 100
     )
     return lowered.compile().memory_analysis().temp_size_in_bytes
 
@@ -197,6 +219,9 @@ class DoubleWell(eqx.Module):
     """``|r|² = (x² − 1)² + 0.09·(x − 1)²`` per coordinate: the global minimum at x = 1, a
     local one near x = −1."""
 
+    def __call__(self, x):
+        return jnp.sum(self.residuals(x) ** 2)
+
     def residuals(self, x):
         return jnp.concatenate([x**2 - 1.0, 0.3 * (x - 1.0)])
 
@@ -204,9 +229,11 @@ class DoubleWell(eqx.Module):
 def test_lm_from_many_starts_finds_the_basin_one_start_misses():
     lo, hi = -2.0 * np.ones(2), 2.0 * np.ones(2)
     with jax.enable_x64(True):
-        one = levenberg_marquardt(DoubleWell().residuals, [-1.5, -1.5], lo, hi)
+        one = minimise(DoubleWell(), LevenbergMarquardt(), Bounds(lo, hi), x0=[-1.5, -1.5])
         starts = np.array([[-1.5, -1.5], [1.5, -1.5], [-1.5, 1.5], [0.5, 0.5]])
-        ends, cost = levenberg_marquardt_starts(DoubleWell().residuals, starts, lo, hi)
+        batch = minimise_starts(DoubleWell(), LevenbergMarquardt(rtol=1e-10, atol=0.0,
+                                max_steps=300), Bounds(lo, hi), starts)  # fmt: skip
+        ends, cost = batch.x, batch.cost
     np.testing.assert_allclose(one.x, [-1.0, -1.0], atol=0.1)  # the local minimum
     assert ends.shape == starts.shape and cost.shape == (4,)
     np.testing.assert_allclose(ends[3], [1.0, 1.0], atol=1e-8)  # one start reaches the global

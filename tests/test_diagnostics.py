@@ -18,8 +18,11 @@ from handeye_jax import (
     LossObjective,
     Settings,
     Stage1Objective,
+    Stage2Objective,
     StageErrors,
     calibrate,
+    chain_points,
+    diagnose,
     errors_of,
     fitness,
     load_dataset,
@@ -32,8 +35,13 @@ from handeye_jax.identifiability import analyse_jacobian, jacobian_diagnostics
 from handeye_jax.losses import get_loss
 from handeye_jax.models import AffinePair
 from handeye_jax.observations import Rig
-from handeye_jax.optim import levenberg_marquardt
-from handeye_jax.optim.batched import levenberg_marquardt_batch, residuals_and_jacobian
+from handeye_jax.optim import (
+    Bounds,
+    LevenbergMarquardt,
+    minimise,
+    minimise_batch,
+    residuals_and_jacobian,
+)
 from handeye_jax.refits import CONVENTIONS, EXACT_LOO_LANDMARKS, refits
 from handeye_jax.simulate import PRESETS, simulate
 from handeye_jax.summary import format_summary
@@ -55,7 +63,7 @@ def _synthetic(zero=90.0, sign=-1.0, truth=TRUTH["htm"]):
 
 @pytest.fixture(scope="module")
 def paper_result():
-    return calibrate(load_dataset(PAPER), FAST)
+    return diagnose(calibrate(load_dataset(PAPER), FAST))
 
 
 def _noisy_grid(kx: int, ky: int, seed: int = 0):
@@ -74,20 +82,14 @@ IDENTITY = dict(X1=0, Y1=0, theta1=0, Sx1=1, Sy1=1, X2=0, Y2=0, theta2=0, Sx2=1,
 
 def _refits(ds, x1, x2, **kw):
     with jax.enable_x64(True):
+        obs = ds.observations()
+        stage1 = Stage1Objective(HTMModel, obs)
+        points = chain_points(HTMModel.from_vector(jnp.asarray(x1)), obs)
+        stage2 = Stage2Objective(AffinePair, points, obs.centre_index)
         return refits(
-            HTMModel,
-            AffinePair,
-            ds.observations(),
-            get_loss("l1"),
-            x1,
-            x2,
-            HTMModel.search_bounds(),
-            AffinePair.search_bounds(),
-            1,
-            2,
-            100,
-            **kw,
-        )
+            stage1, stage2, get_loss("l1"), x1, x2, Bounds(*HTMModel.search_bounds()),
+            Bounds(*AffinePair.search_bounds()), 1, 2, 100, **kw,
+        )  # fmt: skip
 
 
 # -- identifiability ---------------------------------------------------------------------
@@ -201,7 +203,7 @@ def _best_refit_F(result) -> float:
 
 
 def test_fit_is_no_worse_than_any_refit_and_off_the_bound(twin1):
-    r = calibrate(twin1)
+    r = diagnose(calibrate(twin1))
     assert r.stage1.F <= _best_refit_F(r) + 1e-9
     assert r.stage1.F < 0.3465  # the basin the DE alone missed
     lo, hi = HTMModel.search_bounds(twin1.search)
@@ -227,16 +229,16 @@ def test_restarts_are_bounded_in_settings_and_in_result_files(paper_result, tmp_
 def test_a_refit_lower_than_the_fit_becomes_the_result(twin1):
     """Without restarts the fit stays in the DE's basin; the diagnostics' multi-start refits
     find the lower one, which becomes the result, with stage 2 refitted on it."""
-    alone = calibrate(twin1, Settings(restarts=0, diagnostics=False))
+    alone = calibrate(twin1, Settings(restarts=0))
     lo, hi = HTMModel.search_bounds(twin1.search)
     assert alone.stage1.params["xc"] > hi[0] - 1e-6  # on the bound, as the issue reported
-    r = calibrate(twin1, Settings(restarts=0))
+    r = diagnose(calibrate(twin1, Settings(restarts=0)))
     pol = r.stage1.polish
     assert pol["found_by"] == "diagnostics multi-start refit"
     assert pol["replaced_F"] == [pytest.approx(alone.stage1.F, abs=1e-9)]
     assert r.stage1.F < alone.stage1.F - 1e-3 and r.stage1.F <= _best_refit_F(r) + 1e-9
     # Stage 2 is the one fitted to the new stage 1's points, not the first one's.
-    again = calibrate(twin1, Settings(restarts=0, diagnostics=False))
+    again = calibrate(twin1, Settings(restarts=0))
     assert again.stage2.params == alone.stage2.params
     refit2 = fit_correction(twin1, HTMModel.from_dict(r.stage1.params), Settings(restarts=0))[0]
     assert np.allclose(refit2.to_vector(), list(r.stage2.params.values()), atol=1e-6)
@@ -259,7 +261,7 @@ def test_leave_one_out_matches_an_explicit_refit(paper_result):
         obj = LossObjective(Stage1Objective(HTMModel, obs), get_loss("l1"), w)
         x1 = np.array([paper_result.stage1.params[n] for n in HTMModel.param_names])
         lo, hi = HTMModel.search_bounds()
-        ref = levenberg_marquardt(obj.residuals, x1, lo, hi)
+        ref = minimise(obj, LevenbergMarquardt(), Bounds(lo, hi), x0=x1)
         e = errors_of(obj, jnp.asarray(ref.x))
         want = float(jnp.linalg.norm(e.image_vs_tablet[m])), float(jnp.linalg.norm(e.hand[m]))
     got = paper_result.diagnostics["stage1"]["loo"]["held_out_mm"][m]
@@ -273,7 +275,7 @@ def test_many_landmarks_restart_on_a_subset_and_leave_one_out_by_one_newton_step
     with the exact LM refits."""
     ds = _noisy_grid(10, 7)
     assert ds.n_landmarks > max(EXACT_LOO_LANDMARKS, RESTART_LANDMARKS)
-    r = calibrate(ds, Settings(population=200, generations=400))
+    r = diagnose(calibrate(ds, Settings(population=200, generations=400)))
     assert r.stage1.polish["restarts"]["landmarks"] == RESTART_LANDMARKS
     assert r.stage2.polish["restarts"]["landmarks"] - RESTART_LANDMARKS in (0, 1)  # + centre
     assert r.stage1.F <= _best_refit_F(r) + 1e-9
@@ -324,7 +326,7 @@ def test_paper_held_out_error_exceeds_in_sample(paper_result):
 
 
 def test_noise_free_data_predicts_held_out_landmarks_and_passes_its_convention():
-    r = calibrate(_synthetic(), FAST)
+    r = diagnose(calibrate(_synthetic(), FAST))
     for stage in ("stage1", "stage2"):
         assert r.diagnostics[stage]["loo"]["F"] < 1e-3
         assert r.diagnostics[stage]["outliers"] == []
@@ -347,7 +349,7 @@ def test_published_data_passes_with_its_declared_convention(paper_result):
 def test_a_wrong_declared_convention_is_named():
     made = _synthetic(zero=0.0, sign=1.0)
     wrong = made.replace(hand_angle_zero_deg=90.0, hand_angle_sign=-1)
-    r = calibrate(wrong, FAST)
+    r = diagnose(calibrate(wrong, FAST))
     conv = r.diagnostics["convention"]
     assert not conv["passed"]
     assert "zero = 0 deg, sign = +1" in conv["warning"]
@@ -416,8 +418,8 @@ def test_robust_fit_flags_a_touch_5mm_off_and_keeps_the_others(
     m = 6
     clean, touched = twin_clean_and_touched
     robust = Settings(population=200, generations=400, loss=loss, loss_scale_mm=scale_mm)
-    r_clean = calibrate(clean, robust)
-    r_bad = calibrate(touched, robust)
+    r_clean = diagnose(calibrate(clean, robust))
+    r_bad = diagnose(calibrate(touched, robust))
 
     def F_others(r):
         keep = [x for x in r.stage1.residuals_mm if x["m"] != m]
@@ -456,7 +458,9 @@ def test_batched_lm_solves_each_problem_of_a_batch(a, b):
     truths = jnp.array([[a, b], [2.0, 0.3], [1.0, -1.0]])
     lo, hi = np.array([0.1, -2.0]), np.array([4.0, 2.0])
     x0 = np.tile([1.5, 0.0], (3, 1))
-    x, cost = levenberg_marquardt_batch(lambda X: _lines_rj(truths, jnp.asarray(X)), x0, lo, hi)
+    lm = LevenbergMarquardt(rtol=1e-10, atol=0.0, max_steps=300)
+    out = minimise_batch(lambda X: _lines_rj(truths, jnp.asarray(X)), lm, Bounds(lo, hi), x0)
+    x, cost = out.x, out.cost
     np.testing.assert_allclose(x, np.asarray(truths), atol=1e-6)
     assert np.all(cost < 1e-12)
 

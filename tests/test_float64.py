@@ -20,7 +20,7 @@ def test_import_does_not_flip_x64_and_api_is_float64_anyway():
                 xp=4.0, yp=-25.0))
             rig = hj.Rig(617.7, 617.7, 316.5, 242.3, [320.0, -70.0, 290.0], 90.0, -1.0)
         ds = synthesize_dataset(truth, rig, snake_grid_px(), 22.5 * np.arange(9))
-        r = hj.calibrate(ds, hj.Settings(population=200, generations=400, diagnostics=False))
+        r = hj.calibrate(ds, hj.Settings(population=200, generations=400))
         assert r.stage1.F < 1e-6, r.stage1.F   # unreachable in float32
         out = r.predict(ds.image_px, ds.depth_mm, ds.hand_angle_deg)
         assert out.dtype == np.float64

@@ -17,10 +17,10 @@ def test_early_stop_closes_a_complete_bar(capsys):
     r = differential_evolution(Sphere(), [-1.0] * 3, [1.0] * 3, key=jax.random.PRNGKey(0),
                                population=30, generations=5000, tol=1e-3, progress=True,
                                desc="test DE")  # fmt: skip
-    assert r.converged and r.generations < 5000
+    assert r.converged and r.steps < 5000
     err = capsys.readouterr().err
     last = err.replace("\r", "\n").strip().splitlines()[-1]
-    assert f"{r.generations}/{r.generations}" in last and "100%" in last
+    assert f"{r.steps}/{r.steps}" in last and "100%" in last
 
 
 def test_disabled_bar_prints_nothing(capsys):

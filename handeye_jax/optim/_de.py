@@ -30,7 +30,6 @@ nothing about what ``fn`` computes. Choices, each documented where a user could 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import equinox as eqx
 import jax
@@ -42,6 +41,7 @@ from .. import _xla
 from .._x64 import in_float64
 from ..progress import progress_bar
 from . import _rng
+from ._solvers import AbstractSolver, DESolution
 
 #: Generations run per jitted call; the progress bar advances once per chunk.
 CHUNK_GENERATIONS = 64
@@ -53,34 +53,6 @@ class DEState(eqx.Module):
     fitness: Float[Array, " n"]
     generation: Int[Array, ""]
     converged: Bool[Array, ""]
-
-
-@dataclass(frozen=True)
-class DEResult:
-    """Outcome of :func:`differential_evolution`.
-
-    Attributes:
-        x: best member found.
-        f: its fitness.
-        population, fitness: the final population and fitnesses.
-        generations: generations run (excluding the initial population).
-        evaluations: calls of ``fn``, counting the initial population.
-        converged: whether the spread criterion stopped the run.
-        best_history: best fitness after each generation.
-        median_history, median_generations: the population's median fitness after each chunk
-            of generations, and the generation numbers at which it was taken.
-    """
-
-    x: np.ndarray
-    f: float
-    population: np.ndarray
-    fitness: np.ndarray
-    generations: int
-    evaluations: int
-    converged: bool
-    best_history: np.ndarray
-    median_history: np.ndarray
-    median_generations: np.ndarray
 
 
 def _safe(f: Float[Array, "*n"]) -> Float[Array, "*n"]:
@@ -245,7 +217,7 @@ def differential_evolution(
     early_stop: bool = True,
     progress: bool = False,
     desc: str = "DE",
-) -> DEResult:
+) -> DESolution:
     """Minimise ``fn`` over the box ``[lower, upper]`` with DE/rand/1/bin.
 
     Args:
@@ -285,15 +257,47 @@ def differential_evolution(
     best = np.concatenate(best)
     i_best = int(np.argmin(fitness))
     n_gen = int(state.generation)
-    return DEResult(
+    return DESolution(
         x=final[i_best],
-        f=float(fitness[i_best]),
+        value=float(fitness[i_best]),
         population=final,
         fitness=fitness,
-        generations=n_gen,
+        steps=n_gen,
         evaluations=population * (n_gen + 1),
         converged=bool(state.converged),
         best_history=best,
         median_history=np.array([m for _, m in median]),
         median_generations=np.array([g for g, _ in median]),
     )
+
+
+class DifferentialEvolution(AbstractSolver):
+    """DE/rand/1/bin (:func:`differential_evolution`) as a solver object.
+
+    Attributes:
+        population: N, the number of members (≥ 4).
+        generations: G, the most generations to run.
+        crossover: CR, the binomial crossover probability.
+        mutation: F, the differential weight.
+        tol, atol: the early-stop spread criterion ``std(f) <= atol + tol·|mean(f)|``.
+        early_stop: stop when the spread criterion holds; False runs all G generations.
+    """
+
+    population: int = 500
+    generations: int = 3000
+    crossover: float = 0.9
+    mutation: float = 0.5
+    tol: float = 1e-3
+    atol: float = 0.0
+    early_stop: bool = True
+
+    def run(self, fn, bounds, *, x0, key, progress, desc):
+        del x0  # DE starts from a Latin hypercube of the box
+        if key is None:
+            raise ValueError("differential evolution needs a PRNG key")
+        return differential_evolution(
+            fn, bounds.lower, bounds.upper, key=key, population=self.population,
+            generations=self.generations, crossover=self.crossover, mutation=self.mutation,
+            tol=self.tol, atol=self.atol, early_stop=self.early_stop, progress=progress,
+            desc=desc or "DE",
+        )  # fmt: skip

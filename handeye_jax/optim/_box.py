@@ -1,0 +1,50 @@
+"""The one box transform of the optimisers: ``x = lo + (hi − lo)·(sin z + 1)/2``.
+
+Levenberg–Marquardt is unconstrained; bounds are kept as MINUIT keeps them: LM works on ``z``,
+which the transform maps into the box smoothly, so the residuals and their minimiser are
+unchanged inside the box. The functions take NumPy or JAX arrays and return the same kind.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+
+def _xp(*arrays):
+    return jnp if any(isinstance(a, jax.Array) for a in arrays) else np
+
+
+def to_x(z: Float[Array, "*b d"], lower: Float[Array, " d"], upper: Float[Array, " d"]):
+    """Box coordinates ``z`` to parameters ``x`` (always inside ``[lower, upper]``)."""
+    xp = _xp(z, lower, upper)
+    return lower + (upper - lower) * (xp.sin(z) + 1.0) / 2.0
+
+
+def to_z(x: Float[Array, "*b d"], lower: Float[Array, " d"], upper: Float[Array, " d"]):
+    """Parameters ``x`` (clipped into the box) to box coordinates ``z`` in ``[−π/2, π/2]``."""
+    xp = _xp(x, lower, upper)
+    return xp.arcsin(xp.clip(2.0 * (x - lower) / (upper - lower) - 1.0, -1.0, 1.0))
+
+
+def dx_dz(z: Float[Array, "*b d"], lower: Float[Array, " d"], upper: Float[Array, " d"]):
+    """``∂x/∂z``, elementwise (the chain rule's factor for a Jacobian in ``z``)."""
+    xp = _xp(z, lower, upper)
+    return (upper - lower) / 2.0 * xp.cos(z)
+
+
+class Box(eqx.Module):
+    """The box as a pytree, for a jitted or vmapped solve of one's own (as the notebooks and
+    ``benchmarks/convergence.py`` run optimistix in box coordinates)."""
+
+    lower: Float[Array, " d"]
+    upper: Float[Array, " d"]
+
+    def to_x(self, z):
+        return to_x(z, self.lower, self.upper)
+
+    def to_z(self, x):
+        return to_z(x, self.lower, self.upper)

@@ -1,0 +1,199 @@
+"""Levenberg–Marquardt inside a box: one solver object, for one problem or a batch of them.
+
+* One problem (:func:`~handeye_jax.optim.minimise`): optimistix's Levenberg–Marquardt, compiled
+  into one XLA program, the Jacobian in forward mode (``d`` JVPs: time and memory linear in
+  the number of residuals).
+* Many problems at once (:func:`minimise_batch`, :func:`minimise_starts`): the same iteration
+  run on the host in NumPy over the whole batch, one call of the caller's compiled batched
+  residuals and Jacobians per iteration. A vmapped optimistix solve costs seconds more to
+  trace and compile (benchmarks/RESULTS.md, "one LM contract"), which a first calibration's
+  diagnostics would pay.
+
+Both work in the box coordinates of :mod:`._box` and take the same
+:class:`LevenbergMarquardt` configuration.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import equinox as eqx
+import jax
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array, ArrayLike, Float
+
+from .. import _xla
+from . import _box
+from ._solvers import AbstractSolver, Bounds, LMSolution, Problem
+
+#: Damping of the batch iteration: start, and the factors after a step that lowers the cost
+#: and one that does not.
+_LAMBDA0 = 1e-3
+_SHRINK = 1.0 / 3.0
+_GROW = 4.0
+_LAMBDA_RANGE = (1e-12, 1e12)
+#: The batch stops after this many iterations in a row in which no problem improved enough.
+_QUIET_ITERATIONS = 10
+
+
+class LevenbergMarquardt(AbstractSolver):
+    """Levenberg–Marquardt on ``fn.residuals`` inside the box, from ``x0``.
+
+    Attributes:
+        rtol, atol: convergence tolerances. One problem: optimistix's rule (the step and the
+            change of the cost each below ``atol + rtol·|value|``). A batch: it stops once no
+            problem's cost has fallen by more than ``rtol·cost + atol`` for 10 iterations.
+        max_steps: most iterations.
+    """
+
+    rtol: float = 1e-12
+    atol: float = 1e-12
+    max_steps: int = 1000
+
+    def run(self, fn, bounds, *, x0, key, progress, desc):
+        del key, progress, desc  # deterministic, and quick enough to need no progress bar
+        if x0 is None:
+            raise ValueError("Levenberg-Marquardt needs a start point x0")
+        x0 = np.clip(np.asarray(x0, dtype=float), bounds.lower, bounds.upper)
+        x, steps, ok = _lm_compiled(
+            fn, x0, bounds.lower, bounds.upper, self.rtol, self.atol, self.max_steps
+        )
+        x = np.asarray(x)
+        return LMSolution(
+            x=x, value=float(_value(fn, x)), steps=int(steps), evaluations=int(steps) + 1,
+            converged=bool(ok), start_value=float(_value(fn, x0)),
+        )  # fmt: skip
+
+
+def _lm(fn: Problem, x0, lower, upper, rtol: float, atol: float, max_steps: int):
+    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    # optimistix evaluates and differentiates the residuals several times while it traces;
+    # as a nested jit they are traced once and the rest is reused.
+    residuals = eqx.filter_jit(fn.residuals)
+    # Forward mode: the Jacobian is d JVPs, O(r·d) time and memory for r residuals. Reverse
+    # mode built it from an r × r basis: O(r²) (benchmarks/RESULTS.md, "Scaling with
+    # landmarks").
+    sol = optx.least_squares(
+        lambda z, _: residuals(_box.to_x(z, lower, upper)),
+        solver,
+        _box.to_z(x0, lower, upper),
+        max_steps=max_steps,
+        throw=False,
+        options={"jac": "fwd"},
+    )
+    ok = sol.result == optx.RESULTS.successful
+    return _box.to_x(sol.value, lower, upper), sol.stats["num_steps"], ok
+
+
+#: :func:`_lm` compiled (named so in JAX's compile log).
+_lm_compiled = _xla.fast_compile(_lm)
+
+
+@_xla.fast_compile
+def _value(fn: Problem, x):
+    return fn(x)
+
+
+@dataclass(frozen=True)
+class BatchSolution:
+    """What :func:`minimise_batch` found: end points ``x`` ``(B, d)`` and their ``|r|²``
+    ``cost`` ``(B,)`` (``inf`` where the residuals were not finite), after ``steps``
+    iterations."""
+
+    x: np.ndarray
+    cost: np.ndarray
+    steps: int
+
+
+def residuals_and_jacobian(
+    residuals: Callable[[Float[Array, " d"]], Float[Array, " r"]], x: Float[Array, " d"]
+) -> tuple[Float[Array, " r"], Float[Array, "r d"]]:
+    """``(r(x), ∂r/∂x)`` in one forward-mode pass (the residuals ride along as auxiliary)."""
+
+    def f(x):
+        r = residuals(x)
+        return r, r
+
+    J, r = jax.jacfwd(f, has_aux=True)(x)
+    return r, J
+
+
+def minimise_batch(
+    fn: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+    solver: LevenbergMarquardt,
+    bounds: Bounds,
+    x0: Float[ArrayLike, "b d"],
+) -> BatchSolution:
+    """Levenberg–Marquardt on B problems at once, each inside ``bounds``.
+
+    Each iteration solves ``(JᵀJ + λ·diag(JᵀJ))·δ = −Jᵀr`` (Marquardt's scaling) for every
+    problem in the box coordinates ``z`` and keeps a problem's step only if it lowers its
+    ``|r|²``; λ shrinks after an accepted step and grows after a rejected one.
+
+    Args:
+        fn: batched residuals and Jacobians: ``x (B, d) -> (r (B, m), J (B, m, d))``. Compile
+            it once (e.g. ``jax.jit`` of a ``vmap``); it is called once per iteration.
+        solver: the tolerances and the most iterations.
+        bounds: the box, the same for every problem.
+        x0: starts, ``(B, d)``.
+    """
+    lo, hi = bounds.lower, bounds.upper
+    z = _box.to_z(np.asarray(x0, float), lo, hi)
+
+    def evaluate(z):
+        r, J = (np.asarray(a) for a in fn(_box.to_x(z, lo, hi)))
+        J = J * _box.dx_dz(z, lo, hi)[:, None, :]  # chain rule through the box transform
+        ok = np.isfinite(r).all(axis=1) & np.isfinite(J).all(axis=(1, 2))
+        return r, J, np.where(ok, np.sum(np.where(ok[:, None], r, 0.0) ** 2, axis=1), np.inf)
+
+    r, J, cost = evaluate(z)
+    lam = np.full(z.shape[0], _LAMBDA0)
+    eye = np.eye(z.shape[1])
+    quiet = steps = 0
+    for steps in range(1, solver.max_steps + 1):  # noqa: B007 (steps is reported)
+        Jt = J.transpose(0, 2, 1)
+        H = Jt @ J
+        g = (Jt @ r[..., None])[..., 0]
+        damping = lam[:, None, None] * (np.diagonal(H, axis1=1, axis2=2)[:, None, :] + 1e-12) * eye
+        # H + λ·(diag H + ε) is positive definite for λ > 0: the solve cannot fail.
+        dz = -np.linalg.solve(H + damping, g[..., None])[..., 0]
+        dz = np.where(np.isfinite(dz), dz, 0.0)
+        r_t, J_t, cost_t = evaluate(z + dz)
+        better = cost_t < cost
+        gain = np.where(better, cost - cost_t, 0.0)
+        enough = gain > solver.rtol * np.where(np.isfinite(cost), cost, 0.0) + solver.atol
+        z = np.where(better[:, None], z + dz, z)
+        r = np.where(better[:, None], r_t, r)
+        J = np.where(better[:, None, None], J_t, J)
+        cost = np.where(better, cost_t, cost)
+        lam = np.clip(np.where(better, lam * _SHRINK, lam * _GROW), *_LAMBDA_RANGE)
+        quiet = 0 if enough.any() else quiet + 1
+        if quiet >= _QUIET_ITERATIONS:
+            break
+    return BatchSolution(x=_box.to_x(z, lo, hi), cost=cost, steps=steps)
+
+
+# Called once per LM iteration, hence LLVM level 1 (see handeye_jax._xla).
+@_xla.fast_compile(llvm_opt_level=1)
+def _starts_rj(fn: Problem, X):
+    return jax.vmap(lambda x: residuals_and_jacobian(fn.residuals, x))(X)
+
+
+def minimise_starts(
+    fn: Problem, solver: LevenbergMarquardt, bounds: Bounds, starts: Float[ArrayLike, "b d"]
+) -> BatchSolution:
+    """:func:`minimise_batch` of one problem from several starts at once (a multi-start
+    search for its lowest local optimum).
+
+    Args:
+        fn: the problem; pass an equinox Module so repeated calls reuse the compiled program.
+            Its Jacobian is taken in forward mode, so the work is linear in the residuals.
+        solver: the tolerances and the most iterations.
+        bounds: the box.
+        starts: start points ``(B, d)``; a fixed ``B`` reuses the program.
+    """
+    return minimise_batch(
+        lambda X: _starts_rj(fn, np.asarray(X)), solver, bounds, np.asarray(starts, float)
+    )
