@@ -45,7 +45,7 @@ from handeye_jax import (
     diagnose,
     vectorise_small_loops,
 )
-from handeye_jax.dataset import dataset_to_toml
+from handeye_jax._dataset_io import dataset_to_toml
 from handeye_jax.optim import (
     Bounds,
     LevenbergMarquardt,

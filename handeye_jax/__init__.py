@@ -52,9 +52,9 @@ _EXPORTS = {
     "calibrate": "calibrate",
     "diagnose": "calibrate",
     "recalibrate": "calibrate",
-    "Dataset": "dataset",
-    "load_dataset": "dataset",
-    "save_dataset": "dataset",
+    "Dataset": "_dataset",
+    "load_dataset": "_dataset_io",
+    "save_dataset": "_dataset_io",
     "InputError": "errors",
     "AbstractModel": "models",
     "AffinePair": "models",
@@ -109,6 +109,8 @@ sys.modules[__name__].__class__ = _Package
 
 if TYPE_CHECKING:
     from . import geometry, models, optim
+    from ._dataset import Dataset
+    from ._dataset_io import load_dataset, save_dataset
     from ._frames import Frames
     from ._objective import (
         AbstractBlock,
@@ -130,7 +132,6 @@ if TYPE_CHECKING:
     from ._x64 import float64
     from ._xla import vectorise_small_loops
     from .calibrate import Settings, calibrate, diagnose, recalibrate
-    from .dataset import Dataset, load_dataset, save_dataset
     from .errors import InputError
     from .models import AbstractModel, AffinePair, DHModel, HTMModel, get_model
     from .observations import Observations, Rig

@@ -25,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _xla
+from ._dataset import Dataset, check_distinct, check_population
 from ._objective import (
     AbstractObjective,
     LossObjective,
@@ -41,7 +42,6 @@ from ._objective import (
 from ._params import FIXED, ParameterSpace, Prior, put, resolve_names
 from ._validate import MAX_RESTARTS
 from ._x64 import in_float64
-from .dataset import Dataset, check_distinct, check_population
 from .diagnostics import MAX_MODES, bound_hits, mode_leaders
 from .errors import InputError
 from .identifiability import analyse_jacobian, error_jacobian

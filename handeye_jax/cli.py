@@ -121,8 +121,8 @@ def _output_path(
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from ._dataset_io import load_dataset
     from .calibrate import Settings, calibrate, diagnose, recalibrate
-    from .dataset import load_dataset
     from .result import load_result
     from .summary import format_summary
 

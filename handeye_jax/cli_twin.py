@@ -13,8 +13,8 @@ import numpy as np
 from jaxtyping import Float
 
 from ._atomic import StagedFiles, check_folder_output, check_output, same_file, write_output
+from ._dataset_io import backup_path, save_dataset, update_dataset
 from ._validate import MAX_HELDOUT, parse_float, parse_int
-from .dataset import backup_path, save_dataset, update_dataset
 from .detect import DetectSettings, overlay_image, read_image
 from .errors import InputError
 from .simulate import DERIVED_FILES, DERIVED_FOLDER, SEED_RANGE, encode_png
@@ -116,7 +116,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_detect(args: argparse.Namespace) -> int:
-    from .dataset import load_dataset
+    from ._dataset_io import load_dataset
     from .detect import BlobCountError, detect_landmarks, fill_dataset
 
     images = [args.capture, args.depth]
@@ -150,9 +150,9 @@ def _cmd_detect(args: argparse.Namespace) -> int:
         if not in_place:
             save_dataset(new, out)
             done = f"dataset written to {out}"
-        elif update_dataset(args.dataset, new, keep_backup=True):
+        elif (kept := update_dataset(args.dataset, new, keep_backup=True)) is not None:
             # In place: only image_px and depth change; the file's comments and layout stay.
-            done = f"{args.dataset} updated (previous file kept as {backup_path(args.dataset)})"
+            done = f"{args.dataset} updated (previous file kept as {kept})"
         else:
             done = f"{args.dataset} already holds them"
     except BaseException:
@@ -229,7 +229,8 @@ def add_twin_commands(sub: argparse._SubParsersAction) -> None:
     det.add_argument(
         "--out",
         metavar="NEW.toml",
-        help="write here (default: update DATASET in place, the old one kept as .bak)",
+        help="write here (default: update DATASET in place, the old one kept as "
+        "DATASET.<UTC time>.bak)",
     )
     det.add_argument(
         "--overlay",

@@ -37,9 +37,9 @@ import cv2
 import numpy as np
 from jaxtyping import Float, Int, UInt8, UInt16
 
+from ._dataset import Dataset
 from ._io import MAX_IMAGE_BYTES, read_bytes
 from ._validate import MAX_IMAGE_PIXELS
-from .dataset import Dataset
 from .errors import InputError
 
 

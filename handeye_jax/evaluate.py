@@ -18,10 +18,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Float
 
+from ._dataset import Dataset
+from ._dataset_io import load_dataset
 from ._validate import MAX_PX
 from ._x64 import in_float64
 from .calibrate import Settings, fit_correction
-from .dataset import Dataset, load_dataset
 from .errors import InputError
 from .models import AbstractModel
 from .predict import csv_number, hand_command, read_points_csv

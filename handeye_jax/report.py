@@ -29,9 +29,9 @@ import numpy as np
 
 from . import _xla
 from ._atomic import check_folder_output, write_folder_atomic
+from ._dataset_io import load_dataset
 from ._objective import chain_points, stage1_errors, stage2_errors
 from ._x64 import in_float64
-from .dataset import load_dataset
 from .errors import InputError
 from .observations import Observations
 from .optim import CHUNK_GENERATIONS

@@ -42,7 +42,7 @@ from .observations import Rig
 from .predict import hand_command
 
 if TYPE_CHECKING:
-    from .dataset import Dataset
+    from ._dataset import Dataset
 
 FORMAT = "handeye-jax.result/1"
 

@@ -28,8 +28,9 @@ import cv2
 import numpy as np
 
 from ._atomic import reason, write_folder_atomic
+from ._dataset import Dataset
+from ._dataset_io import dataset_to_toml
 from ._validate import MAX_HELDOUT
-from .dataset import Dataset, backup_path, dataset_to_toml
 from .detect import BlobCountError, DetectSettings, depth_at, find_blobs, order_blobs
 from .errors import InputError
 from .render import DepthSensing, Imaging, render_capture, render_depth
@@ -42,7 +43,7 @@ HELDOUT_HEADER = ("u", "v", "depth", "hand_angle", "tablet_x", "tablet_y")
 TWIN_FILES = ("dataset.toml", "truth.json", "heldout.csv", "capture.png", "depth.png")
 #: What the README's loop makes from a twin beside its files (``detect --overlay``, ``detect``
 #: in place, ``calibrate --out``, ``report``): stale once the twin is replaced.
-DERIVED_FILES = ("overlay.png", backup_path("dataset.toml").name, "result.json")
+DERIVED_FILES = ("overlay.png", "dataset.toml.*.bak", "dataset.toml.bak", "result.json")
 DERIVED_FOLDER = "result_report"
 #: Seeds numpy's generators take: 0 to 2^63 - 1.
 SEED_RANGE = (0, 2**63 - 1)
@@ -247,7 +248,7 @@ def check_twin_folder(out_dir: str | Path, force: bool = False, field: str = "")
             f"another, or pass --force to replace the old twin's files and remove "
             f"{', '.join(DERIVED_FILES)} and {DERIVED_FOLDER}/ made from it",
         )  # fmt: skip
-    stale = [folder / name for name in DERIVED_FILES]
+    stale = [p for pattern in DERIVED_FILES for p in sorted(folder.glob(pattern))]
     figures = folder / DERIVED_FOLDER
     stale += [figures / f"{name}.{ext}" for name in FIGURES for ext in FORMATS]
     return [p for p in stale if p.is_file() or p.is_symlink()]

@@ -13,8 +13,8 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from . import geometry as geo
+from ._dataset import Camera, Dataset
 from ._x64 import in_float64
-from .dataset import Camera, Dataset
 from .models import AbstractModel
 from .observations import Rig
 

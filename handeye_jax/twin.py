@@ -22,6 +22,7 @@ import numpy as np
 from jaxtyping import Float
 
 from . import geometry as geo
+from ._dataset_io import check_tablet_px
 from ._io import load_json
 from ._validate import (
     MAX_DEG,
@@ -33,7 +34,6 @@ from ._validate import (
     describe,
 )
 from ._x64 import in_float64
-from .dataset import check_tablet_px
 from .models import HTMModel
 from .observations import Rig
 from .synthetic import snake_grid_px, tablet_to_camera

@@ -294,7 +294,7 @@ def test_compilation_cache_goes_where_asked_and_can_be_turned_off(tmp_path):
 
 
 def test_detect_in_place_keeps_the_users_comments(tmp_path, capsys):
-    from handeye_jax.dataset import load_dataset
+    from handeye_jax._dataset_io import load_dataset
     from handeye_jax.simulate import PRESETS, simulate, write_twin
     from handeye_jax.twin import draw_truth
 
@@ -319,13 +319,15 @@ def test_detect_in_place_keeps_the_users_comments(tmp_path, capsys):
             assert line in after.splitlines(), line
     assert after.count("# to be detected") == 2 * 9
     assert load_dataset(ds_path) == detected
-    assert (tmp_path / "mine.toml.bak").read_text() == text
+    (backup,) = tmp_path.glob("mine.toml.*.bak")
+    assert backup.read_text() == text
     # Detected again: the file already holds these values, nothing is written.
     before = ds_path.read_bytes()
     assert main(["detect", capture, depth, "--dataset", str(ds_path)]) == 0
     assert "already holds them" in capsys.readouterr().out
     assert ds_path.read_bytes() == before
-    assert (tmp_path / "mine.toml.bak").read_text() == text
+    (backup,) = tmp_path.glob("mine.toml.*.bak")
+    assert backup.read_text() == text
 
 
 # -- Ctrl-C, --version, help ---------------------------------------------------------------

@@ -231,17 +231,6 @@ def test_detect_keeps_the_overlay_when_the_dataset_cannot_be_written(twin_dir, t
     assert _snapshot(twin_dir, tmp_path) == before
 
 
-def test_detect_in_place_with_a_folder_for_the_backup(twin_dir, tmp_path, capsys):
-    for name in ("capture.png", "depth.png", "dataset.toml"):
-        shutil.copy(twin_dir / name, tmp_path / name)
-    (tmp_path / "dataset.toml.bak").mkdir()
-    (tmp_path / "ov.png").write_text("SENTINEL")
-    before = _snapshot(tmp_path)
-    argv = _detect(tmp_path, tmp_path / "dataset.toml", "--overlay", str(tmp_path / "ov.png"))
-    _fails(capsys, argv, "dataset.toml.bak", "is a folder")
-    assert _snapshot(tmp_path) == before
-
-
 def test_detect_discards_the_overlay_when_the_dataset_write_fails(
     twin_dir, tmp_path, capsys, monkeypatch
 ):
@@ -263,7 +252,7 @@ def test_detect_discards_the_overlay_when_the_dataset_write_fails(
 
 def test_detect_refuses_an_overlay_over_an_input(twin_dir, tmp_path, capsys):
     before = _snapshot(twin_dir)
-    for victim in ("capture.png", "dataset.toml", "dataset.toml.bak"):
+    for victim in ("capture.png", "dataset.toml"):
         argv = _detect(twin_dir, twin_dir / "dataset.toml", "--overlay", str(twin_dir / victim))
         _fails(capsys, argv, victim, "--overlay")
     argv = _detect(twin_dir, twin_dir / "dataset.toml", "--out", str(twin_dir / "depth.png"))

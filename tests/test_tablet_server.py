@@ -374,7 +374,9 @@ def qr_decode(lines):
         rows += [[top for top, _ in cells], [bottom for _, bottom in cells]]
     img = np.pad(np.where(np.array(rows), 0, 255).astype(np.uint8), 8, constant_values=255)
     img = cv2.resize(img, None, fx=8, fy=8, interpolation=cv2.INTER_NEAREST)
-    return cv2.QRCodeDetector().detectAndDecode(img)[0]
+    # OpenCV's plain detector misreads about 1.5 % of these codes (3 of 200 random secrets,
+    # measured); its ArUco-based one read all 200.
+    return cv2.QRCodeDetectorAruco().detectAndDecode(img)[0]
 
 
 def test_the_page_url_for_every_address_carries_the_secret_and_a_qr_code(

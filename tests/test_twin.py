@@ -12,8 +12,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from handeye_jax import HTMModel, Settings, Stage1Objective, load_dataset, load_result, save_dataset
+from handeye_jax._dataset import Dataset
 from handeye_jax.cli import main
-from handeye_jax.dataset import Dataset
 from handeye_jax.errors import InputError
 from handeye_jax.evaluate import Heldout, evaluate, landing_tablet_px, load_heldout
 from handeye_jax.simulate import PRESETS, simulate, write_twin

@@ -5,7 +5,8 @@ Ctrl-C. Only whoever has the secret the server prints (in its URL and QR code) c
 (:mod:`.guard`). The page lives in ``static/`` (HTML, JS and CSS; no build step).
 """
 
-from .calibration import apply_touch_errors, versioned_backup_path
+from .._dataset_io import backup_path as versioned_backup_path
+from .calibration import apply_touch_errors
 from .guard import new_token
 from .posts import (
     MAX_BODY_BYTES,

@@ -57,7 +57,7 @@ from typing import Any
 import numpy as np
 
 from .._atomic import check_output, reason
-from ..dataset import load_dataset
+from .._dataset_io import load_dataset
 from ..errors import InputError
 from ..geometry import mm_per_tablet_px
 from . import guard, posts, trials

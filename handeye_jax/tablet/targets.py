@@ -27,7 +27,7 @@ def load_targets(path: str | Path) -> np.ndarray:
     """
     path = Path(path)
     if path.suffix.lower() == ".toml":
-        from ..dataset import load_dataset
+        from .._dataset_io import load_dataset
 
         return load_dataset(path).tablet_px
     r = Reader(path)
