@@ -48,7 +48,6 @@ _EXPORTS = {
     "Predictor": "_predictor",
     "float64": "_x64",
     "vectorise_small_loops": "_xla",
-    "Settings": "calibrate",
     "calibrate": "calibrate",
     "diagnose": "calibrate",
     "recalibrate": "calibrate",
@@ -64,8 +63,14 @@ _EXPORTS = {
     "Observations": "observations",
     "Rig": "observations",
     "hand_command": "predict",
-    "CalibrationResult": "result",
-    "load_result": "result",
+    "CalibrationResult": "_result",
+    "StageResult": "_result",
+    "load_result": "_result_io",
+    "save_result": "_result_io",
+    "Settings": "_settings",
+    "update_dataset": "_dataset_io",
+    "convert_to_v2": "_dataset_io",
+    "Capture": "_dataset",
 }
 
 
@@ -109,8 +114,8 @@ sys.modules[__name__].__class__ = _Package
 
 if TYPE_CHECKING:
     from . import geometry, models, optim
-    from ._dataset import Dataset
-    from ._dataset_io import load_dataset, save_dataset
+    from ._dataset import Capture, Dataset
+    from ._dataset_io import convert_to_v2, load_dataset, save_dataset, update_dataset
     from ._frames import Frames
     from ._objective import (
         AbstractBlock,
@@ -129,14 +134,16 @@ if TYPE_CHECKING:
     )
     from ._params import ParameterSpace, Prior, put, resolve_names
     from ._predictor import Predictor
+    from ._result import CalibrationResult, StageResult
+    from ._result_io import load_result, save_result
+    from ._settings import Settings
     from ._x64 import float64
     from ._xla import vectorise_small_loops
-    from .calibrate import Settings, calibrate, diagnose, recalibrate
+    from .calibrate import calibrate, diagnose, recalibrate
     from .errors import InputError
     from .models import AbstractModel, AffinePair, DHModel, HTMModel, get_model
     from .observations import Observations, Rig
     from .predict import hand_command
-    from .result import CalibrationResult, load_result
 
 __all__ = [
     "AbstractBlock",
@@ -144,6 +151,7 @@ __all__ = [
     "AbstractObjective",
     "AffinePair",
     "CalibrationResult",
+    "Capture",
     "DHModel",
     "Dataset",
     "Frames",
@@ -162,9 +170,11 @@ __all__ = [
     "Stage1Objective",
     "Stage2Objective",
     "StageErrors",
+    "StageResult",
     "WeightedLengthBlock",
     "calibrate",
     "chain_points",
+    "convert_to_v2",
     "diagnose",
     "errors_of",
     "fitness",
@@ -180,5 +190,7 @@ __all__ = [
     "recalibrate",
     "resolve_names",
     "save_dataset",
+    "save_result",
+    "update_dataset",
     "vectorise_small_loops",
 ]

@@ -217,7 +217,8 @@ class Dataset:
     def __setattr__(self, name, value):
         raise dataclasses.FrozenInstanceError(f"cannot assign to field {name!r}")
 
-    _FIELDS = (
+    #: The fields compared by ``==`` (every one but ``version`` and ``source``).
+    FIELDS = (
         "name", "camera", "tablet_ppi", "tablet_scale", "hand_angle_zero_deg",
         "hand_angle_sign", "search", "tablet_px", "captures", "touch_landmark", "hand_xy_mm",
         "hand_z_mm", "hand_angle_deg", "touch_error_px",
@@ -226,7 +227,7 @@ class Dataset:
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Dataset):
             return NotImplemented
-        for name in self._FIELDS:
+        for name in self.FIELDS:
             a, b = getattr(self, name), getattr(other, name)
             if isinstance(a, np.ndarray):
                 if not np.array_equal(a, b, equal_nan=True):
@@ -324,7 +325,7 @@ class Dataset:
 
     # -- copies ----------------------------------------------------------------------------
     def _kwargs(self) -> dict[str, Any]:
-        return {name: getattr(self, name) for name in self._FIELDS} | {
+        return {name: getattr(self, name) for name in self.FIELDS} | {
             "version": self.version, "source": self.source,
         }  # fmt: skip
 

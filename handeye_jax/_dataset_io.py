@@ -237,7 +237,10 @@ def _common(r: Reader, doc: dict, path: Path | None) -> dict[str, Any]:
     cam = _read_table(r, doc["camera"], "camera", CAMERA)
     camera = Camera(cam["fx"], cam["fy"], cam["cx"], cam["cy"])
     tablet = _read_table(r, doc["tablet"], "tablet", TABLET)
-    check_tablet_px(tablet["ppi"], tablet["scale"], path, "tablet")
+    try:
+        check_tablet_px(tablet["ppi"], tablet["scale"], path, "tablet")
+    except InputError as e:  # through the reader, which may name an enclosing section
+        r.fail(e.field, e.message)
     angle = _read_table(r, doc["hand_angle"], "hand_angle", HAND_ANGLE)
     if angle["sign"] not in (1.0, -1.0):
         r.fail("hand_angle.sign", f"must be 1 or -1 (got {doc['hand_angle']['sign']})")
@@ -262,6 +265,13 @@ def _common(r: Reader, doc: dict, path: Path | None) -> dict[str, Any]:
                 search=search, source=path)  # fmt: skip
 
 
+def _distinct(r: Reader, tablet_px: Any, path: Path | None) -> None:
+    try:
+        check_distinct(tablet_px, path)
+    except InputError as e:  # through the reader, which may name an enclosing section
+        r.fail(e.field, e.message)
+
+
 def _parse_v1(r: Reader, doc: dict, path: Path | None) -> Dataset:
     r.table(doc, "", _TOP_V1, ("search",))
     common = _common(r, doc, path)
@@ -275,7 +285,7 @@ def _parse_v1(r: Reader, doc: dict, path: Path | None) -> Dataset:
         _check_ray(r, row["image_px"], camera, f"{where}.image_px")
         for k, v in row.items():
             rows[k].append(v)
-    check_distinct(rows["tablet_px"], path)
+    _distinct(r, rows["tablet_px"], path)
     return Dataset(
         **common, tablet_px=rows["tablet_px"], capture_position_mm=capture["hand_position"],
         image_px=rows["image_px"], depth_mm=rows["depth"], hand_xy_mm=rows["hand_xy"],
@@ -290,7 +300,7 @@ def _parse_v2(r: Reader, doc: dict, path: Path | None) -> Dataset:
     marks = _array_of_tables(r, doc, "landmarks", MAX_LANDMARKS)
     tablet = [_read_table(r, m, f"landmarks[{i}]", LANDMARK_V2)["tablet_px"]
               for i, m in enumerate(marks)]  # fmt: skip
-    check_distinct(tablet, path)
+    _distinct(r, tablet, path)
     n = len(tablet)
     captures = []
     seen: set[int] = set()

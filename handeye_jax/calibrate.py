@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +40,8 @@ from ._objective import (
     stage2_errors,
 )
 from ._params import FIXED, ParameterSpace, Prior, put, resolve_names
+from ._result import CalibrationResult, StageResult
+from ._settings import Settings
 from ._validate import MAX_RESTARTS
 from ._x64 import in_float64
 from .diagnostics import MAX_MODES, bound_hits, mode_leaders
@@ -50,78 +52,12 @@ from .models import AbstractCorrection, AbstractModel, AbstractParametric, Affin
 from .observations import Observations
 from .optim import (
     Bounds,
-    DifferentialEvolution,
     LevenbergMarquardt,
     latin_hypercube,
     minimise,
     minimise_starts,
 )
 from .refits import REFIT_LANDMARKS
-from .result import (
-    CalibrationResult,
-    StageResult,
-    observations_from_dict,
-    observations_to_dict,
-    rig_to_dict,
-)
-
-
-@dataclass(frozen=True)
-class Settings:
-    """How to calibrate.
-
-    Attributes:
-        model: stage-1 model name, ``"htm"`` or ``"dh"``.
-        seed: PRNG seed; the same seed gives the same result bit for bit.
-        population: DE population N (both stages).
-        generations: most DE generations G (both stages).
-        early_stop: stop DE when the population's fitness spread is below ``tol``.
-        tol: relative spread for the early stop, ``std(F) <= tol·|mean(F)|``.
-        crossover: DE's CR. mutation: DE's F (differential weight).
-        polish: run Levenberg–Marquardt from the best DE member of each stage, and from the
-            ``restarts``; the lowest F any of them reaches is the stage's result.
-        restarts: LM starts in each stage besides the best DE member: the best member of each
-            other distinct optimum in the final DE population, the rest points of a Latin
-            hypercube of the search box; 0 runs none. The DE alone can settle in a basin that
-            is not the lowest (6 of 50 ``paper`` twins with these DE settings,
-            ``benchmarks/miss_rate.py``).
-        loss: ``"l1"`` (the paper's mean error length), ``"huber"`` or ``"cauchy"``
-            (:mod:`handeye_jax.losses`); a robust loss limits the pull of outlier landmarks.
-        loss_scale_mm: the robust loss's scale, mm; landmarks with an error above
-            ``OUTLIER_FACTOR`` (3) times it are flagged as outliers, whatever the loss.
-
-    The paper's settings are ``population=10000, generations=10000, early_stop=False``; the
-    defaults reach the same optimum on the paper's data in seconds.
-    """
-
-    model: str = "htm"
-    seed: int = 1
-    population: int = 500
-    generations: int = 3000
-    early_stop: bool = True
-    tol: float = 1e-3
-    crossover: float = 0.9
-    mutation: float = 0.5
-    polish: bool = True
-    restarts: int = 32
-    loss: str = "l1"
-    loss_scale_mm: float = 1.0
-
-    def de(self) -> DifferentialEvolution:
-        """The DE solver these settings configure."""
-        return DifferentialEvolution(
-            population=self.population, generations=self.generations,
-            crossover=self.crossover, mutation=self.mutation, tol=self.tol,
-            early_stop=self.early_stop,
-        )  # fmt: skip
-
-    @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> Settings:
-        """Settings from a result file's ``settings`` (keys it does not know are ignored:
-        older results recorded ``diagnostics``)."""
-        known = {f.name for f in fields(cls)}
-        return cls(**{k: v for k, v in values.items() if k in known})
-
 
 #: The polish of one stage's optimum: optimistix's LM to tight tolerances.
 POLISH = LevenbergMarquardt(rtol=1e-12, atol=1e-12, max_steps=1000)
@@ -630,26 +566,22 @@ def fit(
         recal = {"previous": plan.previous, "refit": list(plan.refit),
                  "others": "fixed" if plan.fixed else "prior"}  # fmt: skip
     return CalibrationResult(
-        model=settings.model,
-        seed=settings.seed,
-        settings=_settings_dict(settings),
-        dataset=dataset.name,
-        rig=rig_to_dict(obs.rig),
+        model=fit1.model(),
+        correction=fit2.model(),
+        rig=obs.rig,
+        centres_mm=np.asarray(centres),
+        centre_index=obs.centre_index,
         stage1=stage1,
         stage2=stage2,
-        centre_index=obs.centre_index,
-        centres_mm=np.asarray(centres).tolist(),
+        settings=settings,
+        data=dataset,
+        dataset_name=dataset.name,
         timings_s=timings,
         sign_twin=_sign_twin(fit1),
         warnings=warnings,
-        observations=observations_to_dict(dataset),
         recalibration=recal,
         fits=(fit1, fit2),
     )
-
-
-def _settings_dict(settings: Settings) -> dict[str, Any]:
-    return {f.name: getattr(settings, f.name) for f in fields(settings)}
 
 
 def fit_correction_stage(
@@ -742,12 +674,12 @@ def recalibration_plan(
     from ``previous``: as its posterior for a prior, or (``fix``) held at its values. Stage 2
     starts from the previous correction, with its posterior as the prior (or held, ``fix``).
     """
-    model_cls = get_model(previous.model)
+    model_cls = type(previous.model)
     refit_names = resolve_names(model_cls, refit)
     if not refit_names:
         raise ValueError("nothing to refit: name a group (camera, tablet, pen) or a parameter")
-    template1 = previous.fitted_model()
-    template2 = previous.fitted_correction()
+    template1 = previous.model
+    template2 = previous.correction
     prev_free1 = [n for n, st in previous.stage1.status.items() if st != FIXED]
     prev_free2 = [n for n, st in previous.stage2.status.items() if st != FIXED]
     was_fixed = {n: previous.stage1.fixed_source.get(n, source)
@@ -806,12 +738,11 @@ def recalibrate(
         progress: show progress bars on stderr.
     """
     if settings is None:
-        settings = Settings.from_dict(previous.settings)
-    if settings.model != previous.model:
-        raise ValueError(
-            f"the previous result is of model {previous.model!r}, settings say {settings.model!r}"
-        )
-    source = str(source) if source is not None else f"previous result ({previous.dataset})"
+        settings = previous.settings
+    if settings.model != previous.model_name:
+        raise ValueError(f"the previous result is of model {previous.model_name!r}, settings "
+                         f"say {settings.model!r}")  # fmt: skip
+    source = str(source) if source is not None else f"previous result ({previous.dataset_name})"
     with jax.enable_x64(True):
         plan = recalibration_plan(dataset, previous, refit, fix=fix, source=source)
     return fit(dataset, plan, settings, progress=progress)
@@ -861,8 +792,8 @@ def _spaces_of(result: CalibrationResult, search: dict) -> tuple[ParameterSpace,
     """The stages' parameter spaces of a result read from a file (its boxes: the search
     ranges, widened to hold the fit and its priors)."""
     spaces = []
-    for template, stage in ((result.fitted_model(), result.stage1),
-                            (result.fitted_correction(), result.stage2)):  # fmt: skip
+    for template, stage in ((result.model, result.stage1),
+                            (result.correction, result.stage2)):  # fmt: skip
         cls = type(template)
         free = tuple(n for n in cls.param_names if n in stage.free())
         prior = _prior_of(stage.prior)
@@ -932,12 +863,12 @@ def diagnose(
     from .diagnostics import diagnostics_of
 
     t0 = time.perf_counter()
-    settings = Settings.from_dict(result.settings)
+    settings = result.settings
     search = search or {}
-    if not result.observations:
-        raise InputError(None, "observations", "the result does not carry its data: it cannot "
-                         "be diagnosed; calibrate again")  # fmt: skip
-    obs = observations_from_dict(result.observations, result.fitted_rig(), result.centre_index)
+    if result.data is None:
+        raise InputError(None, "data", "the result does not carry its data: it cannot be "
+                         "diagnosed; calibrate again")  # fmt: skip
+    obs = result.data.observations()
     n = obs.n_landmarks
     if result.fits is not None:
         fit1, fit2 = result.fits
@@ -1008,6 +939,8 @@ def diagnose(
     sign_twin = result.sign_twin
     if fits is not None and fits is not result.fits:
         sign_twin = _sign_twin(fits[0])
+    if fits is not result.fits:  # a refit was adopted: the models are the new fits'
+        result = replace(result, model=fits[0].model(), correction=fits[1].model())
     return replace(
         result, stage1=stage1, stage2=stage2, centres_mm=centres, diagnostics=diagnostics,
         warnings=warnings, timings_s=timings, sign_twin=sign_twin, fits=fits,

@@ -122,8 +122,8 @@ def _output_path(
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     from ._dataset_io import load_dataset
+    from ._result_io import load_result, result_to_json
     from .calibrate import Settings, calibrate, diagnose, recalibrate
-    from .result import load_result
     from .summary import format_summary
 
     out = _output_path(args.out, "--out", [args.dataset, args.prior])
@@ -164,7 +164,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         result = diagnose(result, search=dataset.search)
     print(format_summary(result))
     if out is not None:
-        write_output(out, result.to_json(), "--out")
+        write_output(out, result_to_json(result), "--out")
         print(f"result written to {out}")
     return 0
 

@@ -11,6 +11,7 @@ correction fitted on top of the true parameters, to show what stage 2 does to a 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,13 +21,14 @@ from jaxtyping import Float
 
 from ._dataset import Dataset
 from ._dataset_io import load_dataset
+from ._result import CalibrationResult
+from ._result_io import load_result
 from ._validate import MAX_PX
 from ._x64 import in_float64
 from .calibrate import Settings, fit_correction
 from .errors import InputError
 from .models import AbstractModel
 from .predict import csv_number, hand_command, read_points_csv
-from .result import OBSERVATION_ARRAYS, CalibrationResult, load_result
 from .twin import TwinTruth, load_truth
 
 
@@ -167,12 +169,12 @@ def oracle_settings(result: CalibrationResult) -> Settings:
     A result file records what its calibration ran, not what an evaluation may allocate: a
     file saying ``population = 10**9`` once made ``evaluate`` allocate 80 GB.
     """
-    known = {k: v for k, v in result.settings.items() if k in Settings.__dataclass_fields__}
-    budget = Settings()
-    known["population"] = min(known.get("population", budget.population), budget.population)
-    known["generations"] = min(known.get("generations", budget.generations), budget.generations)
-    known["restarts"] = min(known.get("restarts", budget.restarts), budget.restarts)
-    return Settings(**{**known, "seed": result.seed})
+    s, budget = result.settings, Settings()
+    return dataclasses.replace(
+        s, population=min(s.population, budget.population),
+        generations=min(s.generations, budget.generations),
+        restarts=min(s.restarts, budget.restarts),
+    )  # fmt: skip
 
 
 def evaluate_twin(
@@ -203,9 +205,10 @@ def check_fitted_on(
 ) -> None:
     """Raise :class:`InputError` unless ``result`` was fitted on ``dataset``.
 
-    Compared: the dataset's name, its rig (camera, capture position, hand-angle convention),
-    its number of landmarks and, when the result carries them, every landmark array. The
-    message names the result's file (``result_path``) and the dataset's.
+    Compared: the dataset's name and, when the result carries its data, the whole dataset
+    (camera, captures, landmarks, touches, tablet); else the rig (camera, capture position,
+    hand-angle convention) and the number of landmarks. The message names the result's file
+    (``result_path``) and the dataset's.
     """
     where = dataset.source or "the dataset"
     path = result_path if result_path is not None else dataset.source
@@ -214,29 +217,37 @@ def check_fitted_on(
         raise InputError(path, "dataset", f"{why}; evaluate a result on the twin it was "
                          "fitted on")  # fmt: skip
 
-    if result.dataset != dataset.name:
-        refuse(f"fitted on dataset {result.dataset!r}, not on {dataset.name!r} ({where})")
-    c = dataset.camera
-    cam = result.rig["camera_px"]
-    mine = [c.fx_px, c.fy_px, c.cx_px, c.cy_px, *dataset.capture_position_mm,
+    name = result.dataset_name
+    if name != dataset.name:
+        refuse(f"fitted on dataset {name!r}, not on {dataset.name!r} ({where})")
+    fitted = result.data
+    if fitted is not None:
+        if fitted.n_landmarks != dataset.n_landmarks:
+            refuse(f"fitted on {fitted.n_landmarks} landmarks of a dataset {name!r}; {where} "
+                   f"has {dataset.n_landmarks}")  # fmt: skip
+        if fitted.mm_per_tablet_px != dataset.mm_per_tablet_px:
+            refuse(f"fitted on a dataset {name!r} with another tablet ppi or scale than {where}")
+        for what in Dataset.FIELDS:
+            if what in ("name", "search", "tablet_ppi", "tablet_scale"):
+                continue
+            ours, theirs = getattr(dataset, what), getattr(fitted, what)
+            same = (np.array_equal(ours, theirs, equal_nan=True)
+                    if isinstance(ours, np.ndarray) else ours == theirs)  # fmt: skip
+            if not same:
+                refuse(f"fitted on a dataset {name!r} whose {what} differs from {where}'s")
+        return
+    c, rig = dataset.camera, result.rig
+    mine = [c.fx_px, c.fy_px, c.cx_px, c.cy_px, *dataset.captures[0].hand_position_mm,
             dataset.hand_angle_zero_deg, dataset.hand_angle_sign]  # fmt: skip
-    theirs = [cam["fx"], cam["fy"], cam["cx"], cam["cy"], *result.rig["capture_hand_position_mm"],
-              result.rig["hand_angle"]["zero_deg"], result.rig["hand_angle"]["sign"]]  # fmt: skip
+    theirs = [rig.fx_px, rig.fy_px, rig.cx_px, rig.cy_px, *np.asarray(rig.capture_position_mm),
+              rig.angle_zero_deg, rig.angle_sign]  # fmt: skip
     if not np.array_equal(np.asarray(mine, float), np.asarray(theirs, float)):
-        refuse(f"fitted on a dataset {result.dataset!r} with another camera, capture position "
-               f"or hand-angle convention than {where}")  # fmt: skip
+        refuse(f"fitted on a dataset {name!r} with another camera, capture position or "
+               f"hand-angle convention than {where}")  # fmt: skip
     n = len(result.stage1.residuals_mm) or dataset.n_landmarks
     if n != dataset.n_landmarks:
-        refuse(f"fitted on {n} landmarks of a dataset {result.dataset!r}; {where} has "
+        refuse(f"fitted on {n} landmarks of a dataset {name!r}; {where} has "
                f"{dataset.n_landmarks}")  # fmt: skip
-    obs = result.observations
-    for name in OBSERVATION_ARRAYS if obs else ():
-        ours, fitted = getattr(dataset, name), np.asarray(obs[name], dtype=float)
-        if fitted.shape != ours.shape or not np.array_equal(fitted, ours):
-            refuse(f"fitted on a dataset {result.dataset!r} whose {name} differs from {where}'s")
-    if obs and obs["mm_per_tablet_px"] != dataset.mm_per_tablet_px:
-        refuse(f"fitted on a dataset {result.dataset!r} with another tablet ppi or scale than "
-               f"{where}")  # fmt: skip
 
 
 def format_evaluation(rows: list[TouchingError]) -> str:

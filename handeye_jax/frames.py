@@ -113,7 +113,7 @@ def load_frames(path: str | Path) -> Frames:
     (a hand-edited file) is an :class:`InputError`: the NumPy predictor reads the section, the
     JAX path the parameters, and they must not give different hand commands.
     """
-    from .result import load_result  # result.py imports this module
+    from ._result_io import load_result  # _result_io imports this module
 
     result = load_result(path)
     frames = result.frames()

@@ -11,7 +11,7 @@ Each figure is saved as PNG and SVG, all put in place together once all are draw
 * ``convergence``: DE's best and median F against generation, for each stage;
 * ``loo``: leave-one-out (held-out) errors against the in-sample ones, for each stage.
 
-The figures need the landmark data: results carry it (``observations``); for a result
+The figures need the landmark data: results carry it (``data``); for a result
 without it, pass the dataset it was fitted on.
 """
 
@@ -31,11 +31,12 @@ from . import _xla
 from ._atomic import check_folder_output, write_folder_atomic
 from ._dataset_io import load_dataset
 from ._objective import chain_points, stage1_errors, stage2_errors
+from ._result import CalibrationResult
+from ._result_io import load_result
 from ._x64 import in_float64
 from .errors import InputError
 from .observations import Observations
 from .optim import CHUNK_GENERATIONS
-from .result import CalibrationResult, load_result, observations_from_dict, observations_to_dict
 
 FIGURES = ("fig3_landmarks", "chains_stage1", "chains_stage2", "residuals", "convergence", "loo")
 FORMATS = ("png", "svg")
@@ -58,14 +59,14 @@ class ChainPlotData:
 
 
 def _observations(result: CalibrationResult) -> Observations:
-    return observations_from_dict(result.observations, result.fitted_rig(), result.centre_index)
+    return result.data.observations()
 
 
 @in_float64
 def chain_data(result: CalibrationResult) -> tuple[ChainPlotData, ChainPlotData]:
     """Both stages' points in the base frame, recomputed from the result and its data."""
     obs = _observations(result)
-    s1, s2 = _chain_arrays(result.fitted_model(), result.fitted_correction(), obs)
+    s1, s2 = _chain_arrays(result.model, result.correction, obs)
     return ChainPlotData(*map(np.asarray, s1)), ChainPlotData(*map(np.asarray, s2))
 
 
@@ -112,15 +113,15 @@ def _label_points(ax, xy, dx=0.0, dy=0.0, **kwargs):
 
 def fig_landmarks(result: CalibrationResult):
     """The paper's Fig. 3: landmarks in the image, hand positions in the base frame."""
-    o = result.observations
-    image = np.asarray(o["image_px"])
-    hand = np.asarray(o["hand_xy_mm"])
+    data = result.data
+    image = np.concatenate([c.image_px for c in data.captures])
+    hand = np.asarray(data.hand_xy_mm)
     fig = _figure(figsize=(11, 4.8))
     ax1, ax2 = fig.subplots(1, 2)
     ax1.plot(image[:, 0], image[:, 1], "o", color="C0", label="landmark m in the image")
     _label_points(ax1, image)
-    cam = result.rig["camera_px"]
-    ax1.plot(cam["cx"], cam["cy"], "+", color="k", ms=12, label="principal point")
+    ax1.plot(data.camera.cx_px, data.camera.cy_px, "+", color="k", ms=12,
+             label="principal point")  # fmt: skip
     ax1.set_xlim(0, max(640.0, image[:, 0].max() + 40))
     ax1.set_ylim(max(480.0, image[:, 1].max() + 40), 0)  # image rows grow downwards
     ax1.set_aspect("equal")
@@ -130,15 +131,15 @@ def fig_landmarks(result: CalibrationResult):
     ax1.legend(loc="lower right", fontsize=9)
     ax2.plot(hand[:, 0], hand[:, 1], "s", color="C1", label="hand position at touch m")
     _label_points(ax2, hand)
-    capture = result.rig["capture_hand_position_mm"]
-    ax2.plot(capture[0], capture[1], "*", color="k", ms=12, label="hand at capture")
+    capture = np.array([c.hand_position_mm for c in data.captures])
+    ax2.plot(capture[:, 0], capture[:, 1], "*", color="k", ms=12, label="hand at capture")
     ax2.set_aspect("equal", adjustable="datalim")
     ax2.set_xlabel("x, base frame (mm)")
     ax2.set_ylabel("y, base frame (mm)")
     ax2.set_title("hand positions in the base frame")
     ax2.legend(loc="best", fontsize=9)
     ax2.grid(alpha=0.3)
-    fig.suptitle(f"{result.dataset}: the data (paper's Fig. 3)")
+    fig.suptitle(f"{result.dataset_name}: the data (paper's Fig. 3)")
     return fig
 
 
@@ -289,7 +290,7 @@ def fig_loo(result: CalibrationResult):
 
 
 def render(result: CalibrationResult) -> dict[str, Any]:
-    """All figures of a result (matplotlib Figures) by name; needs ``result.observations``."""
+    """All figures of a result (matplotlib Figures) by name; needs ``result.data``."""
     s1, s2 = chain_data(result)
     with _drawing():
         return {
@@ -316,7 +317,7 @@ def write_report(
         out_dir: where to write; default ``<result stem>_report`` next to the result. Created
             if its parent exists.
         dataset: the dataset the result was fitted on; needed only if the result does not
-            carry its observations (older results).
+            carry its data (older results).
         field: how errors about ``out_dir`` name it (the command line's ``"--out"``).
 
     Returns:
@@ -331,9 +332,9 @@ def write_report(
         if fitted and ds.n_landmarks != fitted:
             raise InputError(dataset, "landmarks", f"{ds.n_landmarks} landmarks, but the "
                              f"result was fitted on {fitted}")  # fmt: skip
-        result = _with_observations(result, observations_to_dict(ds))
-    if not result.observations:
-        raise InputError(result_path, "observations",
+        result = dataclasses.replace(result, data=ds)
+    if result.data is None:
+        raise InputError(result_path, "data",
                          "missing (a result from an older version): pass --dataset")  # fmt: skip
     out = Path(out_dir) if out_dir is not None else result_path.with_name(
         f"{result_path.stem}_report"
@@ -350,6 +351,3 @@ def write_report(
                 rendered[f"{name}.{ext}"] = buf.getvalue()
     return write_folder_atomic(out, rendered, field)
 
-
-def _with_observations(result: CalibrationResult, obs: dict[str, Any]) -> CalibrationResult:
-    return dataclasses.replace(result, observations=obs)

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from .models import AffinePair, get_model
-from .result import CalibrationResult, StageResult
+from ._result import CalibrationResult, StageResult
+from .models import AffinePair
 
 
 def _unit(u: str) -> str:
@@ -20,7 +20,10 @@ def _value(v: float, std: float | None, unit: str, has_std: bool) -> str:
 def _stage_lines(
     title: str, s: StageResult, names, units, early_stop: bool, std: dict | None = None
 ) -> list[str]:
-    lines = [f"{title}: F = {s.F:.6f} mm  (f1 = {s.f1:.6f} mm, f2 = {s.f2:.6f} mm)"]
+    head = f"{title}: F = {s.F:.6f} mm  (f1 = {s.f1:.6f} mm, f2 = {s.f2:.6f} mm)"
+    if s.prior_F is not None:
+        head += f"; MAP objective F + prior = {s.F + s.prior_F:.6f} mm"
+    lines = [head]
     pol = s.polish
     de = s.de
     lm = "off"
@@ -29,24 +32,41 @@ def _stage_lines(
         lm = f"{verdict}, {pol.get('steps', 0)} steps, F {pol['F_before']:.6f} -> " + (
             f"{pol['F_after']:.6f} mm"
         )
-    if de["converged"]:
-        stop = "stopped: population converged"
-    elif early_stop:
-        stop = "stopped: generation limit reached before the population converged"
+    if "generations" not in de:
+        lines.append("  DE: none (nothing to search: the fit starts from the previous result)")
     else:
-        stop = "all generations run (early stop off)"
-    lines.append(
-        f"  DE: {de['generations']} generations, {de['evaluations']:,} evaluations, "
-        f"F = {de['F']:.6f} mm; {stop}"
-    )
+        if de["converged"]:
+            stop = "stopped: population converged"
+        elif early_stop:
+            stop = "stopped: generation limit reached before the population converged"
+        else:
+            stop = "all generations run (early stop off)"
+        searched = de.get("searched")
+        over = f" over {', '.join(searched)}" if searched and len(searched) < len(names) else ""
+        lines.append(
+            f"  DE{over}: {de['generations']} generations, {de['evaluations']:,} evaluations, "
+            f"F = {de['F']:.6f} mm; {stop}"
+        )
     lines.append(f"  LM polish: {lm}")
     found = found_by_line(pol)
     if found:
         lines.append(found)
     lines.append("  parameters" + (" (± one standard deviation):" if std else ":"))
+    prior_of = {p["param"]: p for p in (s.prior or {}).get("pulls", [])}
     for name, unit in zip(names, units, strict=True):
-        value = _value(s.params[name], (std or {}).get(name), unit, std is not None)
+        status = s.status.get(name, "free")
+        shown = std is not None and status != "fixed"
+        value = _value(s.params[name], (std or {}).get(name), unit, shown)
+        if status == "fixed":
+            value += f"  fixed ({s.fixed_source.get(name, 'given')})"
+        elif status == "prior" and name in prior_of:
+            p = prior_of[name]
+            sig = "" if p["sigma"] is None else f" ± {p['sigma']:.3g}"
+            value += f"  prior {p['mean']:.5g}{sig}, pull {p['pull']:+.1f} sigma"
         lines.append(f"    {name:<9} {value}".rstrip())
+    if s.prior:
+        lines.append(f"  prior: from {s.prior['source']}; data scale s = "
+                     f"{s.prior['data_scale_mm']:.3g} mm")  # fmt: skip
     lines.append("  residuals per landmark, mm:")
     lines.append("    m   |image - tablet|   |hand - target|")
     for r in s.residuals_mm:
@@ -76,15 +96,22 @@ def found_by_line(polish: dict) -> str:
 
 def format_summary(result: CalibrationResult) -> str:
     """A few dozen lines: parameters, f1 / f2 / F per stage, residuals, twin, warnings, time."""
-    model_cls = get_model(result.model)
+    model_cls = type(result.model)
+    settings = result.settings
     lines = [
-        f"handeye-jax calibration of {result.dataset!r}: model {result.model}, "
-        f"seed {result.seed}, population {result.settings['population']}, "
-        f"at most {result.settings['generations']} generations"
-        + ("" if result.settings.get("early_stop", True) else " (no early stop)"),
-        "",
+        f"handeye-jax calibration of {result.dataset_name!r}: model {result.model_name}, "
+        f"seed {settings.seed}, population {settings.population}, "
+        f"at most {settings.generations} generations"
+        + ("" if settings.early_stop else " (no early stop)"),
     ]
-    early_stop = bool(result.settings.get("early_stop", True))
+    recal = result.recalibration
+    if recal:
+        others = ("held at its values" if recal.get("others") == "fixed"
+                  else "given its posterior as their prior")  # fmt: skip
+        lines.append(f"recalibrated from {recal['previous']}: refitted "
+                     f"{', '.join(recal['refit'])}; the other parameters {others}")  # fmt: skip
+    lines.append("")
+    early_stop = settings.early_stop
     diag = result.diagnostics
     lines += _stage_lines(
         "stage 1", result.stage1, model_cls.param_names, model_cls.param_units, early_stop,

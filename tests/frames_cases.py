@@ -18,10 +18,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from handeye_jax import AffinePair, CalibrationResult, Rig, get_model
+from handeye_jax import AffinePair, CalibrationResult, Rig, Settings, StageResult, get_model
 from handeye_jax.frames import compute_frames
 from handeye_jax.predict import hand_command
-from handeye_jax.result import StageResult
 
 ROOT = Path(__file__).resolve().parents[1]
 N_POINTS = 6  # one shape, so the jitted reference compiles once per model and stage
@@ -58,14 +57,15 @@ class Case:
                                de={}, polish={})  # fmt: skip
 
         fx, fy, cx, cy = self.camera
-        rig = {"camera_px": {"fx": fx, "fy": fy, "cx": cx, "cy": cy},
-               "capture_hand_position_mm": list(self.capture_mm),
-               "hand_angle": {"zero_deg": self.zero_deg, "sign": self.sign}}  # fmt: skip
+        with jax.enable_x64(True):
+            rig = Rig(fx, fy, cx, cy, list(self.capture_mm), self.zero_deg, self.sign)
+            model = get_model(self.model).from_dict(self.params)
+            correction = AffinePair.from_dict(self.affine)
         return CalibrationResult(
-            model=self.model, seed=0, settings={}, dataset="drawn", rig=rig,
-            stage1=stage(self.params), stage2=stage(self.affine), centre_index=0,
-            centres_mm=[list(c) for c in self.centres_mm], timings_s={}, sign_twin={},
-            warnings=[],
+            model=model, correction=correction, rig=rig,
+            centres_mm=[list(c) for c in self.centres_mm], centre_index=0,
+            stage1=stage(self.params), stage2=stage(self.affine),
+            settings=Settings(model=self.model, seed=0), dataset_name="drawn",
         )  # fmt: skip
 
 

@@ -27,6 +27,7 @@ from handeye_jax import (
     fitness,
     load_dataset,
     load_result,
+    save_result,
 )
 from handeye_jax.calibrate import RESTART_LANDMARKS, fit_correction
 from handeye_jax.diagnostics import OUTLIER_FACTOR, population_modes
@@ -217,7 +218,7 @@ def test_restarts_are_bounded_in_settings_and_in_result_files(paper_result, tmp_
     with pytest.raises(ValueError, match="restarts"):
         calibrate(load_dataset(PAPER), Settings(restarts=-1))
     p = tmp_path / "r.json"
-    paper_result.save(p)
+    save_result(paper_result, p)
     doc = json.loads(p.read_text())
     assert doc["settings"]["restarts"] == Settings().restarts
     doc["settings"]["restarts"] = 10**6  # an evaluation would refit stage 2 with it
@@ -470,15 +471,15 @@ def test_batched_lm_solves_each_problem_of_a_batch(a, b):
 
 def test_diagnostics_survive_the_result_file_and_old_files_load(paper_result, tmp_path):
     p = tmp_path / "r.json"
-    paper_result.save(p)
+    save_result(paper_result, p)
     r = load_result(p)
     assert r.diagnostics == json.loads(p.read_text())["diagnostics"]
-    assert r.observations["image_px"][4] == [338.0, 244.0]
+    assert r.data.image_px[4].tolist() == [338.0, 244.0] and r.data == paper_result.data
     doc = json.loads(p.read_text())
-    del doc["diagnostics"], doc["observations"]
+    del doc["diagnostics"], doc["data"]
     p.write_text(json.dumps(doc))
     old = load_result(p)
-    assert old.diagnostics == {} and old.observations == {}
+    assert old.diagnostics == {} and old.data is None
     doc["diagnostics"] = [1, 2]
     p.write_text(json.dumps(doc))
     with pytest.raises(Exception, match="diagnostics"):

@@ -22,7 +22,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from handeye_jax import Frames, Predictor
+from handeye_jax import Frames, Predictor, save_result
 from handeye_jax._frames import Affine
 from handeye_jax.cli import main
 from handeye_jax.export import FORMATS, export_text, zero_filled
@@ -205,7 +205,7 @@ def _paper_case() -> Case:
 @pytest.fixture(scope="module")
 def result_file(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("export") / "paper.result.json"
-    _paper_case().result().save(path)
+    save_result(_paper_case().result(), path)
     return path
 
 

@@ -5,7 +5,6 @@ before is byte-identical afterwards, and no temporary or partial file is left be
 """
 
 import importlib
-import shutil
 import struct
 import zlib
 from pathlib import Path

@@ -25,7 +25,7 @@ from frames_cases import (
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from handeye_jax import Frames, InputError, Predictor, get_model, load_result
+from handeye_jax import Frames, InputError, Predictor, get_model, load_result, save_result
 from handeye_jax.cli import main
 from handeye_jax.frames import UNDETERMINED, load_frames
 
@@ -52,7 +52,7 @@ def _fixed_case() -> Case:
 @pytest.fixture(scope="module")
 def result_file(tmp_path_factory, case) -> Path:
     path = tmp_path_factory.mktemp("predictor") / "result.json"
-    case.result().save(path)
+    save_result(case.result(), path)
     return path
 
 
@@ -81,12 +81,12 @@ def test_from_result_file_matches_the_loaded_result(tmp_path_factory, case, pts,
     with the model, rig and correction ``load_result`` rebuilds from the same file (what
     ``CalibrationResult.predict`` evaluates, here jitted)."""
     path = tmp_path_factory.mktemp("r") / "r.json"
-    case.result().save(path)
+    save_result(case.result(), path)
     assert "frames" in json.loads(path.read_text())
     got = Predictor.from_result(path).hand_command(*pts, stage=stage)
     loaded = load_result(path)
-    want = jax_reference_of(loaded.fitted_model(), loaded.fitted_rig(),
-                            loaded.fitted_correction(), loaded.centres_mm, *pts, stage)  # fmt: skip
+    want = jax_reference_of(loaded.model, loaded.rig,
+                            loaded.correction, loaded.centres_mm, *pts, stage)  # fmt: skip
     np.testing.assert_allclose(got, want, rtol=0, atol=TOL_MM)
 
 

@@ -56,13 +56,13 @@ def test_report_writes_next_to_the_result_and_nothing_on_stderr(result_file, tmp
 
 def test_report_of_an_old_result_needs_the_dataset(result_file, tmp_path, capsys):
     doc = json.loads(result_file.read_text())
-    del doc["observations"], doc["diagnostics"]
+    del doc["data"], doc["diagnostics"]
     old = tmp_path / "old.json"
     old.write_text(json.dumps(doc))
     out = tmp_path / "figs"
     assert main(["report", str(old), "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "observations" in err and "--dataset" in err
+    assert len(err.splitlines()) == 1 and "data: missing" in err and "--dataset" in err
     assert not out.exists()
     assert main(["report", str(old), "--out", str(out), "--dataset", str(PAPER)]) == 0
     _check_figures(out)
@@ -74,11 +74,11 @@ def test_bad_inputs_are_one_line_and_keep_what_was_there(result_file, tmp_path, 
     (out / "loo.png").write_bytes(b"precious")
     bad = tmp_path / "bad.json"
     doc = json.loads(result_file.read_text())
-    doc["observations"]["depth_mm"][2] = "deep"
+    doc["data"]["landmarks"][2]["depth"] = "deep"
     bad.write_text(json.dumps(doc))
     assert main(["report", str(bad), "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "observations.depth_mm[2]" in err
+    assert len(err.splitlines()) == 1 and "data.landmarks[2].depth" in err
     assert (out / "loo.png").read_bytes() == b"precious"
     assert sorted(p.name for p in out.iterdir()) == ["loo.png"]
     assert main(["report", str(tmp_path / "missing.json"), "--out", str(out)]) == 2

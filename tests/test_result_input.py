@@ -3,17 +3,17 @@
 import dataclasses
 import json
 
+import jax
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from handeye_jax import load_result
-from handeye_jax.calibrate import Settings
+from handeye_jax import CalibrationResult, Settings, StageResult, load_result, save_result
+from handeye_jax._settings import SETTINGS_SCHEMA
 from handeye_jax.cli import main
 from handeye_jax.errors import InputError
 from handeye_jax.report import FIGURES, FORMATS, fig_convergence
-from handeye_jax.result import _SETTINGS, CalibrationResult, StageResult
 from tests.test_cli import PAPER
 
 TINY = ["--population", "16", "--generations", "10", "--quiet"]
@@ -56,7 +56,7 @@ def _one_line_error(capsys, argv, path, field):
 
 # -- the audit's defects, through the command line ----------------------------------------
 
-R, D, OBS = ("stage1", "residuals_mm"), ("diagnostics", "stage1"), ("observations",)
+R, D, DATA = ("stage1", "residuals_mm"), ("diagnostics", "stage1"), ("data",)
 BAD_FIELDS = [
     # 1. centre_index and warnings
     (("centre_index",), "abc", "centre_index", "must be an integer"),
@@ -109,20 +109,20 @@ BAD_FIELDS = [
     (("settings", "population"), 10**9, "settings.population", "must be 4 to 100000"),
     (("settings", "generations"), 10**9, "settings.generations", "must be 1 to 100000"),
     ((*R,), [{"m": 0}] * 10_001, "stage1.residuals_mm", "10,001 entries; at most 10,000"),
-    ((*OBS, "tablet_px"), [[1.0, 2.0]] * 10_001, "observations.tablet_px", "at most 10,000"),
+    ((*DATA, "landmarks"), [{}] * 10_001, "data.landmarks", "10,001 landmarks; at most 10,000"),
     (("settings", "loss"), "l3", "settings.loss", "unknown loss"),
     (("settings", "seed"), 2**64, "settings.seed", "must be"),
     (("dataset",), 7, "dataset", "must be a string"),
     (("model",), ["htm"], "model", "unknown model"),
-    # 3. observations
-    ((*OBS, "depth_mm", 0), -1.0, "observations.depth_mm[0]", "must be > 0"),
-    ((*OBS, "depth_mm", 5), 0, "observations.depth_mm[5]", "must be > 0"),
-    ((*OBS, "depth_mm", 1), 2e6, "observations.depth_mm[1]", "at most"),
-    ((*OBS, "hand_xy_mm", 2, 1), 1e9, "observations.hand_xy_mm[2][1]", "at most"),
-    ((*OBS, "mm_per_tablet_px"), 1e308, "observations.mm_per_tablet_px", "at most"),
-    ((*OBS, "mm_per_tablet_px"), 0.0, "observations.mm_per_tablet_px", "must be > 0"),
-    ((*OBS, "mm_per_tablet_px"), 2540.0, "observations.mm_per_tablet_px", "at most 3"),
-    ((*OBS, "mm_per_tablet_px"), 1e-3, "observations.mm_per_tablet_px", "at least 0.01 mm"),
+    # 3. the data, read as a dataset file is
+    ((*DATA, "landmarks", 0, "depth"), -1.0, "data.landmarks[0].depth", "must be > 0"),
+    ((*DATA, "landmarks", 5, "depth"), 0, "data.landmarks[5].depth", "must be > 0"),
+    ((*DATA, "landmarks", 1, "depth"), 2e6, "data.landmarks[1].depth", "at most"),
+    ((*DATA, "landmarks", 2, "hand_xy", 1), 1e9, "data.landmarks[2].hand_xy[1]", "at most"),
+    ((*DATA, "tablet", "ppi"), 1e308, "data.tablet.ppi", "at most"),
+    ((*DATA, "tablet", "ppi"), 0.0, "data.tablet.ppi", "must be > 0"),
+    ((*DATA, "tablet", "ppi"), 1.0, "data.tablet", "a screen's pixel is 0.01 to 3 mm"),
+    ((*DATA, "tablet", "ppi"), 1e5, "data.tablet", "a screen's pixel is 0.01 to 3 mm"),
     # 4. stage-2 scales
     (("stage2", "params", "Sx1"), 0.0, "stage2.params.Sx1", "must be > 0"),
     (("stage2", "params", "Sy2"), -1.0, "stage2.params.Sy2", "must be > 0"),
@@ -192,15 +192,58 @@ def test_a_written_result_loads_predicts_and_reports(folder, tmp_path, capsys):
                        de={}, polish={})  # fmt: skip
     for variant in (
         dataclasses.replace(result, stage1=unpolished, diagnostics={}),
-        dataclasses.replace(result, observations={}, diagnostics={}, stage2=bare),
+        dataclasses.replace(result, data=None, diagnostics={}, stage2=bare),
         CalibrationResult(
-            model="htm", seed=1, settings={}, dataset="d", rig=result.rig, stage1=result.stage1,
-            stage2=bare, centre_index=4, centres_mm=[[0.0, 0.0], [0.0, 0.0]], timings_s={},
-            sign_twin={}, warnings=["w"],
+            model=result.model, correction=result.correction, rig=result.rig,
+            centres_mm=[[0.0, 0.0], [0.0, 0.0]], centre_index=4, stage1=result.stage1,
+            stage2=bare, settings=Settings(seed=1), dataset_name="d", warnings=["w"],
         ),
     ):  # fmt: skip
-        variant.save(tmp_path / "v.json")
-        assert load_result(tmp_path / "v.json") == variant
+        save_result(variant, tmp_path / "v.json")
+        again = load_result(tmp_path / "v.json")
+        assert _same(again, variant)
+
+
+def _same(a: CalibrationResult, b: CalibrationResult) -> bool:
+    """Equal results: every field, the models and correction by their parameters."""
+    for f in dataclasses.fields(CalibrationResult):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if f.name in ("model", "correction"):
+            if type(x) is not type(y) or x.to_dict() != y.to_dict():
+                return False
+        elif f.name == "rig":
+            if not all(np.array_equal(np.asarray(u), np.asarray(v)) for u, v in
+                       zip(jax.tree.leaves(x), jax.tree.leaves(y), strict=True)):  # fmt: skip
+                return False
+        elif f.name == "centres_mm":
+            if not np.array_equal(x, y):
+                return False
+        elif f.name != "fits" and x != y:
+            return False
+    return True
+
+
+def test_an_older_result_with_observations_instead_of_data_loads(good_doc, tmp_path, capsys):
+    """Results before the data section recorded the landmark arrays as ``observations``."""
+    doc = json.loads(json.dumps(good_doc))
+    data = doc.pop("data")
+    mm = 25.4 / data["tablet"]["ppi"] * data["tablet"]["scale"]
+    marks = data["landmarks"]
+    doc["observations"] = {
+        "tablet_px": [m["tablet_px"] for m in marks], "image_px": [m["image_px"] for m in marks],
+        "depth_mm": [m["depth"] for m in marks], "hand_xy_mm": [m["hand_xy"] for m in marks],
+        "hand_angle_deg": [m["hand_angle"] for m in marks],
+        "touch_error_px": [m["touch_error_px"] for m in marks], "mm_per_tablet_px": mm,
+    }  # fmt: skip
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps(doc))
+    r = load_result(old)
+    assert r.data.mm_per_tablet_px == pytest.approx(mm, rel=1e-15)
+    assert r.data.image_px.tolist() == doc["observations"]["image_px"]
+    doc["observations"]["depth_mm"][3] = -2.0
+    old.write_text(json.dumps(doc))
+    assert "must be > 0" in _one_line_error(capsys, ["report", str(old)], old,
+                                            "observations.depth_mm[3]")  # fmt: skip
 
 
 def test_first_results_load_and_draw(good_doc, tmp_path):
@@ -219,7 +262,7 @@ def test_first_results_load_and_draw(good_doc, tmp_path):
 
 
 def test_settings_checks_cover_the_settings():
-    assert set(_SETTINGS) == {f.name for f in dataclasses.fields(Settings)}
+    assert set(SETTINGS_SCHEMA) == {f.name for f in dataclasses.fields(Settings)}
 
 
 # -- properties ------------------------------------------------------------------------

@@ -195,7 +195,7 @@ def test_simulate_detect_calibrate_evaluate_end_to_end(loop, capsys):
     assert rows["oracle"][0] < rows["stage 1"][0]
     held = load_heldout(twin / "heldout.csv")
     assert held.image_px.shape == (20, 2)
-    assert load_result(result).dataset.startswith("twin-seed2")
+    assert load_result(result).dataset_name.startswith("twin-seed2")
 
 
 def _one_line(capsys, *needles) -> str:

@@ -750,10 +750,10 @@ def _bind_error(e: OSError, host: str, port: int) -> InputError:
 
 
 def _result_info(path: str | Path) -> dict[str, Any]:
-    from ..result import load_result
+    from .._result_io import load_result
 
     r = load_result(path)
-    return {"path": str(path), "model": r.model, "seed": r.seed, "dataset": r.dataset}
+    return {"path": str(path), "model": r.model_name, "seed": r.seed, "dataset": r.dataset_name}
 
 
 def serve(dataset: str | Path | None = None, **kwargs: Any) -> int:
