@@ -1,79 +1,121 @@
 """handeye-jax: differentiable hand-eye calibration for handmade end-effectors, in JAX.
 
-Data flows one way: :mod:`~handeye_jax.dataset` (file → validated arrays) →
-:mod:`~handeye_jax.models` + :mod:`~handeye_jax.objective` → :mod:`~handeye_jax.optim` →
-:mod:`~handeye_jax.calibrate` (the two stages) → :mod:`~handeye_jax.result` →
-:mod:`~handeye_jax.predict` / :mod:`~handeye_jax.summary`.
+Data flows one way: a dataset file → validated arrays (:class:`Dataset`, :class:`Observations`)
+→ a problem (a model template, its free parameters and an objective, :class:`ParameterSpace`,
+:class:`Stage1Objective`) → solvers (:mod:`handeye_jax.optim`) → a :class:`CalibrationResult`
+→ a report, predictions or an export.
+
+Everything listed in ``__all__`` is the API; modules whose names start with ``_`` are not. The
+names load on first use (PEP 562), so that ``import handeye_jax`` is quick and the NumPy-only
+:class:`Predictor` and :class:`Frames` work on a robot PC without JAX.
 
 Float64: importing this package does not change JAX's global configuration. The public entry
 points (``calibrate``, ``CalibrationResult.predict``, ``load_dataset``…) compute in float64
 whatever your setting; wrap your own calls of the low-level functions in
 ``with handeye_jax.float64():`` (or set ``JAX_ENABLE_X64=1``) to get float64 there too.
-
-On a robot PC without JAX, ``Predictor`` and ``Frames`` (NumPy only) still import and
-compute hand commands from a result file; everything else needs JAX.
 """
 
 from __future__ import annotations
 
 import importlib
-import sys
-import types
+from importlib.metadata import PackageNotFoundError, version
 from typing import TYPE_CHECKING
 
-__version__ = "0.1.0"
+try:
+    __version__ = version("handeye-jax")
+except PackageNotFoundError:  # a source tree that was never installed
+    __version__ = "0+unknown"
 
-# The names below load on first use (PEP 562), so that ``import handeye_jax.cli`` is quick:
-# the command line sets up its Ctrl-C handling before JAX (about a second) is imported.
-_SUBMODULES = ("geometry", "models", "optim")
+_SUBMODULES = ("geometry", "models", "optim", "tablet")
 _EXPORTS = {
     "AbstractBlock": "_objective",
+    "AbstractCorrection": "models",
+    "AbstractLoss": "_losses",
+    "AbstractModel": "models",
     "AbstractObjective": "_objective",
+    "AffinePair": "models",
+    "analyse_jacobian": "_identifiability",
+    "calibrate": "_calibrate",
+    "CalibrationResult": "_result",
+    "Camera": "_dataset",
+    "Capture": "_dataset",
+    "CauchyLoss": "_losses",
+    "chain_points": "_objective",
+    "ChainPoints": "_objective",
+    "compute_frames": "_compute_frames",
+    "convert_to_v2": "_dataset_io",
+    "Dataset": "_dataset",
+    "dataset_to_toml": "_dataset_io",
+    "detect_landmarks": "_detect",
+    "Detection": "_detect",
+    "DetectSettings": "_detect",
+    "DHModel": "models",
+    "diagnose": "_calibrate",
+    "draw_truth": "_twin",
+    "errors_of": "_objective",
+    "evaluate": "_evaluate",
+    "evaluate_twin": "_evaluate",
+    "export_text": "_export",
+    "fill_dataset": "_detect",
+    "fit": "_calibrate",
+    "fit_correction": "_calibrate",
+    "fit_stage": "_calibrate",
+    "fitness": "_objective",
+    "float64": "_x64",
+    "format_evaluation": "_evaluate",
+    "format_summary": "_summary",
+    "Frames": "_frames",
+    "full_plan": "_calibrate",
+    "get_loss": "_losses",
+    "get_model": "models",
+    "hand_command": "_predict",
+    "HTMModel": "models",
+    "HuberLoss": "_losses",
+    "InputError": "_errors",
+    "jacobian_diagnostics": "_identifiability",
+    "L1Loss": "_losses",
     "LengthBlock": "_objective",
+    "load_dataset": "_dataset_io",
+    "load_frames": "_compute_frames",
+    "load_heldout": "_evaluate",
+    "load_result": "_result_io",
+    "load_truth": "_twin",
     "LossObjective": "_objective",
+    "NoisePreset": "_simulate",
+    "Observations": "_observations",
+    "ParameterSpace": "_params",
+    "Plan": "_calibrate",
+    "Predictor": "_predictor",
+    "PRESETS": "_simulate",
+    "Prior": "_params",
     "PriorObjective": "_objective",
+    "put": "_params",
+    "recalibrate": "_calibrate",
+    "recalibration_plan": "_calibrate",
+    "render": "_report",
+    "resolve_names": "_params",
+    "Rig": "_observations",
+    "save_dataset": "_dataset_io",
+    "save_result": "_result_io",
+    "Settings": "_settings",
+    "simulate": "_simulate",
+    "snake_grid_px": "_synthetic",
     "SquaresBlock": "_objective",
     "Stage1Objective": "_objective",
     "Stage2Objective": "_objective",
     "StageErrors": "_objective",
-    "WeightedLengthBlock": "_objective",
-    "chain_points": "_objective",
-    "errors_of": "_objective",
-    "fitness": "_objective",
-    "ParameterSpace": "_params",
-    "Prior": "_params",
-    "put": "_params",
-    "resolve_names": "_params",
-    "Frames": "_frames",
-    "Predictor": "_predictor",
-    "float64": "_x64",
-    "vectorise_small_loops": "_xla",
-    "calibrate": "calibrate",
-    "diagnose": "calibrate",
-    "recalibrate": "calibrate",
-    "Dataset": "_dataset",
-    "load_dataset": "_dataset_io",
-    "save_dataset": "_dataset_io",
-    "InputError": "errors",
-    "AbstractModel": "models",
-    "AffinePair": "models",
-    "DHModel": "models",
-    "HTMModel": "models",
-    "get_model": "models",
-    "Observations": "observations",
-    "Rig": "observations",
-    "hand_command": "predict",
-    "CalibrationResult": "_result",
+    "StageFit": "_calibrate",
     "StageResult": "_result",
-    "load_result": "_result_io",
-    "save_result": "_result_io",
-    "Settings": "_settings",
+    "synthesize_dataset": "_synthetic",
+    "TouchingError": "_evaluate",
+    "Twin": "_simulate",
+    "TwinTruth": "_twin",
     "update_dataset": "_dataset_io",
-    "convert_to_v2": "_dataset_io",
-    "Capture": "_dataset",
+    "vectorise_small_loops": "_xla",
+    "WeightedLengthBlock": "_objective",
+    "write_report": "_report",
+    "write_twin": "_simulate",
 }
-
-
 # What a robot PC may lack; Predictor and Frames need none of it.
 _JAX_STACK = ("jax", "jaxlib", "equinox", "optimistix", "jaxtyping", "lineax", "jaxlie")
 
@@ -101,25 +143,40 @@ def __dir__() -> list[str]:
     return sorted({*globals(), *_SUBMODULES, *_EXPORTS})
 
 
-class _Package(types.ModuleType):
-    # Importing the submodule ``handeye_jax.calibrate`` makes Python set the package's
-    # attribute ``calibrate`` to that module; the package's ``calibrate`` is the function.
-    def __setattr__(self, name: str, value) -> None:
-        if name == "calibrate" and isinstance(value, types.ModuleType):
-            return
-        super().__setattr__(name, value)
-
-
-sys.modules[__name__].__class__ = _Package
-
 if TYPE_CHECKING:
-    from . import geometry, models, optim
-    from ._dataset import Capture, Dataset
-    from ._dataset_io import convert_to_v2, load_dataset, save_dataset, update_dataset
+    from . import geometry, models, optim, tablet
+    from ._calibrate import (
+        Plan,
+        StageFit,
+        calibrate,
+        diagnose,
+        fit,
+        fit_correction,
+        fit_stage,
+        full_plan,
+        recalibrate,
+        recalibration_plan,
+    )
+    from ._compute_frames import compute_frames, load_frames
+    from ._dataset import Camera, Capture, Dataset
+    from ._dataset_io import (
+        convert_to_v2,
+        dataset_to_toml,
+        load_dataset,
+        save_dataset,
+        update_dataset,
+    )
+    from ._detect import Detection, DetectSettings, detect_landmarks, fill_dataset
+    from ._errors import InputError
+    from ._evaluate import TouchingError, evaluate, evaluate_twin, format_evaluation, load_heldout
+    from ._export import export_text
     from ._frames import Frames
+    from ._identifiability import analyse_jacobian, jacobian_diagnostics
+    from ._losses import AbstractLoss, CauchyLoss, HuberLoss, L1Loss, get_loss
     from ._objective import (
         AbstractBlock,
         AbstractObjective,
+        ChainPoints,
         LengthBlock,
         LossObjective,
         PriorObjective,
@@ -132,35 +189,50 @@ if TYPE_CHECKING:
         errors_of,
         fitness,
     )
+    from ._observations import Observations, Rig
     from ._params import ParameterSpace, Prior, put, resolve_names
+    from ._predict import hand_command
     from ._predictor import Predictor
+    from ._report import render, write_report
     from ._result import CalibrationResult, StageResult
     from ._result_io import load_result, save_result
     from ._settings import Settings
+    from ._simulate import PRESETS, NoisePreset, Twin, simulate, write_twin
+    from ._summary import format_summary
+    from ._synthetic import snake_grid_px, synthesize_dataset
+    from ._twin import TwinTruth, draw_truth, load_truth
     from ._x64 import float64
     from ._xla import vectorise_small_loops
-    from .calibrate import calibrate, diagnose, recalibrate
-    from .errors import InputError
-    from .models import AbstractModel, AffinePair, DHModel, HTMModel, get_model
-    from .observations import Observations, Rig
-    from .predict import hand_command
+    from .models import AbstractCorrection, AbstractModel, AffinePair, DHModel, HTMModel, get_model
 
 __all__ = [
     "AbstractBlock",
+    "AbstractCorrection",
+    "AbstractLoss",
     "AbstractModel",
     "AbstractObjective",
     "AffinePair",
     "CalibrationResult",
+    "Camera",
     "Capture",
+    "CauchyLoss",
+    "ChainPoints",
     "DHModel",
     "Dataset",
+    "DetectSettings",
+    "Detection",
     "Frames",
     "HTMModel",
+    "HuberLoss",
     "InputError",
+    "L1Loss",
     "LengthBlock",
     "LossObjective",
+    "NoisePreset",
     "Observations",
+    "PRESETS",
     "ParameterSpace",
+    "Plan",
     "Predictor",
     "Prior",
     "PriorObjective",
@@ -170,27 +242,59 @@ __all__ = [
     "Stage1Objective",
     "Stage2Objective",
     "StageErrors",
+    "StageFit",
     "StageResult",
+    "TouchingError",
+    "Twin",
+    "TwinTruth",
     "WeightedLengthBlock",
+    "analyse_jacobian",
     "calibrate",
     "chain_points",
+    "compute_frames",
     "convert_to_v2",
+    "dataset_to_toml",
+    "detect_landmarks",
     "diagnose",
+    "draw_truth",
     "errors_of",
+    "evaluate",
+    "evaluate_twin",
+    "export_text",
+    "fill_dataset",
+    "fit",
+    "fit_correction",
+    "fit_stage",
     "fitness",
     "float64",
+    "format_evaluation",
+    "format_summary",
+    "full_plan",
     "geometry",
+    "get_loss",
     "get_model",
     "hand_command",
+    "jacobian_diagnostics",
     "load_dataset",
+    "load_frames",
+    "load_heldout",
     "load_result",
+    "load_truth",
     "models",
     "optim",
     "put",
     "recalibrate",
+    "recalibration_plan",
+    "render",
     "resolve_names",
     "save_dataset",
     "save_result",
+    "simulate",
+    "snake_grid_px",
+    "synthesize_dataset",
+    "tablet",
     "update_dataset",
     "vectorise_small_loops",
+    "write_report",
+    "write_twin",
 ]

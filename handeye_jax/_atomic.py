@@ -16,7 +16,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 from . import _interrupt
-from .errors import InputError
+from ._errors import InputError
 
 
 def write_text_atomic(path: str | Path, text: str) -> None:

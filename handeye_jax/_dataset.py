@@ -18,10 +18,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import geometry as geo
+from ._errors import InputError
+from ._observations import Observations, Rig, centre_landmark
 from ._validate import MAX_MEMBER_LANDMARKS
 from ._x64 import in_float64
-from .errors import InputError
-from .observations import Observations, Rig, centre_landmark
 
 
 @dataclass(frozen=True)
@@ -262,9 +262,8 @@ class Dataset:
         if len(self.captures) != 1:
             return False
         c = self.captures[0]
-        return (
-            np.array_equal(c.landmarks, np.arange(n))
-            and np.array_equal(self.touch_landmark, np.arange(n))
+        return np.array_equal(c.landmarks, np.arange(n)) and np.array_equal(
+            self.touch_landmark, np.arange(n)
         )
 
     def _simple(self, what: str) -> Capture:

@@ -65,6 +65,7 @@ import tomlkit.items
 from . import geometry as geo
 from ._atomic import StagedFiles, write_output
 from ._dataset import Camera, Capture, Dataset, check_distinct
+from ._errors import InputError
 from ._io import MAX_DATASET_BYTES, parse_toml, read_text
 from ._validate import (
     MAX_DEG,
@@ -77,7 +78,6 @@ from ._validate import (
     describe,
     join_key,
 )
-from .errors import InputError
 
 FORMAT_V1 = "handeye-jax.dataset/1"
 FORMAT_V2 = "handeye-jax.dataset/2"
@@ -427,11 +427,17 @@ def dataset_to_document(ds: Dataset, version: int | None = None) -> dict[str, An
         if search:
             doc["search"] = search
         doc["landmarks"] = [
-            _write_table(LANDMARK_V1, {
-                "tablet_px": ds.tablet_px[i], "image_px": cap.image_px[i],
-                "depth": cap.depth_mm[i], "hand_xy": ds.hand_xy_mm[i],
-                "hand_angle": ds.hand_angle_deg[i], "touch_error_px": ds.touch_error_px[i],
-            })  # fmt: skip
+            _write_table(
+                LANDMARK_V1,
+                {
+                    "tablet_px": ds.tablet_px[i],
+                    "image_px": cap.image_px[i],
+                    "depth": cap.depth_mm[i],
+                    "hand_xy": ds.hand_xy_mm[i],
+                    "hand_angle": ds.hand_angle_deg[i],
+                    "touch_error_px": ds.touch_error_px[i],
+                },
+            )  # fmt: skip
             for i in range(ds.n_landmarks)
         ]
         return doc
@@ -441,8 +447,9 @@ def dataset_to_document(ds: Dataset, version: int | None = None) -> dict[str, An
     doc["landmarks"] = [_write_table(LANDMARK_V2, {"tablet_px": p}) for p in ds.tablet_px]
     doc["captures"] = [
         {
-            **_write_table(CAPTURE_V2, {"hand_position": c.hand_position_mm,
-                                        "hand_angle": c.hand_angle_deg}),
+            **_write_table(
+                CAPTURE_V2, {"hand_position": c.hand_position_mm, "hand_angle": c.hand_angle_deg}
+            ),
             "landmarks": [int(m) for m in c.landmarks],
             "image_px": [[float(u), float(v)] for u, v in c.image_px],
             "depth": [float(z) for z in c.depth_mm],

@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from ._errors import InputError
 from ._validate import MAX_DEG, MAX_MM, MAX_PX
-from .errors import InputError
 
 FORMAT = "handeye-jax.frames/1"
 UNITS = {"length": "mm", "angle": "deg", "image": "px"}

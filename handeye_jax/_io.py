@@ -6,7 +6,7 @@ FIFO with no writer cannot hang the open), and the opened descriptor is checked 
 or socket is refused, and at most ``cap`` bytes are read. The parsers turn what the standard
 library raises on hostile text (nesting deeper than the recursion limit, integers of more
 than 4,300 digits, CSV fields over 131,072 characters) into an
-:class:`~handeye_jax.errors.InputError` naming the file, like any other bad input.
+:class:`~handeye_jax._errors.InputError` naming the file, like any other bad input.
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ from pathlib import Path
 from typing import Any
 
 from ._atomic import reason
+from ._errors import InputError
 from ._validate import join_key
-from .errors import InputError
 
 MiB = 1 << 20
 #: Largest JSON or CSV input (truth, targets, trials, points, held-out targets), bytes.

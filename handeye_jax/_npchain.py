@@ -1,6 +1,6 @@
 """The hand-command chain in NumPy alone: eqs. (4), (5), (7), (8) and (25).
 
-The same chain as :mod:`handeye_jax.predict`, for a robot PC: no JAX, vectorised over points.
+The same chain as :mod:`handeye_jax._predict`, for a robot PC: no JAX, vectorised over points.
 ``handeye-jax export --format python`` copies this module's functions verbatim into the file it
 writes, so it imports nothing but NumPy.
 

@@ -28,10 +28,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from ._losses import AbstractLoss
+from ._observations import Observations
 from ._params import put
-from .losses import AbstractLoss
 from .models import AbstractCorrection, AbstractModel, AbstractParametric
-from .observations import Observations
 
 # Smoothing of |e| for the least-squares form of a length block, mm. Below it the polish sees a
 # quadratic, so noise-free data still converges quadratically to zero; above it, the sum of

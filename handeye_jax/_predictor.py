@@ -15,9 +15,9 @@ from typing import Any
 import numpy as np
 
 from . import _npchain
+from ._errors import InputError
 from ._frames import FORMAT as FRAMES_FORMAT
 from ._frames import MAX_FILE_BYTES, Frames
-from .errors import InputError
 
 RESULT_FORMAT = "handeye-jax.result/1"
 

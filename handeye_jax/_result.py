@@ -15,18 +15,18 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._compute_frames import compute_frames
 from ._dataset import Dataset
+from ._errors import InputError
 from ._frames import Frames
+from ._identifiability import analyse_jacobian, error_jacobian
 from ._objective import Stage1Objective, Stage2Objective, chain_points
+from ._observations import Rig
 from ._params import FIXED, Prior
+from ._predict import hand_command
 from ._settings import Settings
 from ._x64 import in_float64
-from .errors import InputError
-from .frames import compute_frames
-from .identifiability import analyse_jacobian, error_jacobian
 from .models import AbstractCorrection, AbstractModel
-from .observations import Rig
-from .predict import hand_command
 
 
 @dataclass(frozen=True)
@@ -166,8 +166,10 @@ class CalibrationResult:
         free = s.free()
         diag = self.diagnostics.get(stage, {}) if self.diagnostics else {}
         P = diag.get("precision")
-        if P is None or np.shape(P) != (len(free), len(free)) or diag.get("free", free) != list(
-            free
+        if (
+            P is None
+            or np.shape(P) != (len(free), len(free))
+            or diag.get("free", free) != list(free)
         ):
             P = self._posterior_precision(stage, free)
         return Prior(free, [s.params[n] for n in free], np.asarray(P, dtype=float),

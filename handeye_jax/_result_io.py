@@ -29,6 +29,7 @@ from ._atomic import write_output
 from ._dataset import Camera, Dataset
 from ._dataset_io import dataset_from_document, dataset_to_document
 from ._io import MAX_RESULT_BYTES, load_json
+from ._observations import Rig
 from ._params import FIXED, FREE, PRIOR
 from ._result import CalibrationResult, StageResult
 from ._settings import SEED_RANGE, read_settings
@@ -44,7 +45,6 @@ from ._validate import (
 )
 from ._x64 import in_float64
 from .models import AffinePair, get_model, model_registry
-from .observations import Rig
 
 FORMAT = "handeye-jax.result/1"
 #: Stage-2 parameters that are scale factors (> 0: zero collapses the plane, < 0 mirrors it).

@@ -6,8 +6,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, fields
 from typing import Any
 
+from ._losses import LOSS_NAMES
 from ._validate import MAX_GENERATIONS, MAX_POPULATION, MAX_RESTARTS, Reader, describe
-from .losses import LOSS_NAMES
 from .optim import DifferentialEvolution
 
 
@@ -31,7 +31,7 @@ class Settings:
             is not the lowest (6 of 50 ``paper`` twins with these DE settings,
             ``benchmarks/miss_rate.py``).
         loss: ``"l1"`` (the paper's mean error length), ``"huber"`` or ``"cauchy"``
-            (:mod:`handeye_jax.losses`); a robust loss limits the pull of outlier landmarks.
+            (:mod:`handeye_jax._losses`); a robust loss limits the pull of outlier landmarks.
         loss_scale_mm: the robust loss's scale, mm; landmarks with an error above
             ``OUTLIER_FACTOR`` (3) times it are flagged as outliers, whatever the loss.
 

@@ -7,7 +7,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from .errors import InputError
+from ._errors import InputError
 
 
 def describe(x: Any) -> str:

@@ -18,8 +18,8 @@ from pathlib import Path
 
 from . import _interrupt
 from ._atomic import check_output, write_output
+from ._errors import InputError
 from ._validate import MAX_GENERATIONS, MAX_POPULATION, MAX_RESTARTS, parse_float, parse_int
-from .errors import InputError
 
 PROG = "handeye-jax"
 
@@ -53,9 +53,7 @@ def _version() -> str:
     try:
         return version("handeye-jax")
     except PackageNotFoundError:  # run from a source tree that was never installed
-        from . import __version__
-
-        return __version__
+        return "0+unknown"
 
 
 def _whole_number(text: str) -> int:
@@ -121,10 +119,10 @@ def _output_path(
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from ._calibrate import Settings, calibrate, diagnose, recalibrate
     from ._dataset_io import load_dataset
     from ._result_io import load_result, result_to_json
-    from .calibrate import Settings, calibrate, diagnose, recalibrate
-    from .summary import format_summary
+    from ._summary import format_summary
 
     out = _output_path(args.out, "--out", [args.dataset, args.prior])
     if (args.refit or args.fix) and not args.prior:
@@ -170,9 +168,9 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_predict(args: argparse.Namespace) -> int:
+    from ._compute_frames import load_frames
+    from ._predict import points_csv_text, read_points_csv
     from ._predictor import Predictor
-    from .frames import load_frames
-    from .predict import points_csv_text, read_points_csv
 
     out = _output_path(args.out, "--out", [args.result, args.points])
     predictor = Predictor.from_frames(load_frames(args.result))  # NumPy from here on
@@ -226,7 +224,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
     mpl_log = logging.getLogger("matplotlib")
     if not mpl_log.handlers:
         mpl_log.addHandler(logging.NullHandler())
-    from .report import write_report
+    from ._report import write_report
 
     written = write_report(args.result, args.out, args.dataset, field="--out")
     folder = written[0].parent if written else args.out
@@ -235,9 +233,9 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .calibrate import Settings
-    from .cli_export import add_export_command
-    from .cli_twin import add_twin_commands
+    from ._calibrate import Settings
+    from ._cli_export import add_export_command
+    from ._cli_twin import add_twin_commands
     from .models import model_registry
 
     d = Settings()

@@ -19,6 +19,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from handeye_jax import _atomic as atomic_mod
+from handeye_jax._calibrate import check_determined
 from handeye_jax._dataset import Camera, Dataset
 from handeye_jax._dataset_io import (
     FORMAT_V1,
@@ -28,9 +29,8 @@ from handeye_jax._dataset_io import (
     save_dataset,
     update_dataset,
 )
+from handeye_jax._errors import InputError
 from handeye_jax._params import ParameterSpace
-from handeye_jax.calibrate import check_determined
-from handeye_jax.errors import InputError
 from handeye_jax.models import AffinePair, model_registry
 
 PAPER = Path(__file__).resolve().parent.parent / "data" / "paper2023.toml"

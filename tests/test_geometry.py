@@ -7,9 +7,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from handeye_jax import geometry as geo
+from handeye_jax._observations import Rig
 from handeye_jax.models import AffinePair, model_registry
-from handeye_jax.models.affine import affine_about
-from handeye_jax.observations import Rig
+from handeye_jax.models._affine import affine_about
 
 angles = st.floats(-360.0, 360.0, allow_nan=False)
 FAST = settings(max_examples=40, deadline=None)

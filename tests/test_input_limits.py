@@ -13,19 +13,19 @@ import numpy as np
 import pytest
 
 from handeye_jax import load_dataset, load_result
+from handeye_jax._detect import read_image
+from handeye_jax._errors import InputError
+from handeye_jax._evaluate import load_heldout
 from handeye_jax._io import (
     MAX_DATASET_BYTES,
     MAX_IMAGE_BYTES,
     MAX_RESULT_BYTES,
     MAX_TEXT_BYTES,
 )
+from handeye_jax._predict import read_points_csv
+from handeye_jax._twin import load_truth
 from handeye_jax.cli import main
-from handeye_jax.detect import read_image
-from handeye_jax.errors import InputError
-from handeye_jax.evaluate import load_heldout
-from handeye_jax.predict import read_points_csv
 from handeye_jax.tablet import load_targets, load_trials
-from handeye_jax.twin import load_truth
 
 PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
 

@@ -26,8 +26,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from handeye_jax import Frames, InputError, Predictor, get_model, load_result, save_result
+from handeye_jax._compute_frames import UNDETERMINED, load_frames
 from handeye_jax.cli import main
-from handeye_jax.frames import UNDETERMINED, load_frames
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = settings(max_examples=25, deadline=None)

@@ -4,8 +4,8 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from handeye_jax._progress import progress_bar
 from handeye_jax.optim import differential_evolution
-from handeye_jax.progress import progress_bar
 
 
 class Sphere(eqx.Module):

@@ -24,13 +24,14 @@ import urllib.error
 import urllib.request
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 from test_dataset import commented_paper_text, comments_of
 
 from handeye_jax import load_dataset
+from handeye_jax._errors import InputError
 from handeye_jax.cli import main
-from handeye_jax.errors import InputError
 from handeye_jax.tablet import (
     MAX_BODY_BYTES,
     MAX_TOUCHES,
@@ -41,8 +42,8 @@ from handeye_jax.tablet import (
     serve,
     versioned_backup_path,
 )
-from handeye_jax.tablet import server as server_mod
-from handeye_jax.tablet.trials import format_summary, new_trials
+from handeye_jax.tablet import _server as server_mod
+from handeye_jax.tablet._trials import format_summary, new_trials
 
 PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
 REPO = Path(__file__).resolve().parents[1]
@@ -449,8 +450,8 @@ def test_the_trials_summary_gives_max_in_px_and_mm():
 
 @pytest.mark.parametrize("key", ["tablet", "trials"])
 def test_a_trials_file_without_a_table_names_it_missing(tmp_path, key):
-    from handeye_jax.errors import InputError
-    from handeye_jax.tablet.trials import load_trials, new_trials
+    from handeye_jax._errors import InputError
+    from handeye_jax.tablet._trials import load_trials, new_trials
 
     doc = new_trials(267.0, 2.0)
     del doc[key]
@@ -545,7 +546,14 @@ def paper_result(path, dataset_name="paper2023"):
     """A result file holding the paper's printed seed-1 HTM values (Tables 7 and 10)."""
     from test_paper import TABLE7
 
-    from handeye_jax.result import CalibrationResult, StageResult, rig_to_dict
+    from handeye_jax import (
+        AffinePair,
+        CalibrationResult,
+        HTMModel,
+        Settings,
+        StageResult,
+        save_result,
+    )
 
     table10 = dict(X1=-0.10, Y1=0.0, theta1=0.03, Sx1=1.00, Sy1=1.02,
                    X2=0.06, Y2=-0.11, theta2=0.0, Sx2=1.02, Sy2=0.99)  # fmt: skip
@@ -553,13 +561,14 @@ def paper_result(path, dataset_name="paper2023"):
     def stage(F, f1, f2, params):
         return StageResult(F=F, f1=f1, f2=f2, params=params, residuals_mm=[], de={}, polish={})
 
-    CalibrationResult(
-        model="htm", seed=1, settings={}, dataset=dataset_name,
-        rig=rig_to_dict(load_dataset(PAPER).rig()),
-        stage1=stage(1.68, 0.64, 1.04, TABLE7), stage2=stage(1.00, 0.19, 0.82, table10),
-        centre_index=4, centres_mm=[[0.0, 0.0], [0.0, 0.0]], timings_s={}, sign_twin={},
-        warnings=[],
-    ).save(path)  # fmt: skip
+    with jax.enable_x64(True):
+        result = CalibrationResult(
+            model=HTMModel.from_dict(TABLE7), correction=AffinePair.from_dict(table10),
+            rig=load_dataset(PAPER).rig(), centres_mm=[[0.0, 0.0], [0.0, 0.0]], centre_index=4,
+            stage1=stage(1.68, 0.64, 1.04, TABLE7), stage2=stage(1.00, 0.19, 0.82, table10),
+            settings=Settings(seed=1), dataset_name=dataset_name,
+        )  # fmt: skip
+    save_result(result, path)
     return path
 
 
@@ -776,7 +785,7 @@ def test_runs_and_grids_are_bounded(served, tmp_path):
 
 
 def test_an_oversized_trials_file_is_refused_before_serving(tmp_path):
-    from handeye_jax.tablet import trials as trials_mod
+    from handeye_jax.tablet import _trials as trials_mod
 
     path = tmp_path / "t.json"
     path.write_text(" " * (trials_mod.MAX_FILE_BYTES + 1))

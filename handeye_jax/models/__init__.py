@@ -1,19 +1,13 @@
-"""Pluggable models. A new model is one new file in this folder defining a final
-:class:`AbstractModel` subclass with a unique ``name``; it is found here automatically."""
+"""Pluggable models. A new model is a final :class:`AbstractModel` subclass with a unique
+``name``, its parameters' units, ranges and groups: defined anywhere (a private module here,
+or the user's own code), it is found by :func:`model_registry` once its class exists."""
 
 from __future__ import annotations
 
-import importlib
-import pkgutil
-
+from ._affine import AffinePair
 from ._base import AbstractCorrection, AbstractModel, AbstractParametric
-from .affine import AffinePair
-from .dh import DHModel
-from .htm import HTMModel
-
-for _info in pkgutil.iter_modules(__path__):
-    if not _info.name.startswith("_"):
-        importlib.import_module(f"{__name__}.{_info.name}")
+from ._dh import DHModel
+from ._htm import HTMModel
 
 
 def _final_subclasses(cls: type) -> list[type]:

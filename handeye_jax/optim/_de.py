@@ -38,8 +38,8 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray, UInt
 
 from .. import _xla
+from .._progress import progress_bar
 from .._x64 import in_float64
-from ..progress import progress_bar
 from . import _rng
 from ._solvers import AbstractSolver, DESolution
 
@@ -134,9 +134,8 @@ def _select(fn: Callable, state: DEState, trial: Float[Array, "n d"]) -> DEState
     """Evaluate the trials and keep each one that is no worse than its target."""
     # The objective is mapped over the trials as columns of a (d, n) array: the same numbers
     # (populations bit-identical), but XLA then runs the objective's first loops, which pick
-    # parameters out of every trial, on both cores. A generation at N = 10,000 took 5-25 %
-    # less time with the paper's HTM stage 1 and the same (within 3 %) with DH (interleaved
-    # A/B, benchmarks/de_throughput.py's harness, 2026-12-02).
+    # parameters out of every trial, on both cores (measured: benchmarks/RESULTS.md, "DE
+    # throughput").
     f_trial = _safe(jax.vmap(fn, in_axes=1)(trial.T))
     better = f_trial <= state.fitness
     return DEState(

@@ -6,9 +6,9 @@ Ctrl-C. Only whoever has the secret the server prints (in its URL and QR code) c
 """
 
 from .._dataset_io import backup_path as versioned_backup_path
-from .calibration import apply_touch_errors
-from .guard import new_token
-from .posts import (
+from ._calibration import apply_touch_errors
+from ._guard import new_token
+from ._posts import (
     MAX_BODY_BYTES,
     MAX_TOUCHES,
     MAX_TRIALS,
@@ -16,9 +16,9 @@ from .posts import (
     parse_calibration,
     parse_evaluation,
 )
-from .server import DEFAULT_HOST, DEFAULT_PORT, TabletApp, TabletServer, make_server, serve
-from .targets import grid_targets, load_targets
-from .trials import format_summary, load_trials, summarise
+from ._server import DEFAULT_HOST, DEFAULT_PORT, TabletApp, TabletServer, make_server, serve
+from ._targets import grid_targets, load_targets
+from ._trials import format_summary, load_trials, summarise
 
 __all__ = [
     "DEFAULT_HOST",

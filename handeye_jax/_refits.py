@@ -41,6 +41,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from . import _xla
+from ._losses import AbstractLoss
 from ._objective import (
     AbstractObjective,
     LossObjective,
@@ -54,7 +55,6 @@ from ._objective import (
     norms,
     spread_landmarks,
 )
-from .losses import AbstractLoss
 from .optim import Bounds, LevenbergMarquardt, minimise_batch
 
 #: Up to this many landmarks, leave-one-out refits every stage without each landmark (O(n²));
@@ -86,7 +86,7 @@ class Refits:
         declared_params, declared_F: every multi-start refit under the declared convention
             (the last one started from the fit) and its F1st: the local optima of stage 1.
         errors1, jacobian1, errors2, jacobian2: each stage's stacked error vectors at the
-            full fit and their Jacobian (see :mod:`handeye_jax.identifiability`).
+            full fit and their Jacobian (see :mod:`handeye_jax._identifiability`).
         loo_method: how leave-one-out was computed, in words.
         refit_landmarks: how many landmarks the convention refits searched on.
     """

@@ -24,6 +24,8 @@ from jaxtyping import Float
 from . import geometry as geo
 from ._dataset_io import check_tablet_px
 from ._io import load_json
+from ._observations import Rig
+from ._synthetic import snake_grid_px, tablet_to_camera
 from ._validate import (
     MAX_DEG,
     MAX_IMAGE_PIXELS,
@@ -35,8 +37,6 @@ from ._validate import (
 )
 from ._x64 import in_float64
 from .models import HTMModel
-from .observations import Rig
-from .synthetic import snake_grid_px, tablet_to_camera
 
 FORMAT = "handeye-jax.twin-truth/1"
 

@@ -14,12 +14,12 @@ import jax
 import numpy as np
 from jaxtyping import ArrayLike, Float
 
+from ._errors import InputError
 from ._frames import TRANSLATIONS, Affine, Frames
+from ._observations import Rig
 from ._predictor import read_json
 from ._x64 import in_float64
-from .errors import InputError
 from .models import AbstractCorrection, AbstractModel
-from .observations import Rig
 
 #: The components no model determines: the hand points down at the capture and at every touch
 #: and the objective compares x and y only (section 3.5), so a z never enters it. The models

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from .._io import load_json
+from .._synthetic import snake_grid_px
 from .._validate import Reader, describe
-from ..synthetic import snake_grid_px
-from .posts import MAX_SCREEN_PX, MAX_TOUCHES
+from ._posts import MAX_SCREEN_PX, MAX_TOUCHES
 
 TARGETS_FORMAT = "handeye-jax.targets/1"
 MAX_GRID_SIDE = 30

@@ -30,12 +30,12 @@ import numpy as np
 from . import _xla
 from ._atomic import check_folder_output, write_folder_atomic
 from ._dataset_io import load_dataset
+from ._errors import InputError
 from ._objective import chain_points, stage1_errors, stage2_errors
+from ._observations import Observations
 from ._result import CalibrationResult
 from ._result_io import load_result
 from ._x64 import in_float64
-from .errors import InputError
-from .observations import Observations
 from .optim import CHUNK_GENERATIONS
 
 FIGURES = ("fig3_landmarks", "chains_stage1", "chains_stage2", "residuals", "convergence", "loo")
@@ -350,4 +350,3 @@ def write_report(
                 fig.savefig(buf, format=ext, dpi=DPI)
                 rendered[f"{name}.{ext}"] = buf.getvalue()
     return write_folder_atomic(out, rendered, field)
-

@@ -28,7 +28,7 @@ from .._atomic import write_output
 from .._io import load_json
 from .._validate import Reader, describe
 from ..geometry import mm_per_tablet_px
-from .posts import EvaluationPost
+from ._posts import EvaluationPost
 
 FORMAT = "handeye-jax.trials/1"
 # A trials file the server may read: posts keep it under ~3.3 MB (100 trials of 100 touches).

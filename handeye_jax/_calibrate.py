@@ -26,6 +26,10 @@ import numpy as np
 
 from . import _xla
 from ._dataset import Dataset, check_distinct, check_population
+from ._diagnostics import MAX_MODES, bound_hits, mode_leaders
+from ._errors import InputError
+from ._identifiability import analyse_jacobian, error_jacobian
+from ._losses import L1Loss, get_loss
 from ._objective import (
     AbstractObjective,
     LossObjective,
@@ -39,17 +43,14 @@ from ._objective import (
     spread_landmarks,
     stage2_errors,
 )
+from ._observations import Observations
 from ._params import FIXED, ParameterSpace, Prior, put, resolve_names
+from ._refits import REFIT_LANDMARKS
 from ._result import CalibrationResult, StageResult
 from ._settings import Settings
 from ._validate import MAX_RESTARTS
 from ._x64 import in_float64
-from .diagnostics import MAX_MODES, bound_hits, mode_leaders
-from .errors import InputError
-from .identifiability import analyse_jacobian, error_jacobian
-from .losses import L1Loss, get_loss
 from .models import AbstractCorrection, AbstractModel, AbstractParametric, AffinePair, get_model
-from .observations import Observations
 from .optim import (
     Bounds,
     LevenbergMarquardt,
@@ -57,7 +58,6 @@ from .optim import (
     minimise,
     minimise_starts,
 )
-from .refits import REFIT_LANDMARKS
 
 #: The polish of one stage's optimum: optimistix's LM to tight tolerances.
 POLISH = LevenbergMarquardt(rtol=1e-12, atol=1e-12, max_steps=1000)
@@ -860,7 +860,7 @@ def diagnose(
             record them; default: none).
         progress: show progress bars (of a stage-2 refit) on stderr.
     """
-    from .diagnostics import diagnostics_of
+    from ._diagnostics import diagnostics_of
 
     t0 = time.perf_counter()
     settings = result.settings

@@ -58,11 +58,13 @@ import numpy as np
 
 from .._atomic import check_output, reason
 from .._dataset_io import load_dataset
-from ..errors import InputError
+from .._errors import InputError
 from ..geometry import mm_per_tablet_px
-from . import guard, posts, trials
-from .calibration import apply_touch_errors
-from .targets import grid_targets, load_targets
+from . import _guard as guard
+from . import _posts as posts
+from . import _trials as trials
+from ._calibration import apply_touch_errors
+from ._targets import grid_targets, load_targets
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765

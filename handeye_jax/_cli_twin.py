@@ -1,7 +1,7 @@
 """``handeye-jax simulate``, ``detect`` and ``evaluate``: thin commands over the twin's API.
 
 :func:`add_twin_commands` adds them to the command line (:mod:`handeye_jax.cli`); the work is
-in :mod:`~handeye_jax.simulate`, :mod:`~handeye_jax.detect` and :mod:`~handeye_jax.evaluate`.
+in :mod:`~handeye_jax._simulate`, :mod:`~handeye_jax._detect` and :mod:`~handeye_jax._evaluate`.
 """
 
 from __future__ import annotations
@@ -14,11 +14,11 @@ from jaxtyping import Float
 
 from ._atomic import StagedFiles, check_folder_output, check_output, same_file, write_output
 from ._dataset_io import backup_path, save_dataset, update_dataset
+from ._detect import DetectSettings, overlay_image, read_image
+from ._errors import InputError
+from ._simulate import DERIVED_FILES, DERIVED_FOLDER, SEED_RANGE, encode_png
+from ._twin import MAX_DOT_PX
 from ._validate import MAX_HELDOUT, parse_float, parse_int
-from .detect import DetectSettings, overlay_image, read_image
-from .errors import InputError
-from .simulate import DERIVED_FILES, DERIVED_FOLDER, SEED_RANGE, encode_png
-from .twin import MAX_DOT_PX
 
 
 def _whole_number(text: str, lo: int, hi: int | None = None) -> int:
@@ -91,8 +91,8 @@ def write_overlay(
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from .simulate import PRESETS, TWIN_FILES, check_twin_folder, simulate, write_twin
-    from .twin import draw_truth, load_truth
+    from ._simulate import PRESETS, TWIN_FILES, check_twin_folder, simulate, write_twin
+    from ._twin import draw_truth, load_truth
 
     out = Path(args.out_dir)
     check_folder_output(out, TWIN_FILES, "", [args.truth])
@@ -117,7 +117,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 def _cmd_detect(args: argparse.Namespace) -> int:
     from ._dataset_io import load_dataset
-    from .detect import BlobCountError, detect_landmarks, fill_dataset
+    from ._detect import BlobCountError, detect_landmarks, fill_dataset
 
     images = [args.capture, args.depth]
     out = _output(args.out, "--out", images)
@@ -166,7 +166,7 @@ def _cmd_detect(args: argparse.Namespace) -> int:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
-    from .evaluate import evaluate_twin, format_evaluation
+    from ._evaluate import evaluate_twin, format_evaluation
 
     print(format_evaluation(evaluate_twin(args.result, args.twin_dir)))
     return 0

@@ -14,9 +14,9 @@ from jaxtyping import Array, ArrayLike, Float
 
 from . import geometry as geo
 from ._dataset import Camera, Dataset
+from ._observations import Rig
 from ._x64 import in_float64
 from .models import AbstractModel
-from .observations import Rig
 
 
 @in_float64

@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import export  # constants only: the formats import their libraries on use
+from . import _export as export  # constants only: the formats import their libraries on use
 from ._atomic import check_output, write_output
-from .frames import load_frames
+from ._compute_frames import load_frames
 
 PROG = "handeye-jax"
 

@@ -19,17 +19,17 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Float
 
+from ._calibrate import Settings, fit_correction
 from ._dataset import Dataset
 from ._dataset_io import load_dataset
+from ._errors import InputError
+from ._predict import csv_number, hand_command, read_points_csv
 from ._result import CalibrationResult
 from ._result_io import load_result
+from ._twin import TwinTruth, load_truth
 from ._validate import MAX_PX
 from ._x64 import in_float64
-from .calibrate import Settings, fit_correction
-from .errors import InputError
 from .models import AbstractModel
-from .predict import csv_number, hand_command, read_points_csv
-from .twin import TwinTruth, load_truth
 
 
 @dataclass(frozen=True)

@@ -13,13 +13,13 @@ from typing import Any
 
 import numpy as np
 
+from ._identifiability import analyse_jacobian
+from ._losses import AbstractLoss
 from ._objective import AbstractObjective
 from ._params import ParameterSpace
-from .identifiability import analyse_jacobian
-from .losses import AbstractLoss
+from ._refits import CONVENTIONS, refits
 from .models import AbstractParametric
 from .optim import Bounds
-from .refits import CONVENTIONS, refits
 
 # A parameter closer than this fraction of its range to a bound is reported as on the bound.
 BOUND_FRACTION = 1e-3
@@ -143,7 +143,7 @@ def population_modes(
         sign_twin: parameters whose joint sign flip is a known symmetry (named when found).
         flat_steps: directions along which the data barely or never change F (``{name:
             step}``, the weak directions of
-            :func:`~handeye_jax.identifiability.analyse_jacobian`); members that differ only
+            :func:`~handeye_jax._identifiability.analyse_jacobian`); members that differ only
             along them lie in one valley and are one optimum (e.g. the DH model's θc1 − γc,
             or the camera's xc–βc trade-off).
         reference: the reported fit, to which each optimum is compared (by default the

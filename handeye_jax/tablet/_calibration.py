@@ -8,7 +8,7 @@ import numpy as np
 
 from .._dataset import Dataset
 from .._dataset_io import backup_path, update_dataset
-from .posts import CalibrationPost, PostError
+from ._posts import CalibrationPost, PostError
 
 
 def apply_touch_errors(path: str | Path, post: CalibrationPost) -> Path | None:

@@ -38,9 +38,9 @@ import numpy as np
 from jaxtyping import Float, Int, UInt8, UInt16
 
 from ._dataset import Dataset
+from ._errors import InputError
 from ._io import MAX_IMAGE_BYTES, read_bytes
 from ._validate import MAX_IMAGE_PIXELS
-from .errors import InputError
 
 
 @dataclass(frozen=True)

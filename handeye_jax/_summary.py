@@ -167,7 +167,7 @@ def _modes_line(label: str, modes: list[dict], units: dict[str, str]) -> list[st
                 f"{n} {d:+.3g}{_unit(units.get(n, '1'))}" for n, d in m["differs_from_fit"].items()
             )
             what = f"differs from the fit by {diff}" if diff else "the fit (within 1 % of range)"
-        else:  # results written before 2026-12 compared with the population's best member
+        else:  # older results compared with the population's best member
             diff = ", ".join(f"{n} {d:+.3g}" for n, d in m["differs_from_best"].items())
             what = f"differs from the best by {diff}" if diff else "the best"
         twin = " (the sign twin)" if m.get("sign_twin") else ""

@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._errors import InputError
 from ._io import MAX_TEXT_BYTES, csv_rows, read_text
+from ._observations import Rig
 from ._validate import MAX_DEG, MAX_MM, MAX_POINTS, MAX_PX, parse_float
-from .errors import InputError
 from .models import AbstractCorrection, AbstractModel
-from .observations import Rig
 
 POINTS_HEADER = ("u", "v", "depth", "hand_angle")
 OUTPUT_COLUMNS = ("hand_x", "hand_y")
