@@ -60,6 +60,7 @@ from handeye_jax import (
     change_truth,
     draw_truth,
     evaluate,
+    float64,
     put,
     recalibrate,
     simulate,
@@ -174,7 +175,9 @@ def bound_rows(old, old_ds, truth, twin, part, k, s) -> dict:
     for squares in (False, True):
         r, t_joint = timed(joint_fit, old, old_ds, ds, part, start, squares)
         rows[f"joint {'squares' if squares else 'L1'}, {k}"] = measure(r, twin, t + t_joint)
-    true = replace(old, stage1=replace(old.stage1, params=dict(truth.model)), diagnostics=None)
+    params = dict(truth.model)
+    true = replace(old, model=HTMModel.from_dict(params),
+                   stage1=replace(old.stage1, params=params), diagnostics={})  # fmt: skip
     r, t = timed(recalibrate, ds, true, (part,), s, fix=True)
     rows[f"true others, {k}"] = measure(r, twin, t)
     for row in rows.values():  # stage 1 alone: their stage 2 is another fit's
@@ -337,8 +340,9 @@ def main(argv=None) -> str:
         args.seeds, args.parts, args.ks = [1], ["pen"], [4]
         settings = Settings(population=100, generations=300, restarts=8)
     t0 = time.perf_counter()
-    runs = [run_seed(s, args.parts, args.ks, settings, not args.no_wrong, args.bounds)
-            for s in args.seeds]  # fmt: skip
+    with float64():  # the helpers here build models and objectives of their own
+        runs = [run_seed(s, args.parts, args.ks, settings, not args.no_wrong, args.bounds)
+                for s in args.seeds]  # fmt: skip
     command = "python benchmarks/recalibration.py" + (" --quick" if args.quick else "")
     if not args.quick:
         command += f" --seeds {' '.join(map(str, args.seeds))} --parts {' '.join(args.parts)}"
