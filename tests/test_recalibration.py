@@ -14,7 +14,11 @@ from hypothesis import strategies as st
 from test_objective import RIG, YawOnlyModel
 
 from handeye_jax import (
+    PRESETS,
+    GaussianObjective,
     HTMModel,
+    L1Loss,
+    LossObjective,
     ParameterSpace,
     Plan,
     Prior,
@@ -25,6 +29,7 @@ from handeye_jax import (
     chain_points,
     change_truth,
     draw_truth,
+    errors_of,
     evaluate,
     fit,
     fitness,
@@ -33,9 +38,9 @@ from handeye_jax import (
     load_heldout,
     load_result,
     load_truth,
-    put,
     recalibrate,
     save_dataset,
+    simulate,
     snake_grid_px,
     synthesize_dataset,
 )
@@ -238,32 +243,27 @@ def test_a_fit_with_no_residuals_to_spare_warns(rig):
 # -- priors right and wrong ------------------------------------------------------------------
 
 
-def shifted(result, name: str, sigmas: float):
-    """``result`` with stage 1's ``name`` moved by ``sigmas`` of its prior sigma, its
-    posteriors kept (given as the diagnostics' precisions)."""
-    p1, p2 = result.posterior("stage1"), result.posterior("stage2")
-    sigma = float(p1.sigma[p1.names.index(name)])
-    params = {**result.stage1.params, name: result.stage1.params[name] + sigmas * sigma}
-    diagnostics = {stage: {"precision": p.precision.tolist()}
-                   for stage, p in (("stage1", p1), ("stage2", p2))}  # fmt: skip
-    return replace(result, model=put(result.model, (name,), jnp.array([params[name]])),
-                   stage1=replace(result.stage1, params=params), diagnostics=diagnostics,
-                   fits=None)  # fmt: skip
-
-
 def test_a_prior_wrong_by_five_sigma_is_flagged_naming_the_parameter(rig):
+    """The pen changed and, unannounced, the tablet moved 5 prior sigmas along x: a
+    recalibration of the pen names xt in a warning with how many sigma the data pull it; the
+    right prior (the tablet did not move) does not."""
     old = load_result(rig / "old.json")
-    new = load_dataset(rig / "new" / "dataset.toml")
+    post = old.posterior("stage1")
+    prior = post.marginal([n for n in post.names if n not in ("xp", "yp")])
+    sigma = float(prior.sigma[prior.names.index("xt")])
+    truth = load_truth(rig / "new" / "truth.json")
+    moved = replace(truth, model={**truth.model, "xt": truth.model["xt"] + 5.0 * sigma})
     budget = Settings(**BUDGET)
-    right = recalibrate(new, old, ("pen",), budget, source="old.json")
-    wrong = recalibrate(new, shifted(old, "xt", 5.0), ("pen",), budget, source="old.json")
+    right = recalibrate(load_dataset(rig / "new" / "dataset.toml"), old, ("pen",), budget,
+                        source="old.json")  # fmt: skip
+    wrong = recalibrate(simulate(moved, PRESETS["paper"], 12, exact=True).dataset, old,
+                        ("pen",), budget, source="old.json")  # fmt: skip
     pulls = {p["param"]: p["pull"] for p in wrong.stage1.prior["pulls"]}
-    assert abs(pulls["xt"]) > 3.0
+    assert pulls["xt"] > 3.0  # towards where the tablet went
     text = format_summary(wrong)
     said = [line for line in text.splitlines() if "the data pull xt " in line]
     assert len(said) == 1 and said[0].startswith("warning: stage 1: the data pull xt ")
     assert f"xt {abs(pulls['xt']):.1f} sigma from its prior (old.json" in said[0]
-    # The right prior does not flag it.
     assert not any("pull xt " in w for w in right.warnings)
 
 
@@ -316,6 +316,28 @@ def test_prior_residual_squares_are_the_negative_log_density(seed, k):
     assert float(0.5 * (at - prior.mean) @ precision @ (at - prior.mean)) == pytest.approx(nll)
     value = float(objective.terms(jnp.asarray(theta))["prior"])
     assert value == pytest.approx(weight * nll, rel=1e-9, abs=1e-12)
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.floats(0.01, 10.0), st.integers(0, 8))
+def test_a_map_fits_data_term_is_gaussian_and_takes_leave_one_out_weights(seed, c, left_out):
+    """GaussianObjective: each length block becomes c times the mean squared length, its
+    residuals' squares sum to it, and a zero weight leaves a landmark out exactly."""
+    theta = jnp.asarray(np.random.default_rng(seed).uniform(*HTMModel.search_bounds()))
+    base = Stage1Objective(HTMModel, _OBS)
+    gauss = GaussianObjective(base, jnp.asarray(c))
+    e = errors_of(base, theta)
+    want = c * (np.mean(np.sum(np.asarray(e.image_vs_tablet) ** 2, axis=1))
+                + np.mean(np.sum(np.asarray(e.hand) ** 2, axis=1)))  # fmt: skip
+    assert float(gauss(theta)) == pytest.approx(want, rel=1e-12)
+    assert float(jnp.sum(gauss.residuals(theta) ** 2)) == pytest.approx(want, rel=1e-12)
+    keep = np.array([m for m in range(9) if m != left_out])
+    weights = jnp.ones(9).at[left_out].set(0.0)
+    loo = LossObjective(gauss, L1Loss(), weights)
+    assert float(loo(theta)) == pytest.approx(float(gauss.on_landmarks(keep)(theta)), rel=1e-12)
+    wrapped = errors_of(PriorObjective(gauss, (0,), jnp.zeros(1), jnp.eye(1), jnp.asarray(1.0)),
+                        theta)  # fmt: skip
+    np.testing.assert_array_equal(wrapped.hand, e.hand)  # the paper's errors inside
 
 
 _TRUE = draw_truth(8)
