@@ -185,15 +185,23 @@ def bound_rows(old, old_ds, truth, twin, part, k, s) -> dict:
     return rows
 
 
-def run_seed(seed: int, parts, ks, settings: Settings, wrong: bool, bounds: bool) -> dict:
-    """Every fit of one seed: ``{part: {row: measure}}`` and the wrong-prior runs."""
+def run_seed(
+    seed: int, parts, ks, settings: Settings, wrong: bool, bounds: bool, angles=None
+) -> dict:
+    """Every fit of one seed: ``{part: {row: measure}}`` and the wrong-prior runs.
+    ``angles``: the hand angles (deg) of the new twin's k = 3 landmarks (default: 22.5·m)."""
     s = replace(settings, seed=seed)
     truth = draw_truth(seed)
     old_twin = simulate(truth, PRESETS["paper"], seed)
     old = calibrate(old_twin.dataset, s)
     out: dict = {}
     for part in parts:
-        twin = simulate(change_truth(truth, part, seed), PRESETS["paper"], NEW_SEED + seed)
+        changed = change_truth(truth, part, seed)
+        if angles is not None:
+            a = np.array(changed.landmarks_hand_angle_deg, dtype=float)
+            a[list(SUBSETS[3])] = angles
+            changed = replace(changed, landmarks_hand_angle_deg=a)
+        twin = simulate(changed, PRESETS["paper"], NEW_SEED + seed)
         rows = {"old result unchanged": measure(old, twin, 0.0)}
         rows["oracle (the new truth)"] = {**rows["old result unchanged"], "s1": math.nan}
         full, t = timed(calibrate, twin.dataset, s)
@@ -336,6 +344,11 @@ def main(argv=None) -> str:
                     help="the method before the Gaussian data term: a prior without the noise "
                     "of its fit, so the data stay the paper's mean lengths and the pulls "
                     "estimate the noise from the new residuals")  # fmt: skip
+    ap.add_argument("--k3", type=int, nargs=3, metavar="M", default=list(SUBSETS[3]),
+                    help="the landmarks of k = 3")  # fmt: skip
+    ap.add_argument("--k3-angles", type=float, nargs=3, metavar="DEG",
+                    help="the hand angles of the k = 3 landmarks in the new twin (default: "
+                    "the paper's 22.5 m)")  # fmt: skip
     ap.add_argument("--quick", action="store_true",
                     help="smoke test: seed 1, the pen, k = 4, a small DE")  # fmt: skip
     ap.add_argument("--results", type=Path, help="also write the tables into this Markdown file")
@@ -344,6 +357,7 @@ def main(argv=None) -> str:
     if args.quick:  # the budget of tests/test_recalibration.py: its compiled programs serve
         args.seeds, args.parts, args.ks = [1], ["pen"], [4]
         settings = Settings(population=100, generations=300, restarts=8)
+    SUBSETS[3] = tuple(args.k3)
     if args.paper_data_term:
         import handeye_jax._calibrate as calibrate_module
 
@@ -356,13 +370,17 @@ def main(argv=None) -> str:
         calibrate_module._previous_prior = without_sigma
     t0 = time.perf_counter()
     with float64():  # the helpers here build models and objectives of their own
-        runs = [run_seed(s, args.parts, args.ks, settings, not args.no_wrong, args.bounds)
-                for s in args.seeds]  # fmt: skip
+        runs = [run_seed(s, args.parts, args.ks, settings, not args.no_wrong, args.bounds,
+                         args.k3_angles) for s in args.seeds]  # fmt: skip
     command = "python benchmarks/recalibration.py" + (" --quick" if args.quick else "")
     if not args.quick:
         command += f" --seeds {' '.join(map(str, args.seeds))} --parts {' '.join(args.parts)}"
         command += f" --ks {' '.join(map(str, args.ks))}" + (" --bounds" if args.bounds else "")
         command += " --paper-data-term" if args.paper_data_term else ""
+        if tuple(args.k3) != (0, 2, 6):
+            command += f" --k3 {' '.join(map(str, args.k3))}"
+        if args.k3_angles is not None:
+            command += f" --k3-angles {' '.join(f'{a:g}' for a in args.k3_angles)}"
         if (args.population, args.generations) != (Settings.population, Settings.generations):
             command += f" --population {args.population} --generations {args.generations}"
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan

@@ -301,39 +301,44 @@ def _restarts(objective, sub_objective, sub, space, de, base, key, restarts, fit
 def _prior_report(stage: StageFit) -> dict[str, Any] | None:
     """The prior of a stage and how far the data pulled each parameter from it.
 
-    The pull of parameter j is ``(θ_j − μ_j)/√(σ_prior² − σ_post²)``: standard normal when the
-    prior is right (the usual pull of a constrained fit). ``σ_post`` is the Gauss–Newton
-    posterior at the fit, ``JᵀJ/σ² + Σ_prior⁻¹``, with the data's noise ``σ`` of the fit the
-    prior came from (the model its precision was built under) when the prior states it: a
-    few new landmarks leave too few degrees of freedom to estimate ``σ`` (with three, the
-    estimate had one, and a right prior was flagged once per fit; benchmarks/RESULTS.md,
-    "Recalibration after a change").
+    With ``d = θ − μ`` the fit's move from the prior mean and ``Q = Σ_prior − Σ_post`` its
+    covariance when the prior is right, the pull of parameter j is Baarda's w-test of a shift
+    of μ_j alone, ``(Q⁻¹d)_j/√(Q⁻¹)_jj``: standard normal for a right prior, and largest for
+    the parameter that moved even when correlated ones absorb part of its move (the marginal
+    ``d_j/√Q_jj``, kept as ``marginal_pull``, then blames them). ``Σ_post`` is the Gauss–Newton
+    posterior ``(JᵀJ/σ² + Σ_prior⁻¹)⁻¹`` at the fit, with the noise σ of the fit the prior came
+    from when the prior states it: a few new landmarks leave too few degrees of freedom to
+    estimate σ (benchmarks/RESULTS.md, "Recalibration after a change").
     """
     space = stage.space
     prior = space.prior
     if prior is None:
         return None
     e, J = (np.asarray(a) for a in _error_jacobian(stage.data, stage.x))
-    idx = space.prior_indices()
+    idx = list(space.prior_indices())
     P_full = np.zeros((space.d, space.d))
     P_full[np.ix_(idx, idx)] = prior.precision
     if prior.data_sigma_mm is not None:
-        post = std_of_precision(J.T @ J / prior.data_sigma_mm**2 + P_full, space.free)
+        P_post = J.T @ J / prior.data_sigma_mm**2 + P_full
     else:
-        post = analyse_jacobian(e, J, space.free, ["1"] * space.d, None, P_full)["std"]
+        P_post = np.asarray(analyse_jacobian(e, J, space.free, ["1"] * space.d, None,
+                                             P_full)["precision"])  # fmt: skip
+    post = std_of_precision(P_post, space.free)
+    Q = prior.covariance() - np.linalg.pinv(P_post, hermitian=True)[np.ix_(idx, idx)]
+    w, V = np.linalg.eigh(0.5 * (Q + Q.T))
+    keep = w > 1e-9 * max(float(w.max()), 1e-300)
+    Q_inv = (V[:, keep] / w[keep]) @ V[:, keep].T
+    d = stage.x[idx] - prior.mean
     sig_prior = prior.sigma
     out = []
     for j, name in enumerate(prior.names):
-        value = float(stage.x[idx[j]])
         sp, spost = float(sig_prior[j]), post[name]
-        if math.isfinite(sp) and spost is not None and sp > spost:
-            pull = (value - prior.mean[j]) / math.sqrt(sp**2 - spost**2)
-        else:
-            pull = 0.0 if not math.isfinite(sp) else (value - prior.mean[j]) / sp
+        pull = (Q_inv[j] @ d) / math.sqrt(Q_inv[j, j]) if Q_inv[j, j] > 0 else 0.0
+        marginal = d[j] / math.sqrt(Q[j, j]) if Q[j, j] > 0 else 0.0
         out.append({
             "param": name, "mean": float(prior.mean[j]),
-            "sigma": sp if math.isfinite(sp) else None, "value": value,
-            "posterior_sigma": spost, "pull": float(pull),
+            "sigma": sp if math.isfinite(sp) else None, "value": float(stage.x[idx[j]]),
+            "posterior_sigma": spost, "pull": float(pull), "marginal_pull": float(marginal),
         })  # fmt: skip
     report = {
         "source": prior.source,
