@@ -466,12 +466,13 @@ def fit_warnings(stage1: StageResult, stage2: StageResult) -> list[str]:
 
 
 def prior_warnings(stage: StageResult, label: str) -> list[str]:
-    """One warning per prior parameter the data pull more than :data:`PULL_FLAG` σ away."""
+    """One warning per prior parameter the data pull more than :data:`PULL_FLAG` σ away,
+    largest pull first (the likeliest to have changed; correlated ones follow it)."""
     prior = getattr(stage, "prior", None)
     if not prior:
         return []
     out = []
-    for p in prior["pulls"]:
+    for p in sorted(prior["pulls"], key=lambda p: -abs(p["pull"])):
         if abs(p["pull"]) > PULL_FLAG:
             sigma = "" if p["sigma"] is None else f" ± {p['sigma']:.3g}"
             out.append(
