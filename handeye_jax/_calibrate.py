@@ -308,7 +308,7 @@ def _prior_report(stage: StageFit) -> dict[str, Any] | None:
     ``d_j/√Q_jj``, kept as ``marginal_pull``, then blames them). ``Σ_post`` is the Gauss–Newton
     posterior ``(JᵀJ/σ² + Σ_prior⁻¹)⁻¹`` at the fit, with the noise σ of the fit the prior came
     from when the prior states it: a few new landmarks leave too few degrees of freedom to
-    estimate σ (benchmarks/RESULTS.md, "Recalibration after a change").
+    estimate σ (benchmarks/RESULTS.md, "Recalibration: what three touches can reach").
     """
     space = stage.space
     prior = space.prior
