@@ -1,21 +1,23 @@
 """Recalibration after a change of the rig, on synthetic twins (issue 17).
 
     python benchmarks/recalibration.py [--seeds 1 2 ... 10] [--parts pen tablet]
-                                       [--ks 1 2 3 4 9] [--quick] [--results PATH]
+                                       [--ks 1 2 3 4 9] [--bounds] [--no-wrong]
+                                       [--k3 M M M] [--k3-angles DEG DEG DEG]
+                                       [--paper-data-term] [--quick] [--results PATH]
 
 For each seed S: the twin of ``simulate old --seed S --preset paper`` is calibrated (every
 parameter free): the old result. Then one part changes (``simulate new --truth
 old/truth.json --change PART --seed 1000+S``: the same rig with a new pen offset or a moved
-tablet, :data:`handeye_jax.twin.CHANGES`; its noise drawn afresh) and the new twin's
+tablet, ``CHANGES`` of ``handeye_jax/_twin.py``; its noise drawn afresh) and the new twin's
 dataset is cut to k of its nine landmarks, spread over the 3×3 grid:
 
 * k = 1: the centre (m = 4);  k = 2: two opposite corners (m = 0, 8);
-* k = 3: three corners (m = 0, 2, 6);  k = 4: the four corners (m = 0, 2, 6, 8);  k = 9: all.
+* k = 3: three corners (m = 0, 2, 6; or ``--k3``);  k = 4: the four corners;  k = 9: all.
 
 Each k-subset is recalibrated from the old result with ``refit=(PART,)``: the other
 parameters take the old posterior as their prior (MAP), or with ``fix`` are held at the old
 values. Every fit is measured on the new twin's 20 held-out targets (the touching error,
-:func:`handeye_jax.evaluate.evaluate`, mm), next to the old result used unchanged, a
+:func:`handeye_jax.evaluate`, mm), next to the old result used unchanged, a
 calibration of all nine new landmarks from scratch, a from-scratch calibration of the same k
 landmarks (where it is determined, k >= 3) and the oracle (the new truth). The tables give
 the mean over seeds of each fit's mean error over the targets.
@@ -24,6 +26,12 @@ The priors: "right" is the pen or tablet table's prior rows against the from-scr
 the same landmarks; "wrong by 5 sigma": the pen changed and, unannounced, ``xt`` (not
 refitted) moved by 5 of its prior sigmas; the recalibration with ``--refit pen`` should name
 it in a warning with its pull.
+
+``--bounds`` adds what no recalibration of k touches can beat by much: the joint fit of the
+old and the new data (stage 1; the paper's mean lengths and least squares) and the refit with
+every other parameter at its true value. ``--k3-angles`` touches the k = 3 landmarks of the
+new twin at these hand angles. ``--paper-data-term`` measures the method before the Gaussian
+data term (benchmarks/RESULTS.md, "Recalibration: what three touches can reach").
 
 Every calibration runs in this process with the default settings (seed S), no diagnostics
 step; times are wall times after a warm-up, on a machine shared with other work.

@@ -17,6 +17,7 @@ from handeye_jax import (
     PRESETS,
     GaussianObjective,
     HTMModel,
+    InputError,
     L1Loss,
     LossObjective,
     ParameterSpace,
@@ -179,6 +180,14 @@ def test_recalibrate_on_four_touches_end_to_end(rig, capsys, fix):
         assert set(doc["stage1"]["fixed_source"].values()) == {"old.json"}
     else:
         assert doc["stage1"]["prior"]["source"] == doc["stage2"]["prior"]["source"] == "old.json"
+        # The old fit's noise, which the new data were weighed with, is written and checked.
+        sigma = doc["stage1"]["prior"]["data_sigma_mm"]
+        assert 0.0 < sigma < 1.0 and f"{sigma:.3g} mm per component" in summary
+        doc["stage1"]["prior"]["data_sigma_mm"] = -1.0
+        bad = rig / "bad-sigma.json"
+        bad.write_text(json.dumps(doc))
+        with pytest.raises(InputError, match="stage1.prior.data_sigma_mm"):
+            load_result(bad)
     r = load_result(out)
     assert "stage 1: F = " in summary and "result written to" in summary
     # It predicts, and far better on the changed rig than the old result does.
