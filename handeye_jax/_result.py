@@ -169,7 +169,7 @@ class CalibrationResult:
         if (
             P is None
             or np.shape(P) != (len(free), len(free))
-            or diag.get("free", free) != list(free)
+            or list(diag.get("free", free)) != list(free)
         ):
             P, sigma = self._posterior_precision(stage, free)
         return Prior(free, [s.params[n] for n in free], np.asarray(P, dtype=float),
