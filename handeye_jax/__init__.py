@@ -38,6 +38,7 @@ _EXPORTS = {
     "calibrate": "_calibrate",
     "CalibrationResult": "_result",
     "Camera": "_dataset",
+    "change_truth": "_twin",
     "Capture": "_dataset",
     "CauchyLoss": "_losses",
     "chain_points": "_objective",
@@ -65,9 +66,12 @@ _EXPORTS = {
     "format_evaluation": "_evaluate",
     "format_summary": "_summary",
     "Frames": "_frames",
+    "GaussianBlock": "_objective",
+    "GaussianObjective": "_objective",
     "full_plan": "_calibrate",
     "get_loss": "_losses",
     "get_model": "models",
+    "Heldout": "_evaluate",
     "hand_command": "_predict",
     "HTMModel": "models",
     "HuberLoss": "_losses",
@@ -168,7 +172,14 @@ if TYPE_CHECKING:
     )
     from ._detect import Detection, DetectSettings, detect_landmarks, fill_dataset
     from ._errors import InputError
-    from ._evaluate import TouchingError, evaluate, evaluate_twin, format_evaluation, load_heldout
+    from ._evaluate import (
+        Heldout,
+        TouchingError,
+        evaluate,
+        evaluate_twin,
+        format_evaluation,
+        load_heldout,
+    )
     from ._export import export_text
     from ._frames import Frames
     from ._identifiability import analyse_jacobian, jacobian_diagnostics
@@ -177,6 +188,8 @@ if TYPE_CHECKING:
         AbstractBlock,
         AbstractObjective,
         ChainPoints,
+        GaussianBlock,
+        GaussianObjective,
         LengthBlock,
         LossObjective,
         PriorObjective,
@@ -200,7 +213,7 @@ if TYPE_CHECKING:
     from ._simulate import PRESETS, NoisePreset, Twin, simulate, write_twin
     from ._summary import format_summary
     from ._synthetic import snake_grid_px, synthesize_dataset
-    from ._twin import TwinTruth, draw_truth, load_truth
+    from ._twin import TwinTruth, change_truth, draw_truth, load_truth
     from ._x64 import float64
     from ._xla import vectorise_small_loops
     from .models import AbstractCorrection, AbstractModel, AffinePair, DHModel, HTMModel, get_model
@@ -222,7 +235,10 @@ __all__ = [
     "DetectSettings",
     "Detection",
     "Frames",
+    "GaussianBlock",
+    "GaussianObjective",
     "HTMModel",
+    "Heldout",
     "HuberLoss",
     "InputError",
     "L1Loss",
@@ -251,6 +267,7 @@ __all__ = [
     "analyse_jacobian",
     "calibrate",
     "chain_points",
+    "change_truth",
     "compute_frames",
     "convert_to_v2",
     "dataset_to_toml",

@@ -28,10 +28,11 @@ from . import _xla
 from ._dataset import Dataset, check_distinct, check_population
 from ._diagnostics import MAX_MODES, bound_hits, mode_leaders
 from ._errors import InputError
-from ._identifiability import analyse_jacobian, error_jacobian
+from ._identifiability import analyse_jacobian, error_jacobian, std_of_precision
 from ._losses import L1Loss, get_loss
 from ._objective import (
     AbstractObjective,
+    GaussianObjective,
     LossObjective,
     PriorObjective,
     Stage1Objective,
@@ -112,17 +113,28 @@ def _centres(correction, points, centre_index: int):
 # -- one stage -------------------------------------------------------------------------------
 
 
-def with_prior(objective: AbstractObjective, space: ParameterSpace, n: int) -> AbstractObjective:
+def with_prior(
+    objective: AbstractObjective, space: ParameterSpace, n: int, *, gaussian: bool = True
+) -> AbstractObjective:
     """``objective`` (on ``space.free``) with ``space``'s prior as a ``prior`` block.
+
+    A prior that states the noise σ of the fit it came from (a previous result's posterior)
+    also turns the paper's error lengths into Gaussian errors of that σ
+    (:class:`~handeye_jax.GaussianObjective`): one noise model for the prior and the data. A
+    robust loss the user chose stays as it is.
 
     Args:
         objective: the data objective.
         space: the free parameters and their prior.
         n: the number of landmarks behind each data block.
+        gaussian: whether the data may become Gaussian (False: a robust loss wraps the result).
     """
     prior = space.prior
     if prior is None:
         return objective
+    if gaussian and prior.data_sigma_mm is not None and not isinstance(objective, LossObjective):
+        scale = prior.data_scale_mm / (2.0 * prior.data_sigma_mm**2)
+        objective = GaussianObjective(objective, jnp.asarray(scale))
     return PriorObjective(
         objective, space.prior_indices(), jnp.asarray(prior.mean), jnp.asarray(prior.whitener()),
         jnp.asarray(prior.data_scale_mm / n),
@@ -289,34 +301,46 @@ def _restarts(objective, sub_objective, sub, space, de, base, key, restarts, fit
 def _prior_report(stage: StageFit) -> dict[str, Any] | None:
     """The prior of a stage and how far the data pulled each parameter from it.
 
-    The pull of parameter j is ``(θ_j − μ_j)/√(σ_prior² − σ_post²)``: standard normal when the
-    prior is right (the usual pull of a constrained fit); ``σ_post`` from the Gauss–Newton
-    posterior at the fit.
+    With ``d = θ − μ`` the fit's move from the prior mean and ``Q = Σ_prior − Σ_post`` its
+    covariance when the prior is right, the pull of parameter j is Baarda's w-test of a shift
+    of μ_j alone, ``(Q⁻¹d)_j/√(Q⁻¹)_jj``: standard normal for a right prior, and largest for
+    the parameter that moved even when correlated ones absorb part of its move (the marginal
+    ``d_j/√Q_jj``, kept as ``marginal_pull``, then blames them). ``Σ_post`` is the Gauss–Newton
+    posterior ``(JᵀJ/σ² + Σ_prior⁻¹)⁻¹`` at the fit, with the noise σ of the fit the prior came
+    from when the prior states it: a few new landmarks leave too few degrees of freedom to
+    estimate σ (benchmarks/RESULTS.md, "Recalibration: what three touches can reach").
     """
     space = stage.space
     prior = space.prior
     if prior is None:
         return None
     e, J = (np.asarray(a) for a in _error_jacobian(stage.data, stage.x))
-    idx = space.prior_indices()
+    idx = list(space.prior_indices())
     P_full = np.zeros((space.d, space.d))
     P_full[np.ix_(idx, idx)] = prior.precision
-    post = analyse_jacobian(e, J, space.free, ["1"] * space.d, None, P_full)
+    if prior.data_sigma_mm is not None:
+        P_post = J.T @ J / prior.data_sigma_mm**2 + P_full
+    else:
+        P_post = np.asarray(analyse_jacobian(e, J, space.free, ["1"] * space.d, None,
+                                             P_full)["precision"])  # fmt: skip
+    post = std_of_precision(P_post, space.free)
+    Q = prior.covariance() - np.linalg.pinv(P_post, hermitian=True)[np.ix_(idx, idx)]
+    w, V = np.linalg.eigh(0.5 * (Q + Q.T))
+    keep = w > 1e-9 * max(float(w.max()), 1e-300)
+    Q_inv = (V[:, keep] / w[keep]) @ V[:, keep].T
+    d = stage.x[idx] - prior.mean
     sig_prior = prior.sigma
     out = []
     for j, name in enumerate(prior.names):
-        value = float(stage.x[idx[j]])
-        sp, spost = float(sig_prior[j]), post["std"][name]
-        if math.isfinite(sp) and spost is not None and sp > spost:
-            pull = (value - prior.mean[j]) / math.sqrt(sp**2 - spost**2)
-        else:
-            pull = 0.0 if not math.isfinite(sp) else (value - prior.mean[j]) / sp
+        sp, spost = float(sig_prior[j]), post[name]
+        pull = (Q_inv[j] @ d) / math.sqrt(Q_inv[j, j]) if Q_inv[j, j] > 0 else 0.0
+        marginal = d[j] / math.sqrt(Q[j, j]) if Q[j, j] > 0 else 0.0
         out.append({
             "param": name, "mean": float(prior.mean[j]),
-            "sigma": sp if math.isfinite(sp) else None, "value": value,
-            "posterior_sigma": spost, "pull": float(pull),
+            "sigma": sp if math.isfinite(sp) else None, "value": float(stage.x[idx[j]]),
+            "posterior_sigma": spost, "pull": float(pull), "marginal_pull": float(marginal),
         })  # fmt: skip
-    return {
+    report = {
         "source": prior.source,
         "names": list(prior.names),
         "mean": prior.mean.tolist(),
@@ -324,6 +348,9 @@ def _prior_report(stage: StageFit) -> dict[str, Any] | None:
         "data_scale_mm": prior.data_scale_mm,
         "pulls": out,
     }
+    if prior.data_sigma_mm is not None:
+        report["data_sigma_mm"] = prior.data_sigma_mm
+    return report
 
 
 @_xla.fast_compile
@@ -439,12 +466,13 @@ def fit_warnings(stage1: StageResult, stage2: StageResult) -> list[str]:
 
 
 def prior_warnings(stage: StageResult, label: str) -> list[str]:
-    """One warning per prior parameter the data pull more than :data:`PULL_FLAG` σ away."""
+    """One warning per prior parameter the data pull more than :data:`PULL_FLAG` σ away,
+    largest pull first (the likeliest to have changed; correlated ones follow it)."""
     prior = getattr(stage, "prior", None)
     if not prior:
         return []
     out = []
-    for p in prior["pulls"]:
+    for p in sorted(prior["pulls"], key=lambda p: -abs(p["pull"])):
         if abs(p["pull"]) > PULL_FLAG:
             sigma = "" if p["sigma"] is None else f" ± {p['sigma']:.3g}"
             out.append(
@@ -785,7 +813,7 @@ def _prior_of(report: dict[str, Any] | None) -> Prior | None:
     if not report:
         return None
     return Prior(tuple(report["names"]), report["mean"], report["precision"], report["source"],
-                 report["data_scale_mm"])  # fmt: skip
+                 report["data_scale_mm"], report.get("data_sigma_mm"))  # fmt: skip
 
 
 def _spaces_of(result: CalibrationResult, search: dict) -> tuple[ParameterSpace, ParameterSpace]:
@@ -886,11 +914,13 @@ def diagnose(
     centres, t_restage = result.centres_mm, 0.0
     _, keys2 = _stage_keys(np.int64(settings.seed))
     fits = result.fits
+    gaussian = isinstance(loss, L1Loss)  # as the fit's objectives (with_prior)
     for adoption in range(MAX_ADOPTIONS + 1):
-        s1 = with_prior(Stage1Objective(spaces[0].template, obs, spaces[0].free), spaces[0], n)
+        s1 = with_prior(Stage1Objective(spaces[0].template, obs, spaces[0].free), spaces[0], n,
+                        gaussian=gaussian)  # fmt: skip
         points = _points(put(spaces[0].template, spaces[0].free, jnp.asarray(x1)), obs)
-        s2 = with_prior(Stage2Objective(spaces[1].template, points, obs.centre_index,
-                                        spaces[1].free), spaces[1], n)  # fmt: skip
+        s2 = Stage2Objective(spaces[1].template, points, obs.centre_index, spaces[1].free)
+        s2 = with_prior(s2, spaces[1], n, gaussian=gaussian)
         diagnostics = diagnostics_of(
             stage1=s1, stage2=s2, spaces=spaces, loss=loss, loss_scale_mm=settings.loss_scale_mm,
             x=(x1, x2), stage_results=(stage1, stage2), populations=populations, search=search,

@@ -17,7 +17,7 @@ from ._dataset_io import backup_path, save_dataset, update_dataset
 from ._detect import DetectSettings, overlay_image, read_image
 from ._errors import InputError
 from ._simulate import DERIVED_FILES, DERIVED_FOLDER, SEED_RANGE, encode_png
-from ._twin import MAX_DOT_PX
+from ._twin import CHANGES, MAX_DOT_PX
 from ._validate import MAX_HELDOUT, parse_float, parse_int
 
 
@@ -92,27 +92,49 @@ def write_overlay(
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from ._simulate import PRESETS, TWIN_FILES, check_twin_folder, simulate, write_twin
-    from ._twin import draw_truth, load_truth
+    from ._twin import change_truth, draw_truth, load_truth
 
     out = Path(args.out_dir)
+    if args.change and not args.truth:
+        raise InputError(None, "--change", "needs --truth OLD_TRUTH.json, the rig that changed")
     check_folder_output(out, TWIN_FILES, "", [args.truth])
     stale = check_twin_folder(out, args.force)
     if args.truth:
         if args.dot_px is not None:
             raise InputError(None, "--dot-px", "the truth file sets the dot size (dot_px)")
-        truth = load_truth(args.truth)
+        truth = old = load_truth(args.truth)
+        if args.change:
+            try:
+                truth = change_truth(old, args.change, args.seed)
+            except ValueError as e:
+                raise InputError(args.truth, "--change", str(e)) from None
     else:
         truth = draw_truth(args.seed, dot_px=1.0 if args.dot_px is None else args.dot_px)
     twin = simulate(truth, PRESETS[args.preset], args.seed, exact=args.exact,
                     n_heldout=args.heldout)  # fmt: skip
     paths = write_twin(twin, out, force=args.force)
     how = "exact" if args.exact else "detected"
+    if args.change:
+        print(f"the {args.change} of {args.truth} changed (seed {args.seed}): "
+              + _changes(old, truth))  # fmt: skip
     print(f"twin (seed {args.seed}, preset {args.preset}, image_px and depth {how}) written "
           f"to {out}: {', '.join(p.name for p in paths)}")  # fmt: skip
     if stale:
         names = ", ".join(str(p.relative_to(out)) for p in stale)
         print(f"removed what was made from the old twin: {names}")
     return 0
+
+
+def _changes(old, new) -> str:
+    """What differs between two truths' models, ``name old -> new unit``."""
+    from .models import HTMModel
+
+    units = dict(zip(HTMModel.param_names, HTMModel.param_units, strict=True))
+    return ", ".join(
+        f"{n} {old.model[n]:.3f} -> {new.model[n]:.3f} {units[n]}"
+        for n in HTMModel.param_names
+        if new.model[n] != old.model[n]
+    )
 
 
 def _cmd_detect(args: argparse.Namespace) -> int:
@@ -194,6 +216,12 @@ def add_twin_commands(sub: argparse._SubParsersAction) -> None:
     sim.add_argument(
         "--truth", metavar="TRUTH.json", help="use this rig truth (default: a draw from --seed)"
     )
+    sim.add_argument(
+        "--change", choices=tuple(CHANGES),
+        help="with --truth: the same rig after this part changed, drawn by --seed within the "
+        "documented ranges: pen, the tip moved 3-15 mm; tablet, moved 10-40 mm, turned 2-8 deg, "
+        "tilts redrawn; camera, remounted 2-8 mm and 1-3 deg per angle (default: no change)",
+    )  # fmt: skip
     sim.add_argument(
         "--exact",
         action="store_true",

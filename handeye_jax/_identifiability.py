@@ -135,7 +135,7 @@ def analyse_jacobian(
     if prior_precision is not None:
         # Gauss–Newton with the prior's information added: the posterior of a MAP fit.
         precision = precision + np.asarray(prior_precision, dtype=float)
-        std_out = _std_of_precision(precision, names)
+        std_out = std_of_precision(precision, names)
 
     weak = []
     Js = J / col
@@ -192,7 +192,7 @@ def analyse_jacobian(
     }
 
 
-def _std_of_precision(precision: np.ndarray, names: Sequence[str]) -> dict[str, float | None]:
+def std_of_precision(precision: np.ndarray, names: Sequence[str]) -> dict[str, float | None]:
     """Standard deviations from an inverse covariance; ``None`` where it has no information."""
     d = len(names)
     scale = np.sqrt(np.maximum(np.diag(precision), 0.0))

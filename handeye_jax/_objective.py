@@ -209,6 +209,36 @@ class SquaresBlock(AbstractBlock):
         return self.r
 
 
+class GaussianBlock(AbstractBlock):
+    """``Σ w·c·|e|² / Σ w`` over the error vectors: Gaussian errors' negative log-likelihood.
+
+    With ``c = s/(2σ²)`` and unit weights, ``s/n`` times the negative log-likelihood (less its
+    constant) of ``n`` error vectors whose components are normal with σ: the data term of a
+    MAP fit whose prior was built as ``JᵀJ/σ²`` (see :class:`GaussianObjective`).
+
+    Attributes:
+        errors: one error vector per landmark, mm.
+        scale: ``c``, 1/mm.
+        weights: one non-negative weight per landmark (1 = use, 0 = leave out).
+    """
+
+    errors: Float[Array, "n 2"]
+    scale: Float[Array, ""]
+    weights: Float[Array, " n"]
+
+    def terms(self) -> Float[Array, " n"]:
+        """Each landmark's share of the value, mm."""
+        w = self.weights / jnp.sum(self.weights)
+        return w * self.scale * jnp.sum(self.errors**2, axis=-1)
+
+    def value(self):
+        return jnp.sum(self.terms())
+
+    def residuals(self):
+        w = self.weights / jnp.sum(self.weights)
+        return (self.errors * jnp.sqrt(self.scale * w)[:, None]).reshape(-1)
+
+
 # -- objectives ----------------------------------------------------------------------------
 
 
@@ -358,7 +388,8 @@ class LossObjective(AbstractObjective):
     """Another objective with a loss ρ on each error length and a weight on each landmark.
 
     Every :class:`LengthBlock` of ``base`` becomes ``Σ w·ρ(|e|)/Σ w``: with ``l1`` and unit
-    weights, the paper's F. Other blocks (a prior's) pass through unchanged.
+    weights, the paper's F. A :class:`GaussianBlock` takes the weights (its own loss stays);
+    other blocks (a prior's) pass through unchanged.
 
     Attributes:
         base: the objective whose length blocks are weighted.
@@ -371,15 +402,46 @@ class LossObjective(AbstractObjective):
     weights: Float[Array, " n"]
 
     def blocks(self, theta):
+        out = {}
+        for name, b in self.base.blocks(theta).items():
+            if isinstance(b, LengthBlock):
+                b = WeightedLengthBlock(b.errors, self.weights, self.loss)
+            elif isinstance(b, GaussianBlock):  # a MAP fit's data term: weighted, no loss
+                b = GaussianBlock(b.errors, b.scale, self.weights)
+            out[name] = b
+        return out
+
+    def on_landmarks(self, idx):
+        return LossObjective(self.base.on_landmarks(idx), self.loss, self.weights[idx])
+
+
+class GaussianObjective(AbstractObjective):
+    """Another objective with Gaussian errors in place of the paper's error lengths.
+
+    Each :class:`LengthBlock` (mean ``|e|``) of ``base`` becomes a :class:`GaussianBlock` (mean
+    ``c·|e|²``). A previous fit's posterior, the prior of a recalibration, is Gaussian with
+    precision ``JᵀJ/σ²``; with ``c = s/(2σ²)`` the new data are weighed under the same noise
+    model, so that neither the prior nor the data wins a conflict by the shape of its term
+    (a mean length's pull is bounded, a Gaussian prior's is not).
+
+    Attributes:
+        base: the paper's objective.
+        scale: ``c``, 1/mm.
+    """
+
+    base: AbstractObjective
+    scale: Float[Array, ""]
+
+    def blocks(self, theta):
         return {
-            name: WeightedLengthBlock(b.errors, self.weights, self.loss)
+            name: GaussianBlock(b.errors, self.scale, jnp.ones(b.errors.shape[0]))
             if isinstance(b, LengthBlock)
             else b
             for name, b in self.base.blocks(theta).items()
         }
 
     def on_landmarks(self, idx):
-        return LossObjective(self.base.on_landmarks(idx), self.loss, self.weights[idx])
+        return GaussianObjective(self.base.on_landmarks(idx), self.scale)
 
 
 class PriorObjective(AbstractObjective):
@@ -424,7 +486,7 @@ class PriorObjective(AbstractObjective):
 
 def data_objective(objective: AbstractObjective) -> AbstractObjective:
     """The paper's objective inside any wrappers (its blocks are the data's error vectors)."""
-    while isinstance(objective, LossObjective | PriorObjective):
+    while isinstance(objective, LossObjective | PriorObjective | GaussianObjective):
         objective = objective.base
     return objective
 
@@ -440,7 +502,8 @@ def landmark_terms(objective: LossObjective, theta: Float[Array, " d"]) -> Float
     """Each landmark's share of a :class:`LossObjective`'s data blocks at ``theta``, mm
     (smoothed, so twice differentiable: for derivatives per landmark)."""
     blocks = objective.blocks(theta)
-    return sum(b.terms() for b in blocks.values() if isinstance(b, WeightedLengthBlock))
+    return sum(b.terms() for b in blocks.values()
+               if isinstance(b, WeightedLengthBlock | GaussianBlock))  # fmt: skip
 
 
 # -- landmark subsets --------------------------------------------------------------------------

@@ -42,6 +42,9 @@ class Prior:
         data_scale_mm: the error scale ``s`` of the data it is combined with (the MAP
             objective weighs the prior by ``s/n``, see :class:`~handeye_jax.PriorObjective`);
             a previous fit of the same rig gives ``F/4``.
+        data_sigma_mm: the residual standard deviation (per error component, mm) of the fit
+            it came from, whose precision is ``JᵀJ/σ²``: the noise of the new data under the
+            same model, for the pulls (``None``: estimated from the new fit's residuals).
     """
 
     names: tuple[str, ...]
@@ -49,6 +52,7 @@ class Prior:
     precision: np.ndarray
     source: str = "user"
     data_scale_mm: float = 0.25
+    data_sigma_mm: float | None = None
 
     def __post_init__(self):
         names = tuple(str(n) for n in self.names)
@@ -73,6 +77,10 @@ class Prior:
         object.__setattr__(self, "mean", mean)
         object.__setattr__(self, "precision", P)
         object.__setattr__(self, "data_scale_mm", float(self.data_scale_mm))
+        if self.data_sigma_mm is not None:
+            if not (math.isfinite(self.data_sigma_mm) and self.data_sigma_mm > 0):
+                raise ValueError(f"data_sigma_mm must be > 0 (got {self.data_sigma_mm})")
+            object.__setattr__(self, "data_sigma_mm", float(self.data_sigma_mm))
 
     @classmethod
     def independent(
@@ -146,7 +154,7 @@ class Prior:
             P_kd, P_dd = P[np.ix_(keep, drop)], P[np.ix_(drop, drop)]
             P_kk = P_kk - P_kd @ np.linalg.pinv(P_dd, hermitian=True) @ P_kd.T
         return Prior(tuple(self.names[i] for i in keep), self.mean[keep], P_kk, self.source,
-                     self.data_scale_mm)  # fmt: skip
+                     self.data_scale_mm, self.data_sigma_mm)  # fmt: skip
 
     def conditional(self, names: Iterable[str], others: Mapping[str, float]) -> Prior:
         """The prior of ``names`` given the other parameters' values ``others``."""
@@ -159,7 +167,7 @@ class Prior:
             d_o = np.array([others[self.names[i]] for i in drop]) - self.mean[drop]
             mean = mean - np.linalg.pinv(P_kk, hermitian=True) @ P[np.ix_(keep, drop)] @ d_o
         return Prior(tuple(self.names[i] for i in keep), mean, P_kk, self.source,
-                     self.data_scale_mm)  # fmt: skip
+                     self.data_scale_mm, self.data_sigma_mm)  # fmt: skip
 
 
 @dataclass(frozen=True, eq=False)

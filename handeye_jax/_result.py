@@ -165,16 +165,16 @@ class CalibrationResult:
         s: StageResult = getattr(self, stage)
         free = s.free()
         diag = self.diagnostics.get(stage, {}) if self.diagnostics else {}
-        P = diag.get("precision")
+        P, sigma = diag.get("precision"), diag.get("sigma_mm")
         if (
             P is None
             or np.shape(P) != (len(free), len(free))
-            or diag.get("free", free) != list(free)
+            or list(diag.get("free", free)) != list(free)
         ):
-            P = self._posterior_precision(stage, free)
+            P, sigma = self._posterior_precision(stage, free)
         return Prior(free, [s.params[n] for n in free], np.asarray(P, dtype=float),
                      source or f"previous result ({self.dataset_name})",
-                     max(s.F, 1e-6) / 4.0)  # fmt: skip
+                     max(s.F, 1e-6) / 4.0, sigma if sigma else None)  # fmt: skip
 
     def _posterior_precision(self, stage: str, free: tuple[str, ...]) -> np.ndarray:
         if self.data is None:
@@ -195,4 +195,4 @@ class CalibrationResult:
             idx = [free.index(n) for n in s.prior["names"]]
             P_prior[np.ix_(idx, idx)] = np.asarray(s.prior["precision"])
         out = analyse_jacobian(e, J, free, ["1"] * len(free), None, P_prior)
-        return np.asarray(out["precision"])
+        return np.asarray(out["precision"]), out["sigma_mm"]

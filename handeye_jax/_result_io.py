@@ -6,7 +6,8 @@ The layout (every section but the first nine is optional; older files load)::
     rig{camera_px{fx,fy,cx,cy}, capture_hand_position_mm, hand_angle{zero_deg, sign}}
     stage1, stage2: {F, f1, f2, params{name: value}, residuals_mm[...], de{...}, polish{...},
                      convergence{...}, status{name: free|prior|fixed}, fixed_source{...},
-                     prior{source, names, mean, precision, data_scale_mm, pulls[...]}, prior_F}
+                     prior{source, names, mean, precision, data_scale_mm, data_sigma_mm?,
+                           pulls[...]}, prior_F}
     centre_index, centres_mm[[x, y], [x, y]], sign_twin{...}, warnings[]
     frames{...}                 # the fitted frames as numbers, for the NumPy predictor
     recalibration{previous, refit[], others}
@@ -395,6 +396,8 @@ def _prior(r: Reader, p: Any, where: str, names: tuple[str, ...]) -> dict[str, A
     for i, row in enumerate(P):
         r.vector(row, f"{where}.precision[{i}]", k)
     r.number(p["data_scale_mm"], f"{where}.data_scale_mm", positive=True, limit=MAX_MM)
+    if "data_sigma_mm" in p:
+        r.number(p["data_sigma_mm"], f"{where}.data_sigma_mm", positive=True, limit=MAX_MM)
     return p
 
 

@@ -21,15 +21,17 @@ def _stage_lines(
     title: str, s: StageResult, names, units, early_stop: bool, std: dict | None = None
 ) -> list[str]:
     head = f"{title}: F = {s.F:.6f} mm  (f1 = {s.f1:.6f} mm, f2 = {s.f2:.6f} mm)"
+    # With a prior, DE and LM minimise the MAP objective (data term + prior term), not F.
+    minimised = "F" if s.prior_F is None else "MAP objective"
     if s.prior_F is not None:
-        head += f"; MAP objective F + prior = {s.F + s.prior_F:.6f} mm"
+        head += f"; prior term of the MAP objective {s.prior_F:.6f} mm"
     lines = [head]
     pol = s.polish
     de = s.de
     lm = "off"
     if pol.get("ran"):
         verdict = "accepted" if pol.get("accepted") else "rejected (did not lower F)"
-        lm = f"{verdict}, {pol.get('steps', 0)} steps, F {pol['F_before']:.6f} -> " + (
+        lm = f"{verdict}, {pol.get('steps', 0)} steps, {minimised} {pol['F_before']:.6f} -> " + (
             f"{pol['F_after']:.6f} mm"
         )
     if "generations" not in de:
@@ -45,7 +47,7 @@ def _stage_lines(
         over = f" over {', '.join(searched)}" if searched and len(searched) < len(names) else ""
         lines.append(
             f"  DE{over}: {de['generations']} generations, {de['evaluations']:,} evaluations, "
-            f"F = {de['F']:.6f} mm; {stop}"
+            f"{minimised} = {de['F']:.6f} mm; {stop}"
         )
     lines.append(f"  LM polish: {lm}")
     found = found_by_line(pol)
@@ -65,8 +67,12 @@ def _stage_lines(
             value += f"  prior {p['mean']:.5g}{sig}, pull {p['pull']:+.1f} sigma"
         lines.append(f"    {name:<9} {value}".rstrip())
     if s.prior:
-        lines.append(f"  prior: from {s.prior['source']}; data scale s = "
-                     f"{s.prior['data_scale_mm']:.3g} mm")  # fmt: skip
+        scale = s.prior["data_scale_mm"]
+        line = f"  prior: from {s.prior['source']}; data scale s = {scale:.3g} mm"
+        if s.prior.get("data_sigma_mm"):
+            line += (f"; the data weighed as Gaussian errors of its fit's noise, "
+                     f"{s.prior['data_sigma_mm']:.3g} mm per component")  # fmt: skip
+        lines.append(line)
     lines.append("  residuals per landmark, mm:")
     lines.append("    m   |image - tablet|   |hand - target|")
     for r in s.residuals_mm:

@@ -226,18 +226,104 @@ def draw_truth(
             landmarks_tablet_px=np.array(layout, dtype=float), landmarks_hand_angle_deg=angles,
             seed=int(seed),
         )  # fmt: skip
-        # Put the camera's optical centre above the landmarks' centre, at the drawn height.
-        centre_px = np.mean(truth.landmark_area_px(), axis=0)[None]
-        # In the camera frame with the hand at the origin; rotated into the base frame, it is
-        # the hand position that puts the camera right above the centre.
-        p_camera = truth.camera_points(centre_px)[0]
-        centre_base = np.asarray(_R_base_camera(truth)) @ p_camera
-        xy = centre_base[:2] + [u["capture_jitter_mm"], float(rng.uniform(-10.0, 10.0))]
-        z = truth.tablet_height_mm + u["depth_mm"] + truth.camera_z_mm
-        truth = replace(truth, capture_position_mm=(float(xy[0]), float(xy[1]), float(z)))
+        truth = _capture_above(truth, u["capture_jitter_mm"], float(rng.uniform(-10.0, 10.0)),
+                               u["depth_mm"])  # fmt: skip
         if _in_view(truth, truth.landmarks_tablet_px):
             return truth
     raise ValueError("could not draw a rig that sees every landmark; check the layout and size")
+
+
+def _capture_above(truth: TwinTruth, jitter_x_mm: float, jitter_y_mm: float, depth_mm: float):
+    """``truth`` with the capture pose above the landmarks' centre (off by the jitter, mm), the
+    camera ``depth_mm`` above the tablet."""
+    # Put the camera's optical centre above the landmarks' centre, at the drawn height.
+    truth = replace(truth, capture_position_mm=(0.0, 0.0, 0.0))
+    centre_px = np.mean(truth.landmark_area_px(), axis=0)[None]
+    # In the camera frame with the hand at the origin; rotated into the base frame, it is
+    # the hand position that puts the camera right above the centre.
+    p_camera = truth.camera_points(centre_px)[0]
+    centre_base = np.asarray(_R_base_camera(truth)) @ p_camera
+    xy = centre_base[:2] + [jitter_x_mm, jitter_y_mm]
+    z = truth.tablet_height_mm + depth_mm + truth.camera_z_mm
+    return replace(truth, capture_position_mm=(float(xy[0]), float(xy[1]), float(z)))
+
+
+#: The parts :func:`change_truth` can change, and what each change draws (mm, deg). Each move
+#: is a length drawn uniformly from its range in a uniform direction of the x-y plane; each
+#: turn is an angle drawn uniformly from its range, either way.
+CHANGES: dict[str, dict[str, tuple[float, float]]] = {
+    # Another pen, or the same pen clamped anew: the tip (xp, yp) moves 3-15 mm.
+    "pen": {"tip_move_mm": (3.0, 15.0)},
+    # The tablet moved on the table: (xt, yt) moves 10-40 mm, it turns 2-8 deg about its
+    # normal (γt), its tilts αt and βt are drawn afresh from RANGES.
+    "tablet": {"move_mm": (10.0, 40.0), "turn_deg": (2.0, 8.0)},
+    # The camera remounted: (xc, yc) moves 2-8 mm, each of αc, βc, γc turns 1-3 deg.
+    "camera": {"move_mm": (2.0, 8.0), "turn_deg": (1.0, 3.0)},
+}
+#: A changed parameter stays this fraction of its search range (HTMModel's, Table 5) inside
+#: the range: a calibration of the changed rig can still find it, off the range's bounds.
+CHANGE_MARGIN = 0.1
+
+
+def change_truth(truth: TwinTruth, part: str, seed: int) -> TwinTruth:
+    """The same rig after one part changed: a new pen offset, a moved tablet or a remounted
+    camera, drawn by ``seed`` within :data:`CHANGES` (bit-for-bit repeatable).
+
+    Only the model's parameters of ``part``'s group (``HTMModel.groups``) change, each kept
+    :data:`CHANGE_MARGIN` of its search range inside it. After a tablet or camera change the
+    capture pose is put above the landmarks again, as :func:`draw_truth` puts it (a new
+    ``capture_jitter_mm`` and ``depth_mm`` from :data:`RANGES`); after a pen change it stays
+    (the camera's view did not change). Draws that leave a landmark within :data:`MARGIN_PX`
+    of the picture's edge are redrawn from the same stream. Everything else (intrinsics,
+    heights, display, layout, hand-angle convention, ``seed``) is ``truth``'s.
+
+    Args:
+        truth: the rig before the change.
+        part: ``"pen"``, ``"tablet"`` or ``"camera"``.
+        seed: the seed of the change's draw.
+
+    Raises:
+        ValueError: an unknown ``part``, or no draw keeps every landmark in the picture.
+    """
+    if part not in CHANGES:
+        raise ValueError(f"unknown part {part!r}; known: {', '.join(CHANGES)}")
+    ranges = CHANGES[part]
+    rng = np.random.default_rng(seed)
+    old = truth.model
+    names = HTMModel.groups[part]
+    lo, hi = HTMModel.search_bounds()
+    box = {
+        n: (lo[i] + CHANGE_MARGIN * (hi[i] - lo[i]), hi[i] - CHANGE_MARGIN * (hi[i] - lo[i]))
+        for i, n in enumerate(HTMModel.param_names)
+        if n in names
+    }
+
+    def moved(x: str, y: str, length: tuple[float, float]) -> dict[str, float]:
+        d, a = rng.uniform(*length), rng.uniform(0.0, 2.0 * np.pi)
+        return {x: old[x] + d * float(np.cos(a)), y: old[y] + d * float(np.sin(a))}
+
+    def turned(name: str, angle: tuple[float, float]) -> float:
+        return old[name] + float(rng.choice((-1.0, 1.0)) * rng.uniform(*angle))
+
+    for _ in range(1000):
+        if part == "pen":
+            new = moved("xp", "yp", ranges["tip_move_mm"])
+        elif part == "tablet":
+            new = moved("xt", "yt", ranges["move_mm"])
+            new["gamma_t"] = turned("gamma_t", ranges["turn_deg"])
+            new |= {n: float(rng.uniform(*RANGES[n])) for n in ("alpha_t", "beta_t")}
+        else:
+            new = moved("xc", "yc", ranges["move_mm"])
+            new |= {n: turned(n, ranges["turn_deg"]) for n in ("alpha_c", "beta_c", "gamma_c")}
+        changed = replace(truth, model={**old, **new})
+        if part != "pen":
+            jitter = rng.uniform(*RANGES["capture_jitter_mm"], 2)
+            depth = float(rng.uniform(*RANGES["depth_mm"]))
+            changed = _capture_above(changed, float(jitter[0]), float(jitter[1]), depth)
+        inside = all(box[n][0] <= v <= box[n][1] for n, v in new.items())
+        if inside and _in_view(changed, changed.landmarks_tablet_px):
+            return changed
+    raise ValueError(f"could not change the {part} so that the camera sees every landmark")
 
 
 @in_float64

@@ -45,7 +45,8 @@ MAX_GENERATIONS = 100_000
 #: residuals while the batch runs, so this many take about 1 GB.
 MAX_RESTARTS = 10_000
 #: DE population times landmarks: DE's working memory is about 48 bytes per member and
-#: landmark (measured 37-54 B), so this is about 5 GB. The paper's N = 10,000 fits 10,000
+#: landmark (benchmarks/RESULTS.md, "Figures the code's comments point to"), so this is
+#: about 5 GB. The paper's N = 10,000 fits 10,000
 #: landmarks.
 MAX_MEMBER_LANDMARKS = 100_000_000
 #: Points in a points CSV (predict) or held-out targets (simulate --heldout, heldout.csv).

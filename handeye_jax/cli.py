@@ -131,9 +131,10 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     if args.prior and not args.refit:
         raise InputError(None, "--refit", "name what changed: camera, tablet, pen or parameters")
     previous = load_result(args.prior) if args.prior else None
-    model = args.model or (previous.model if previous else Settings().model)
-    if previous is not None and model != previous.model:
-        raise InputError(args.prior, "model", f"is {previous.model!r}; --model says {model!r}")
+    model = args.model or (previous.model_name if previous else Settings().model)
+    if previous is not None and model != previous.model_name:
+        raise InputError(args.prior, "model",
+                         f"is {previous.model_name!r}; --model says {model!r}")  # fmt: skip
     dataset = load_dataset(args.dataset)
     settings = Settings(
         model=model,

@@ -53,8 +53,8 @@ def sincos_deg(angle_deg: Float[ArrayLike, "*s"]) -> tuple[Float[Array, "*s"], F
 
     The pair is rescaled to unit length. Besides keeping rotations orthonormal to the last
     bit, the square root and division make XLA store each angle's sin and cos once; without
-    them it recomputes the polynomials in every fused loop that reads them, which made a DE
-    generation at N = 10,000 about 1.3× slower (measured, ``benchmarks/de_throughput.py``).
+    them it recomputes the polynomials in every fused loop that reads them, and a DE
+    generation is slower (``benchmarks/RESULTS.md``, "Figures the code's comments point to").
     """
     a = jnp.asarray(angle_deg)
     k = jnp.round(a * (1.0 / 90.0))

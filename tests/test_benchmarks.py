@@ -90,3 +90,17 @@ def test_robust_flags_the_touched_landmark():
     assert len(rows) == 2
     # landmark 6 was touched 5 mm off: both losses flag it, and only it
     assert all(row.split(" | ")[2] == "[6]" for row in rows), rows
+
+
+def test_recalibration_benchmark_tables_every_fit():
+    out = run_in_process("recalibration.py", "--quick")
+
+    def row(label, k):
+        line = next(x for x in out.splitlines() if x.startswith(f"| {label} | {k} |"))
+        return [float(v) for v in line.split("|")[3:5]]  # stage 1 and stage 2, mm
+
+    old, full = row("old result unchanged", 0), row("from scratch", 9)
+    prior, fix = row("recalibrate --refit pen", 4), row("recalibrate --refit pen --fix", 4)
+    # The pen moved 3-15 mm: the old result misses by millimetres, a recalibration does not.
+    assert min(old) > 2.0 and max(full + prior + fix) < 1.0
+    assert re.search(r"^\| 4 \| \d\.\d{3} \| \d+\.\d, \d+\.\d \| [01] of 1 \|", out, re.M)

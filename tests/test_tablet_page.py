@@ -22,7 +22,7 @@ from playwright.sync_api import sync_playwright
 from scipy import ndimage
 from test_tablet_server import ServerProcess
 
-from handeye_jax import load_dataset
+from handeye_jax import load_dataset, save_dataset
 from handeye_jax.tablet import grid_targets, make_server
 
 PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
@@ -560,3 +560,37 @@ def test_a_restarted_server_asks_for_its_new_url_and_keeps_the_runs(browser, tmp
     finally:
         page.context.close()
         server.stop()
+
+
+def test_a_recalibration_run_of_three_landmarks_is_taken_and_saved(browser, tmp_path):
+    """After a pen change the operator touches a few landmarks (issue 17): a dataset of three
+    is drawn, touched and saved like one of nine."""
+    full = load_dataset(PAPER)
+    corners = np.array([0, 2, 6])
+    fields = ("tablet_px", "image_px", "depth_mm", "hand_xy_mm", "hand_angle_deg",
+              "touch_error_px")  # fmt: skip
+    ds_path = tmp_path / "pen3.toml"
+    save_dataset(full.replace(name="pen3", **{f: getattr(full, f)[corners] for f in fields}),
+                 ds_path)  # fmt: skip
+    ds = load_dataset(ds_path)
+    server = make_server(ds_path, port=0, quiet=True)
+    threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True).start()
+    page = open_page(browser, server.secret_url)
+    try:
+        assert "pen3: 3 landmarks" in page.inner_text("#tablet-info")
+        page.click("#start-calibration")
+        assert_dots_at(page, ds.tablet_px)  # three dots, where the dataset says
+        d = offsets(3, seed=11)
+        for m in range(3):
+            pen(page, ds.tablet_px[m] + d[m])
+        assert "all 3 touched" in prompt(page)
+        page.click("#send")
+        assert "3 pen;" in wait_saved(page)
+        saved = load_dataset(ds_path)
+        assert saved.n_landmarks == 3 and np.abs(saved.touch_error_px - d).max() <= 0.5
+        assert saved == ds.replace(touch_error_px=saved.touch_error_px)
+        assert page.errors == []
+    finally:
+        page.context.close()
+        server.shutdown()
+        server.server_close()

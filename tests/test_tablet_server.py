@@ -29,7 +29,7 @@ import numpy as np
 import pytest
 from test_dataset import commented_paper_text, comments_of
 
-from handeye_jax import load_dataset
+from handeye_jax import load_dataset, save_dataset
 from handeye_jax._errors import InputError
 from handeye_jax.cli import main
 from handeye_jax.tablet import (
@@ -1121,3 +1121,24 @@ def test_fifty_concurrent_posts_get_in_while_the_server_is_busy(real):
     assert sorted(t["run_id"] for t in saved if t["label"] == "busy") == sorted(
         f"busy-{i}" for i in range(n)
     )
+
+
+def test_a_calibration_run_of_one_landmark_is_taken(tmp_path):
+    """Any number of landmarks from one (issue 17: a few touches after a pen change)."""
+    full = load_dataset(PAPER)
+    fields = ("tablet_px", "image_px", "depth_mm", "hand_xy_mm", "hand_angle_deg",
+              "touch_error_px")  # fmt: skip
+    ds = tmp_path / "rig.toml"
+    save_dataset(full.replace(**{f: getattr(full, f)[[4]] for f in fields}), ds)
+    server = start(ds)
+    try:
+        tablet_px = load_dataset(ds).tablet_px.tolist()
+        status, doc = request(server.url + "api/calibration",
+                              calibration_body(tablet_px, [[1.5, -2.0]]))  # fmt: skip
+        assert status == 200 and doc["written"] is True, doc
+        assert load_dataset(ds).touch_error_px.tolist() == [[1.5, -2.0]]
+        status, doc = request(server.url + "api/calibration",
+                              calibration_body(tablet_px * 2, [[1.5, -2.0]] * 2))  # fmt: skip
+        assert status == 400 and "needs one touch per landmark: 1 (got 2)" in json.dumps(doc)
+    finally:
+        stop(server)

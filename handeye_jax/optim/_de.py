@@ -19,8 +19,9 @@ nothing about what ``fn`` computes. Choices, each documented where a user could 
   taken on the host after every chunk of ``CHUNK_GENERATIONS`` (a sort inside the loop would
   cost as much as the DE step itself).
 * **No branch per generation.** Every step of the scan computes a generation and keeps it only
-  while the run is active; a ``lax.cond`` instead costs 0.5 ms per generation at N = 10,000
-  (measured). After an early stop or at the generation limit, at most
+  while the run is active; a ``lax.cond`` instead costs more per generation at N = 10,000
+  than the objective's evaluation saved (benchmarks/RESULTS.md, "Figures the code's comments
+  point to"). After an early stop or at the generation limit, at most
   ``CHUNK_GENERATIONS − 1`` discarded generations are computed; they are not counted.
 * **Early stop.** A generation whose fitness spread satisfies
   ``std(f) <= atol + tol·|mean(f)|`` (scipy's rule) ends the run; ``early_stop=False`` runs
@@ -134,8 +135,7 @@ def _select(fn: Callable, state: DEState, trial: Float[Array, "n d"]) -> DEState
     """Evaluate the trials and keep each one that is no worse than its target."""
     # The objective is mapped over the trials as columns of a (d, n) array: the same numbers
     # (populations bit-identical), but XLA then runs the objective's first loops, which pick
-    # parameters out of every trial, on both cores (measured: benchmarks/RESULTS.md, "DE
-    # throughput").
+    # parameters out of every trial, on both cores (benchmarks/RESULTS.md, "DE throughput").
     f_trial = _safe(jax.vmap(fn, in_axes=1)(trial.T))
     better = f_trial <= state.fitness
     return DEState(

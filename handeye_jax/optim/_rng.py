@@ -1,11 +1,11 @@
 """Counter-based uniform random numbers for DE: SplitMix64 of (seed, stream, position).
 
 JAX's own generators cost more per generation at N = 10,000 than the objective does on a
-2-core CPU (threefry ≈ 2.2 ms for the draws of one generation, measured). SplitMix64 is a
-counter hash of a few integer operations that XLA fuses and vectorises (≈ 0.15 ms for the
-same draws), and it passes BigCrush. Each 64-bit word gives two uniforms of 32 bits: ample
-for a crossover test against CR, and for an index draw ``floor(u·m)`` whose bias is below
-``m / 2^32`` (2e-6 at m = 10^4). Needs 64-bit integers, so call it with x64 enabled.
+2-core CPU. SplitMix64 is a counter hash of a few integer operations that XLA fuses and
+vectorises, about 15 times cheaper for the same draws (benchmarks/RESULTS.md, "Figures the
+code's comments point to"), and it passes BigCrush. Each 64-bit word gives two uniforms of
+32 bits: ample for a crossover test against CR, and for an index draw ``floor(u·m)`` whose
+bias is below ``m / 2^32`` (2e-6 at m = 10^4). Needs 64-bit integers, so call it with x64 enabled.
 """
 
 from __future__ import annotations
