@@ -56,6 +56,7 @@ _EXPORTS = {
     "evaluate": "_evaluate",
     "evaluate_twin": "_evaluate",
     "export_text": "_export",
+    "fill_capture": "_detect",
     "fill_dataset": "_detect",
     "fit": "_calibrate",
     "fit_correction": "_calibrate",
@@ -166,7 +167,7 @@ if TYPE_CHECKING:
         save_dataset,
         update_dataset,
     )
-    from ._detect import Detection, DetectSettings, detect_landmarks, fill_dataset
+    from ._detect import Detection, DetectSettings, detect_landmarks, fill_capture, fill_dataset
     from ._errors import InputError
     from ._evaluate import TouchingError, evaluate, evaluate_twin, format_evaluation, load_heldout
     from ._export import export_text
@@ -261,6 +262,7 @@ __all__ = [
     "evaluate",
     "evaluate_twin",
     "export_text",
+    "fill_capture",
     "fill_dataset",
     "fit",
     "fit_correction",
