@@ -29,7 +29,7 @@ import numpy as np
 import pytest
 from test_dataset import commented_paper_text, comments_of
 
-from handeye_jax import load_dataset
+from handeye_jax import load_dataset, save_dataset
 from handeye_jax._errors import InputError
 from handeye_jax.cli import main
 from handeye_jax.tablet import (
@@ -1121,3 +1121,26 @@ def test_fifty_concurrent_posts_get_in_while_the_server_is_busy(real):
     assert sorted(t["run_id"] for t in saved if t["label"] == "busy") == sorted(
         f"busy-{i}" for i in range(n)
     )
+
+
+def test_a_v2_dataset_takes_the_touch_errors_or_refuses_touches_out_of_order(tmp_path):
+    paper = load_dataset(PAPER)
+    ds = tmp_path / "rig.toml"
+    first = paper.captures[0]
+    errors = np.full((9, 2), 1.5)
+    for order, expect in ((np.arange(9), 200), (np.r_[1, 0, 2:9], 409)):
+        two = paper.replace(captures=[first, first], touch_landmark=order)
+        save_dataset(two, ds)
+        before = ds.read_bytes()
+        server = start(ds)
+        try:
+            body = calibration_body(paper.tablet_px.tolist(), errors)
+            status, doc = request(server.url + "api/calibration", body)
+        finally:
+            stop(server)
+        assert status == expect, doc
+        if expect == 200:
+            assert load_dataset(ds) == two.replace(touch_error_px=errors)
+        else:
+            assert "one [[touches]] per landmark in landmark order" in doc["error"]
+            assert ds.read_bytes() == before
