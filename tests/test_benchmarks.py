@@ -90,3 +90,11 @@ def test_robust_flags_the_touched_landmark():
     assert len(rows) == 2
     # landmark 6 was touched 5 mm off: both losses flag it, and only it
     assert all(row.split(" | ")[2] == "[6]" for row in rows), rows
+
+
+def test_partial_match_reads_no_picture_wrong():
+    out = run_in_process("partial_match.py", "--trials", "40", "--seed", "3")
+    total = [line.split() for line in out.splitlines() if line.strip().startswith("total")]
+    assert len(total) == 1
+    _, right, refused, wrong = total[0]
+    assert int(wrong) == 0 and int(right) + int(refused) == 40 and int(right) > 20
