@@ -89,6 +89,7 @@ _EXPORTS = {
     "Predictor": "_predictor",
     "PRESETS": "_simulate",
     "Prior": "_params",
+    "plan_captures": "_plan",
     "PriorObjective": "_objective",
     "put": "_params",
     "recalibrate": "_calibrate",
@@ -192,6 +193,7 @@ if TYPE_CHECKING:
     )
     from ._observations import Observations, Rig
     from ._params import ParameterSpace, Prior, put, resolve_names
+    from ._plan import plan_captures
     from ._predict import hand_command
     from ._predictor import Predictor
     from ._report import render, write_report
@@ -284,6 +286,7 @@ __all__ = [
     "load_truth",
     "models",
     "optim",
+    "plan_captures",
     "put",
     "recalibrate",
     "recalibration_plan",

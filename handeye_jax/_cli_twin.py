@@ -352,8 +352,9 @@ def add_twin_commands(sub: argparse._SubParsersAction) -> None:
     )  # fmt: skip
     det.add_argument(
         "--hand-position", type=_hand_position, metavar="X,Y,Z",
-        help="the hand's position when the picture was taken, mm, base frame (default: the "
-        "capture's own; required with --capture new)",
+        help="the hand's position when the picture was taken, mm, base frame; write "
+        "--hand-position=-20,50,300 when x is negative (default: the capture's own; required "
+        "with --capture new)",
     )  # fmt: skip
     det.add_argument(
         "--hand-angle", type=_hand_angle, metavar="DEG",

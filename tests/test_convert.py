@@ -128,3 +128,60 @@ def test_a_multi_capture_v2_dataset_saves_as_readable_text_and_loads_equal(tmp_p
     assert text.count("[[captures]]") == 2 and text.count("hand_z = ") == 1
     back = hj.load_dataset(path)
     assert back == ds and back.version == 2
+
+
+# -- plan: the recommended pictures ------------------------------------------------------------
+
+
+def test_plan_adds_the_recommended_empty_captures_once(v1, capsys):
+    assert main(["convert", str(v1), "--out", str(v1), "--force"]) == 0
+    for backup in v1.parent.glob("*.bak"):
+        backup.unlink()
+    before = hj.load_dataset(v1)
+    assert main(["plan", str(v1)]) == 0
+    out = capsys.readouterr().out
+    ds = hj.load_dataset(v1)
+    first = before.captures[0]
+    assert len(ds.captures) == 3 and ds.captures[0] == first
+    for cap, rise, turn in zip(ds.captures[1:], (40.0, 80.0), (30.0, -30.0), strict=True):
+        np.testing.assert_array_equal(cap.hand_position_mm, first.hand_position_mm + [0, 0, rise])
+        assert cap.hand_angle_deg == first.hand_angle_deg + turn and cap.landmarks.size == 0
+    assert "capture 2: hand at (320, -70, 370) mm, hand angle 60 deg (0 of 9 landmarks)" in out
+    assert f"--dataset {v1} --capture 2" in out
+    assert ds == before.replace(captures=ds.captures)  # nothing else changed
+    (backup,) = v1.parent.glob("rig.toml.*.bak")
+    assert hj.load_dataset(backup) == before
+    assert main(["plan", str(v1)]) == 0  # planned already: nothing written
+    assert "already holds them" in capsys.readouterr().out
+    assert hj.load_dataset(v1) == ds and len(list(v1.parent.glob("*.bak"))) == 1
+
+
+@pytest.mark.parametrize(
+    ("extra", "needles"),
+    [
+        (["--rise-mm", "40", "--turn-deg", "30,-30"], ["--turn-deg: needs one turn per"]),
+        (["--rise-mm", "40,nan"], ["--rise-mm", "finite"]),
+        (["--turn-deg", "inf,1"], ["--turn-deg", "finite"]),
+        (["--rise-mm", "40,x"], ["--rise-mm", "not a number: 'x'"]),
+    ],
+)
+def test_plan_refuses_bad_options_in_one_line(v1, capsys, extra, needles):
+    assert main(["convert", str(v1), "--out", str(v1), "--force"]) == 0
+    capsys.readouterr()
+    before = v1.read_bytes()
+    try:
+        code = main(["plan", str(v1), *extra])
+    except SystemExit as e:  # argparse's own refusal of a malformed value
+        code = e.code
+    assert code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    for needle in needles:
+        assert needle in err, err
+    assert v1.read_bytes() == before
+
+
+def test_plan_refuses_a_version_1_dataset(v1, capsys):
+    before = v1.read_bytes()
+    _one_line_error(capsys, ["plan", str(v1)], "rig.toml: format", "handeye-jax convert")
+    assert v1.read_bytes() == before and not list(v1.parent.glob("*.bak"))

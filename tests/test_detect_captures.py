@@ -264,3 +264,24 @@ def test_a_part_of_the_grid_is_matched_right_or_refused_never_wrong(
         return
     np.testing.assert_array_equal(landmarks, seen)
     np.testing.assert_array_equal(perm[order], np.arange(len(seen)))
+
+
+def test_a_planned_capture_is_filled_with_its_planned_pose(scene, data, capsys):
+    assert main(["plan", str(data), "--rise-mm", "60", "--turn-deg=-20"]) == 0
+    planned = hj.load_dataset(data).captures[1]
+    assert planned.landmarks.size == 0
+    assert main(["detect", *_images(scene), "--dataset", str(data), "--capture", "1"]) == 0
+    assert "9 of 9 landmarks found in capture 1;" in capsys.readouterr().out
+    cap = hj.load_dataset(data).captures[1]
+    np.testing.assert_array_equal(cap.hand_position_mm, planned.hand_position_mm)
+    assert cap.hand_angle_deg == planned.hand_angle_deg
+    assert np.abs(cap.image_px - scene["uv"]).max() < 0.1
+
+
+def test_a_negative_x_is_read_with_an_equals_sign(scene, data):
+    argv = ["detect", *_images(scene), "--dataset", str(data), "--capture", "new",
+            "--hand-position=-20.5,50,300", "--hand-angle", "-90"]  # fmt: skip
+    assert main(argv) == 0
+    cap = hj.load_dataset(data).captures[1]
+    np.testing.assert_array_equal(cap.hand_position_mm, [-20.5, 50.0, 300.0])
+    assert cap.hand_angle_deg == -90.0

@@ -253,7 +253,8 @@ function showCaptures() {
     const li = document.createElement("li");
     const [x, y, z] = c.hand_position_mm.map((v) => fmt(v, 1));
     li.textContent = `hand at (${x}, ${y}, ${z}) mm, ${fmt(c.hand_angle_deg, 1)} deg: ` +
-      `${c.landmarks.length} of ${ds.tablet_px.length} landmarks`;
+      `${c.landmarks.length} of ${ds.tablet_px.length} landmarks` +
+      (c.landmarks.length ? "" : ": to take");
     return li;
   });
   if (ds && ds.version === 1) {
