@@ -245,6 +245,9 @@ def _cmd_detect(args: argparse.Namespace) -> int:
                                  partial=dataset.version == 2,
                                  landmarks=args.landmarks)  # fmt: skip
     except BlobCountError as e:
+        if dataset.version == 1 and len(e.blobs.image_px) < dataset.n_landmarks:
+            e = e.with_note("; a version-2 dataset may leave landmarks out of a picture "
+                            "(handeye-jax convert)")  # fmt: skip
         if overlay is not None:
             write_overlay(args.capture_png, e.blobs.image_px, None, overlay)
             e = e.with_note(f"; overlay in {overlay}")
