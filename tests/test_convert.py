@@ -185,3 +185,15 @@ def test_plan_refuses_a_version_1_dataset(v1, capsys):
     before = v1.read_bytes()
     _one_line_error(capsys, ["plan", str(v1)], "rig.toml: format", "handeye-jax convert")
     assert v1.read_bytes() == before and not list(v1.parent.glob("*.bak"))
+
+
+def test_the_readmes_version_2_example_is_a_valid_dataset(tmp_path):
+    readme = (PAPER.parents[1] / "README.md").read_text()
+    blocks = [b for b in readme.split("```toml\n")[1:] if "handeye-jax.dataset/2" in b[:60]]
+    assert len(blocks) == 1
+    path = tmp_path / "example.toml"
+    path.write_text(blocks[0].split("```")[0])
+    ds = hj.load_dataset(path)
+    assert ds.version == 2 and ds.n_landmarks == 3 and len(ds.captures) == 1
+    np.testing.assert_array_equal(ds.captures[0].landmarks, [0, 1, 2])
+    assert ds.hand_z_mm[0] == 105.0 and ds.touch_landmark.tolist() == [0]
