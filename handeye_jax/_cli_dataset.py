@@ -18,7 +18,7 @@ from ._dataset_io import (
 )
 from ._errors import InputError
 from ._plan import RECOMMENDED, plan_captures
-from ._validate import MAX_DEG, MAX_MM, parse_float
+from ._validate import MAX_DEG, MAX_MM, parse_numbers
 
 
 def _cmd_convert(args: argparse.Namespace) -> int:
@@ -49,17 +49,10 @@ def _cmd_convert(args: argparse.Namespace) -> int:
 
 def _numbers(limit: float, unit: str):
     def parse(text: str) -> list[float]:
-        out = []
-        for part in text.split(","):
-            try:
-                v = parse_float(part.strip())
-            except ValueError:
-                raise argparse.ArgumentTypeError(f"not a number: {part.strip()!r}") from None
-            if not abs(v) <= limit:  # NaN fails too
-                raise argparse.ArgumentTypeError(f"must be finite, at most {limit:g} {unit} in "
-                                                  f"size (got {part.strip()})")  # fmt: skip
-            out.append(v)
-        return out
+        try:
+            return parse_numbers(text, limit, unit)
+        except ValueError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
 
     return parse
 

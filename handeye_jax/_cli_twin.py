@@ -18,7 +18,7 @@ from ._detect import DetectSettings, overlay_image, read_image
 from ._errors import InputError
 from ._simulate import DERIVED_FILES, DERIVED_FOLDER, SEED_RANGE, encode_png
 from ._twin import MAX_DOT_PX
-from ._validate import MAX_DEG, MAX_HELDOUT, MAX_MM, parse_float, parse_int
+from ._validate import MAX_DEG, MAX_HELDOUT, MAX_MM, parse_float, parse_int, parse_numbers
 
 
 def _whole_number(text: str, lo: int, hi: int | None = None) -> int:
@@ -118,31 +118,19 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _numbers(text: str, n: int | None, what: str, limit: float) -> list[float]:
-    """Comma-separated finite numbers (``n`` of them, if given), each of magnitude <= limit."""
-    parts = text.split(",")
-    if n is not None and len(parts) != n:
-        raise argparse.ArgumentTypeError(f"needs {n} numbers {what}, comma-separated (got "
-                                          f"{len(parts)}: {text!r})")  # fmt: skip
-    out = []
-    for part in parts:
-        try:
-            v = parse_float(part.strip())
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"not a number: {part.strip()!r}") from None
-        if not abs(v) <= limit:  # NaN fails too
-            raise argparse.ArgumentTypeError(f"must be finite, at most {limit:g} in size (got "
-                                              f"{part.strip()})")  # fmt: skip
-        out.append(v)
-    return out
+def _numbers(text: str, n: int, limit: float, unit: str) -> list[float]:
+    try:
+        return parse_numbers(text, limit, unit, n)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 def _hand_position(text: str) -> list[float]:
-    return _numbers(text, 3, "x,y,z in mm", MAX_MM)
+    return _numbers(text, 3, MAX_MM, "mm")
 
 
 def _hand_angle(text: str) -> float:
-    return _numbers(text, 1, "(deg)", MAX_DEG)[0]
+    return _numbers(text, 1, MAX_DEG, "deg")[0]
 
 
 def _capture_index(text: str) -> int | str:
