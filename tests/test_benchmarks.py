@@ -98,3 +98,9 @@ def test_partial_match_reads_no_picture_wrong():
     assert len(total) == 1
     _, right, refused, wrong = total[0]
     assert int(wrong) == 0 and int(right) + int(refused) == 40 and int(right) > 20
+
+
+def test_dots_by_height_finds_two_pixel_dots_from_80_mm_higher():
+    out = run_in_process("dots_by_height.py", "--seeds", "1", "1", "--rises", "80", "--dots", "2")
+    rows = [line for line in out.splitlines() if line.startswith("| 2 | 80 |")]
+    assert len(rows) == 1 and "| 1 of 1 |" in rows[0], out

@@ -590,6 +590,15 @@ def test_pictures_show_every_landmark_alone_and_the_captures_are_listed(browser,
         page.wait_for_selector("#panel", state="visible")
         assert page.locator("#menu").is_visible() and prompt(page) == ""  # no run started
         assert marked_pixels(page) > 10 * paper.n_landmarks * dot_side**2  # rings again
+        # Pictures from higher up see smaller dots: 2 tablet px, remembered in this browser.
+        page.select_option("#dot-px", "2")
+        page.reload()
+        page.wait_for_selector("#tablet-info:not(:empty)")
+        assert page.input_value("#dot-px") == "2"
+        page.click("#start-pictures")
+        assert_dots_at(page, paper.tablet_px)  # centred where they were
+        rgb = np.asarray(Image.open(io.BytesIO(page.screenshot())).convert("RGB"))
+        assert int((rgb.min(axis=2) < 250).sum()) == paper.n_landmarks * (2 * dot_side) ** 2
         assert path.read_bytes() == before
         assert page.errors == []
     finally:

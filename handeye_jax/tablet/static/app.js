@@ -14,6 +14,7 @@ const app = {
   parked: load("parked", []),     // runs kept for a dataset the server does not serve now
   marks: load("marks", true),     // draw the faint rings and numbers beside the dots
   pictures: false,                // showing only the dots, for the camera's pictures
+  dotPx: [1, 2, 3].includes(load("dot_px", 1)) ? load("dot_px", 1) : 1, // dot side, tablet px
   stale: false,                   // app.run belongs to another dataset: the operator decides
   summary: null,
   locked: false,                  // the server refused this page's secret (it was restarted)
@@ -153,8 +154,9 @@ function draw() {
       ctx.stroke();
     }
   });
-  // The landmark: one tablet px, black, centred on (x, y); drawn last so nothing covers it.
-  const side = Math.max(1, Math.round(dpr));
+  // The landmark: a square of dotPx tablet px (one, as the paper's, unless chosen), black,
+  // centred on (x, y); drawn last so nothing covers it.
+  const side = Math.max(1, Math.round(app.dotPx * dpr));
   ctx.fillStyle = "#000";
   for (const [x, y] of targets) {
     ctx.fillRect(Math.round(x * dpr - side / 2), Math.round(y * dpr - side / 2), side, side);
@@ -277,6 +279,7 @@ function showRun() {
   $("menu").hidden = !!app.run;
   $("run").hidden = !run;
   $("marks").checked = app.marks;
+  $("dot-px").value = String(app.dotPx);
   if (!run) return;
   const n = run.targets.length;
   const done = run.touches.filter(Boolean).length;
@@ -596,6 +599,11 @@ function init() {
   $("marks").onchange = () => {
     app.marks = $("marks").checked;
     store("marks", app.marks);
+    render();
+  };
+  $("dot-px").onchange = () => {
+    app.dotPx = Number($("dot-px").value);
+    store("dot_px", app.dotPx);
     render();
   };
   window.addEventListener("resize", render);
