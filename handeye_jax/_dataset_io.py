@@ -610,8 +610,16 @@ def _sync_entry(container: Any, key: Any, new: Any) -> None:
             _sync_entry(old, i, new[i])
         while len(old) > len(new):
             del old[len(old) - 1]
+        grown = len(new) > len(old)
         for value in new[len(old) :]:
+            if isinstance(old, tomlkit.items.AoT) and isinstance(value, dict):
+                table = tomlkit.table()
+                table.update(value)
+                table.add(tomlkit.nl())  # a blank line before the next table, as written anew
+                value = table
             old.append(value)
+        if grown and isinstance(old, tomlkit.items.Array) and any(isinstance(v, list) for v in new):
+            old.multiline(True)  # a capture's new image_px: one [u, v] a line, as written anew
     elif not _same(old, new):
         container[key] = new  # tomlkit keeps the old value's indent and trailing comment
 

@@ -81,7 +81,10 @@ def test_a_new_capture_is_appended_with_its_pose_and_the_rest_kept(scene, data, 
     assert "9 of 9 landmarks found in capture 1 (new)" in capsys.readouterr().out
     (backup,) = data.parent.glob("data.toml.*.bak")
     assert backup.read_text() == before
-    assert data.read_text().startswith("# my rig\n")  # the user's comment stays
+    text = data.read_text()
+    assert text.startswith("# my rig\n")  # the user's comment stays
+    appended = text.split("[[captures]]")[2].split("[[touches]]")[0]
+    assert appended.count("\n    [") == 9  # one [u, v] a line, as a new file has them
     ds = hj.load_dataset(data)
     assert len(ds.captures) == 2 and ds.captures[0] == scene["ds"].captures[0]
     new = ds.captures[1]
