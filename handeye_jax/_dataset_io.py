@@ -600,6 +600,16 @@ def _sync_table(node: Any, new: dict[str, Any]) -> None:
             _sync_entry(node, key, value)
 
 
+def _multiline(value: Any) -> Any:
+    """An array of arrays (a capture's ``image_px``) as a tomlkit array of one item a line."""
+    if isinstance(value, list) and value and all(isinstance(v, list) for v in value):
+        array = tomlkit.array()
+        array.extend(value)
+        array.multiline(True)
+        return array
+    return value
+
+
 def _sync_entry(container: Any, key: Any, new: Any) -> None:
     """Set ``container[key]`` to ``new`` in place: unchanged values keep their text."""
     old = container[key]
@@ -614,7 +624,8 @@ def _sync_entry(container: Any, key: Any, new: Any) -> None:
         for value in new[len(old) :]:
             if isinstance(old, tomlkit.items.AoT) and isinstance(value, dict):
                 table = tomlkit.table()
-                table.update(value)
+                for key, v in value.items():
+                    table.add(key, _multiline(v))
                 table.add(tomlkit.nl())  # a blank line before the next table, as written anew
                 value = table
             old.append(value)
