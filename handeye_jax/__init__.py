@@ -57,6 +57,7 @@ _EXPORTS = {
     "evaluate": "_evaluate",
     "evaluate_twin": "_evaluate",
     "export_text": "_export",
+    "fill_capture": "_detect",
     "fill_dataset": "_detect",
     "fit": "_calibrate",
     "fit_correction": "_calibrate",
@@ -92,6 +93,7 @@ _EXPORTS = {
     "Predictor": "_predictor",
     "PRESETS": "_simulate",
     "Prior": "_params",
+    "plan_captures": "_plan",
     "PriorObjective": "_objective",
     "put": "_params",
     "recalibrate": "_calibrate",
@@ -170,7 +172,7 @@ if TYPE_CHECKING:
         save_dataset,
         update_dataset,
     )
-    from ._detect import Detection, DetectSettings, detect_landmarks, fill_dataset
+    from ._detect import Detection, DetectSettings, detect_landmarks, fill_capture, fill_dataset
     from ._errors import InputError
     from ._evaluate import (
         Heldout,
@@ -204,6 +206,7 @@ if TYPE_CHECKING:
     )
     from ._observations import Observations, Rig
     from ._params import ParameterSpace, Prior, put, resolve_names
+    from ._plan import plan_captures
     from ._predict import hand_command
     from ._predictor import Predictor
     from ._report import render, write_report
@@ -278,6 +281,7 @@ __all__ = [
     "evaluate",
     "evaluate_twin",
     "export_text",
+    "fill_capture",
     "fill_dataset",
     "fit",
     "fit_correction",
@@ -299,6 +303,7 @@ __all__ = [
     "load_truth",
     "models",
     "optim",
+    "plan_captures",
     "put",
     "recalibrate",
     "recalibration_plan",

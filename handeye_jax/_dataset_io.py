@@ -66,7 +66,7 @@ from . import geometry as geo
 from ._atomic import StagedFiles, write_output
 from ._dataset import Camera, Capture, Dataset, check_distinct
 from ._errors import InputError
-from ._io import MAX_DATASET_BYTES, parse_toml, read_text
+from ._io import MAX_DATASET_BYTES, parse_toml, read_bytes, read_text
 from ._validate import (
     MAX_DEG,
     MAX_LANDMARKS,
@@ -477,20 +477,33 @@ _TABLE_COMMENTS = {
     "[[captures]]": "# hand_position, depth: mm; hand_angle: deg; image_px: px",
     "[[touches]]": "# hand_xy, hand_z: mm; hand_angle: deg; touch_error_px: tablet px",
 }
+_TABLE_COMMENTS_V2 = {"[[landmarks]]": "# tablet_px: where each landmark is drawn, tablet px"}
 
 
 def _one_line_arrays(text: str) -> str:
-    """Join tomli_w's one-item-per-line arrays into ``key = [a, b]`` lines."""
+    """Join tomli_w's one-item-per-line arrays into ``key = [a, b]`` lines; an array of
+    arrays (a capture's ``image_px``) keeps one inner ``[u, v]`` per line."""
     out: list[str] = []
     lines = iter(text.split("\n"))  # not splitlines(): strings may hold U+0085, U+2028...
     for line in lines:
         if line.endswith(" = ["):
-            items = []
+            inner = []
             for item in lines:
                 if item == "]":
                     break
-                items.append(item.strip().rstrip(","))
-            line = f"{line[:-1]}[{', '.join(items)}]"
+                inner.append(item.strip())
+            if "[" not in inner:
+                line = f"{line[:-1]}[{', '.join(i.rstrip(',') for i in inner)}]"
+            else:
+                rows, row = [], []
+                for item in inner:
+                    if item == "[":
+                        row = []
+                    elif item in ("]", "],"):
+                        rows.append(f"    [{', '.join(row)}],")
+                    else:
+                        row.append(item.rstrip(","))
+                line = "\n".join([line, *rows, "]"])
         out.append(line)
     return "\n".join(out)
 
@@ -498,10 +511,11 @@ def _one_line_arrays(text: str) -> str:
 def _commented(text: str, format_: str) -> str:
     """Put a unit comment after the first header of each table."""
     out, done = [], set()
+    comments = _TABLE_COMMENTS | (_TABLE_COMMENTS_V2 if format_ == FORMAT_V2 else {})
     for line in text.split("\n"):
-        if line in _TABLE_COMMENTS and line not in done:
+        if line in comments and line not in done:
             done.add(line)
-            line = f"{line}  {_TABLE_COMMENTS[line]}"
+            line = f"{line}  {comments[line]}"
         out.append(line)
     header = f"# {format_}: lengths in mm, angles in deg, image and tablet coordinates in px.\n"
     return header + "\n".join(out)
@@ -586,6 +600,16 @@ def _sync_table(node: Any, new: dict[str, Any]) -> None:
             _sync_entry(node, key, value)
 
 
+def _multiline(value: Any) -> Any:
+    """An array of arrays (a capture's ``image_px``) as a tomlkit array of one item a line."""
+    if isinstance(value, list) and value and all(isinstance(v, list) for v in value):
+        array = tomlkit.array()
+        array.extend(value)
+        array.multiline(True)
+        return array
+    return value
+
+
 def _sync_entry(container: Any, key: Any, new: Any) -> None:
     """Set ``container[key]`` to ``new`` in place: unchanged values keep their text."""
     old = container[key]
@@ -596,8 +620,17 @@ def _sync_entry(container: Any, key: Any, new: Any) -> None:
             _sync_entry(old, i, new[i])
         while len(old) > len(new):
             del old[len(old) - 1]
+        grown = len(new) > len(old)
         for value in new[len(old) :]:
+            if isinstance(old, tomlkit.items.AoT) and isinstance(value, dict):
+                table = tomlkit.table()
+                for key, v in value.items():
+                    table.add(key, _multiline(v))
+                table.add(tomlkit.nl())  # a blank line before the next table, as written anew
+                value = table
             old.append(value)
+        if grown and isinstance(old, tomlkit.items.Array) and any(isinstance(v, list) for v in new):
+            old.multiline(True)  # a capture's new image_px: one [u, v] a line, as written anew
     elif not _same(old, new):
         container[key] = new  # tomlkit keeps the old value's indent and trailing comment
 
@@ -656,8 +689,49 @@ def update_dataset(
     return target
 
 
-def convert_to_v2(path: str | Path, out: str | Path) -> Dataset:
-    """Read a dataset (either version) and write it to ``out`` as version 2; returns it."""
-    ds = load_dataset(path)
-    save_dataset(ds, out, version=2)
+def convert_path(path: str | Path) -> Path:
+    """Where :func:`convert_to_v2` writes by default: ``NAME.v2.toml`` beside ``NAME.toml``."""
+    path = Path(path)
+    stem = path.name.removesuffix(".toml") if path.name.endswith(".toml") else path.name
+    return path.with_name(f"{stem}.v2.toml")
+
+
+def convert_to_v2(
+    path: str | Path,
+    out: str | Path | None = None,
+    *,
+    overwrite: bool = False,
+    backup: str | Path | None = None,
+) -> Dataset:
+    """Read a dataset (either version) and write it to ``out`` as version 2; returns it.
+
+    Args:
+        path: the dataset to read (``handeye-jax.dataset/1`` or ``/2``).
+        out: where to write (default :func:`convert_path`, ``NAME.v2.toml`` beside it); may be
+            ``path`` itself, with ``overwrite``.
+        overwrite: replace an existing ``out``; its previous bytes are kept at ``backup``
+            (default a new ``OUT.<UTC time>.bak``, :func:`backup_path`), written together with
+            the new file (both or neither). Without it an existing ``out`` is refused.
+        backup: where the replaced file goes.
+
+    The new file is in the canonical layout (the old file's comments are not carried over;
+    the old file stays, at ``path`` or as the backup). The written text is validated as
+    :func:`load_dataset` reads it and reads back equal to the dataset before anything is
+    written. Raises :class:`InputError` naming the file and field.
+    """
+    path = Path(path)
+    out = convert_path(path) if out is None else Path(out)
+    ds = _parse_text(read_text(path, MAX_DATASET_BYTES)[1], path)
+    text = dataset_to_toml(ds, version=2)
+    if dataset_from_document(tomllib.loads(text), out) != ds:  # never a lossy conversion
+        raise InputError(path, "", "the version-2 text does not read back equal; nothing written")
+    files: dict[Path, bytes] = {}
+    if out.exists():
+        if not overwrite:
+            raise InputError(out, "", "exists; not overwritten (overwrite=True replaces it and "
+                             "keeps it as a backup)")  # fmt: skip
+        target = Path(backup) if backup is not None else backup_path(out)
+        files[target] = read_bytes(out, MAX_DATASET_BYTES, "dataset to replace")
+    files[out] = text.encode("utf-8")
+    StagedFiles(files).commit()
     return ds

@@ -30,6 +30,7 @@ import struct
 import sys
 import tempfile
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,7 +38,7 @@ import cv2
 import numpy as np
 from jaxtyping import Float, Int, UInt8, UInt16
 
-from ._dataset import Dataset
+from ._dataset import Capture, Dataset
 from ._errors import InputError
 from ._io import MAX_IMAGE_BYTES, read_bytes
 from ._validate import MAX_IMAGE_PIXELS
@@ -276,6 +277,107 @@ def order_blobs(
     return good[0][3]
 
 
+#: Most landmarks for which :func:`match_blobs` tries every subset (C(n, 4) quadrilaterals).
+MAX_PARTIAL_LANDMARKS = 16
+
+
+#: Largest ratio of the two scales of a layout-to-picture map in :func:`match_blobs`: a
+#: camera that looks at the tablet less than about 48 deg off its normal.
+MAX_ANISOTROPY = 1.5
+#: A match whose tablet x axis is within this of +u in the picture is a plausible reading.
+PLAUSIBLE_TURN_DEG = 55.0
+
+
+def _local_map(H: np.ndarray, layout_px: np.ndarray) -> tuple[float, float, bool]:
+    """How ``H`` maps the tablet near the layout's centre: the direction of tablet +x in the
+    picture (deg from +u), the ratio of its largest to its smallest scale, and whether it
+    keeps handedness (unmirrored)."""
+    c = layout_px.mean(axis=0)
+    p = cv2.perspectiveTransform(np.array([[c, c + [1.0, 0.0], c + [0.0, 1.0]]]), H)[0]
+    J = np.stack([p[1] - p[0], p[2] - p[0]], axis=1)  # columns: images of tablet x and y
+    s = np.linalg.svd(J, compute_uv=False)
+    return (
+        float(np.degrees(np.arctan2(J[1, 0], J[0, 0]))),
+        s[0] / max(s[1], 1e-300),
+        bool(np.linalg.det(J) > 0),
+    )
+
+
+def match_blobs(
+    blobs_px: Float[np.ndarray, "k 2"], layout_px: Float[np.ndarray, "n 2"]
+) -> tuple[Int[np.ndarray, " k"], Int[np.ndarray, " k"]]:
+    """Which landmark each blob is, when the picture shows only some of them (``k <= n``).
+
+    Every quadrilateral of four landmarks is matched to the blobs' outermost four, in each
+    turn and mirror; a homography that maps some landmark onto every blob (one to one, within
+    10 % of the blobs' spacing of the best match) and could be a camera's view of a flat
+    tablet (its scales along two directions differ by at most :data:`MAX_ANISOTROPY`; no
+    shear) is a candidate. As in :func:`order_blobs`,
+    unmirrored candidates win, then the one whose tablet x axis points most nearly along +u.
+    If another candidate of the same handedness names different landmarks and is about as
+    plausible (turned within 15 deg of the winner, or within :data:`PLAUSIBLE_TURN_DEG` of
+    +u), the reading is ambiguous (a 2 x 3 part of a 3 x 3 grid may be either end): then
+    nothing is guessed.
+
+    Args:
+        blobs_px: blob centroids, image px, ``(k, 2)``, at least 4.
+        layout_px: where the landmarks are drawn, tablet px, ``(n, 2)``, at most
+            :data:`MAX_PARTIAL_LANDMARKS`.
+
+    Returns:
+        ``(landmarks, order)``: the landmarks seen, ascending, and the blob of each:
+        ``blobs_px[order][j]`` is landmark ``landmarks[j]``.
+
+    Raises:
+        ValueError: no match, an ambiguous one, or too few blobs or too many landmarks.
+    """
+    blobs_px, layout_px = np.asarray(blobs_px, float), np.asarray(layout_px, float)
+    k, n = len(blobs_px), len(layout_px)
+    if not 4 <= k <= n:
+        raise ValueError(f"need 4 to {n} blobs to match {n} landmarks, got {k}")
+    if n > MAX_PARTIAL_LANDMARKS:
+        raise ValueError(f"telling which of {n} landmarks {k} blobs are is tried for at most "
+                         f"{MAX_PARTIAL_LANDMARKS} landmarks; name the landmarks seen")  # fmt: skip
+    q_blobs = _max_area_quad(blobs_px, "blobs")
+    spacing = np.min([np.linalg.norm(a - b) for a, b in itertools.combinations(blobs_px, 2)])
+    candidates = []
+    for quad in itertools.combinations(range(n), 4):
+        hull = cv2.convexHull(layout_px[list(quad)].astype(np.float32), returnPoints=False)
+        if len(hull) < 4:
+            continue
+        src = layout_px[np.array(quad)[hull.ravel()]].astype(np.float32)
+        for mirror in (False, True):
+            ring = q_blobs[::-1] if mirror else q_blobs
+            for turn in range(4):
+                dst = blobs_px[np.roll(ring, turn)].astype(np.float32)
+                H = cv2.getPerspectiveTransform(src, dst)
+                mapped = cv2.perspectiveTransform(layout_px[None], H)[0]
+                dist = np.linalg.norm(blobs_px[:, None] - mapped[None], axis=2)  # (k, n)
+                which = dist.argmin(axis=1)
+                if len(set(which.tolist())) != k:
+                    continue
+                rms = float(np.sqrt(np.mean(dist[np.arange(k), which] ** 2)))
+                x_deg, anisotropy, unmirrored = _local_map(H, layout_px)
+                if anisotropy <= MAX_ANISOTROPY:  # a shear can map a part onto another part
+                    candidates.append((rms, unmirrored, x_deg, which))
+    if not candidates:
+        raise ValueError(f"no part of the drawn layout matches the {k} blobs one to one")
+    best_rms = min(c[0] for c in candidates)
+    good = [c for c in candidates if c[0] <= best_rms + 0.1 * spacing]
+    good.sort(key=lambda c: (not c[1], -np.cos(np.radians(c[2]))))
+    first = good[0]
+    for other in good[1:]:
+        turned = abs((other[2] - first[2] + 180.0) % 360.0 - 180.0)
+        plausible = turned < 15.0 or abs(other[2]) < PLAUSIBLE_TURN_DEG
+        if other[1] == first[1] and plausible and not np.array_equal(other[3], first[3]):
+            a, b = (sorted(c[3].tolist()) for c in (first, other))
+            raise ValueError(f"the {k} blobs fit landmarks {a} as well as {b}; name the "
+                             "landmarks seen")  # fmt: skip
+    which = first[3]
+    order = np.argsort(which)
+    return which[order], order
+
+
 def depth_at(
     depth_mm: UInt16[np.ndarray, "h w"], image_px: Float[np.ndarray, "n 2"], half: int = 2
 ) -> Float[np.ndarray, " n"]:
@@ -390,28 +492,43 @@ class Detection:
     """Landmarks found in a picture, in the dataset's landmark order.
 
     Attributes:
-        image_px: centroid of each landmark, image px, ``(n, 2)``.
-        depth_mm: depth at each centroid, mm, ``(n,)``.
+        image_px: centroid of each landmark found, image px, ``(k, 2)``.
+        depth_mm: depth at each centroid, mm, ``(k,)``.
         blobs: every blob found, in the order found.
+        landmarks: the index of each landmark found, ascending, ``(k,)`` (all ``n`` unless
+            the detection was asked for only some, ``partial``).
+        no_depth: landmarks whose blob was found but had no valid depth around it, left out
+            (``partial`` only).
     """
 
     image_px: np.ndarray
     depth_mm: np.ndarray
     blobs: Blobs
+    landmarks: np.ndarray | None = None
+    no_depth: tuple[int, ...] = ()
+
+    def __post_init__(self):
+        if self.landmarks is None:
+            object.__setattr__(self, "landmarks", np.arange(len(self.image_px)))
 
 
 class BlobCountError(InputError):
-    """The picture holds a different number of blobs from the dataset's landmarks."""
+    """The picture holds a different number of blobs from the landmarks expected."""
 
-    def __init__(self, path, blobs: Blobs, expected: int, note: str = ""):
-        self.blobs = blobs
+    def __init__(self, path, blobs: Blobs, expected: int | str, note: str = "",
+                 per: str = "per landmark"):  # fmt: skip
+        self.blobs, self.expected, self.note, self.per = blobs, expected, note, per
         where = ", ".join(f"({u:.1f}, {v:.1f})" for u, v in blobs.image_px[:20])
         more = ", ..." if len(blobs.image_px) > 20 else ""
         super().__init__(
             path, "blobs",
-            f"found {len(blobs.image_px)} blobs, expected {expected} (one per landmark)"
+            f"found {len(blobs.image_px)} blobs, expected {expected} (one {per})"
             + (f" at {where}{more}" if where else "") + note,
         )  # fmt: skip
+
+    def with_note(self, note: str) -> BlobCountError:
+        """The same error with ``note`` added to its message."""
+        return BlobCountError(self.path, self.blobs, self.expected, self.note + note, self.per)
 
 
 def detect_landmarks(
@@ -419,6 +536,9 @@ def detect_landmarks(
     depth_path: str | Path,
     layout_px: np.ndarray,
     settings: DetectSettings | None = None,
+    *,
+    partial: bool = False,
+    landmarks: Sequence[int] | None = None,
 ) -> Detection:
     """Find the landmarks in a colour picture and read their depths from a depth image.
 
@@ -427,13 +547,20 @@ def detect_landmarks(
         depth_path: the depth image (16-bit PNG, mm, 0 = no measurement), same size.
         layout_px: where the landmarks are drawn, tablet px, ``(n, 2)``, in landmark order.
         settings: detection settings.
+        partial: the picture may show only some landmarks (a capture of a version-2
+            dataset): fewer blobs are matched to the layout (:func:`match_blobs`), and a
+            landmark without a valid depth is left out (``Detection.no_depth``).
+        landmarks: the landmarks the picture shows, when the blobs alone cannot tell (implies
+            ``partial``); there must be one blob for each.
 
     Raises:
         BlobCountError: the wrong number of blobs (its ``blobs`` says where they are).
-        InputError: an unreadable or empty image, images of different sizes, or a landmark
-            with no valid depth around it.
+        InputError: an unreadable or empty image, images of different sizes, blobs that
+            match no (or more than one) part of the layout, or (unless ``partial``) a
+            landmark with no valid depth around it.
     """
     settings = settings or DetectSettings()
+    layout_px = np.asarray(layout_px, dtype=float)
     image = read_image(capture_path)
     depth = read_image(depth_path, depth=True)
     if depth.shape[:2] != image.shape[:2]:
@@ -443,28 +570,104 @@ def detect_landmarks(
             f"{image.shape[1]}x{image.shape[0]} px ({capture_path})",
         )  # fmt: skip
     blobs = find_blobs(image, settings)
-    n = len(layout_px)
-    if len(blobs.image_px) != n:
-        raise BlobCountError(capture_path, blobs, n)
-    try:
-        order = order_blobs(blobs.image_px, layout_px)
-    except ValueError as e:
-        raise InputError(capture_path, "blobs", f"cannot order the blobs as drawn: {e}") from None
+    n, k = len(layout_px), len(blobs.image_px)
+    if landmarks is not None:
+        seen = np.asarray(landmarks, dtype=np.int64).reshape(-1)
+        if k != len(seen):
+            raise BlobCountError(capture_path, blobs, len(seen), per="per landmark named")
+        order, partial = _order(capture_path, blobs, layout_px[seen]), True
+    elif k == n:
+        seen, order = np.arange(n), _order(capture_path, blobs, layout_px)
+    elif partial and 4 <= k < n:
+        try:
+            seen, order = match_blobs(blobs.image_px, layout_px)
+        except ValueError as e:
+            why = f"cannot tell which landmarks the {k} blobs are: {e}"
+            raise InputError(capture_path, "blobs", why) from None
+    else:
+        expected = f"4 to {n}" if partial else n
+        raise BlobCountError(capture_path, blobs, expected, per="per landmark seen" * partial
+                             or "per landmark")  # fmt: skip
     image_px = blobs.image_px[order]
     depth_mm = depth_at(depth, image_px, settings.depth_window_px)
-    for m in np.flatnonzero(~np.isfinite(depth_mm)):
-        u, v = image_px[m]
+    missing = np.flatnonzero(~np.isfinite(depth_mm))
+    if missing.size and not partial:
+        u, v = image_px[missing[0]]
         raise InputError(
-            depth_path, f"landmarks[{m}].depth",
+            depth_path, f"landmarks[{missing[0]}].depth",
             f"no valid (non-zero) depth within ±{settings.depth_window_px} px "
             f"of ({u:.1f}, {v:.1f})",
         )  # fmt: skip
-    return Detection(image_px, depth_mm, blobs)
+    keep = np.isfinite(depth_mm)
+    no_depth = tuple(int(m) for m in seen[~keep])
+    return Detection(image_px[keep], depth_mm[keep], blobs, seen[keep], no_depth)
+
+
+def _order(capture_path: str | Path, blobs: Blobs, layout_px: np.ndarray) -> np.ndarray:
+    try:
+        return order_blobs(blobs.image_px, layout_px)
+    except ValueError as e:
+        raise InputError(capture_path, "blobs", f"cannot order the blobs as drawn: {e}") from None
 
 
 def fill_dataset(dataset: Dataset, detection: Detection) -> Dataset:
-    """The dataset with ``image_px`` and ``depth`` from a detection; every other field as is."""
+    """The dataset with ``image_px`` and ``depth`` from a detection of every landmark (a
+    single-capture dataset, e.g. version 1); every other field as is."""
     return dataset.replace(image_px=detection.image_px, depth_mm=detection.depth_mm)
+
+
+def fill_capture(
+    dataset: Dataset,
+    detection: Detection,
+    capture: int | None = None,
+    *,
+    hand_position_mm: Float[np.ndarray, "3"] | None = None,
+    hand_angle_deg: float | None = None,
+) -> Dataset:
+    """The dataset with a detection as one of its captures; every other field as is.
+
+    Args:
+        dataset: the dataset to fill.
+        detection: the landmarks found in the capture's picture (those not found are left
+            out of the capture).
+        capture: the index of the capture to replace (its landmarks, ``image_px`` and depths;
+            its hand pose where given), or ``None`` to append a new capture, whose hand pose
+            must then be given.
+        hand_position_mm: the hand's position ``(x, y, z)`` when the picture was taken, mm,
+            base frame.
+        hand_angle_deg: the hand angle θ when the picture was taken, deg.
+
+    Raises:
+        ValueError: no such capture, or a new capture without its hand pose.
+        InputError: a touched landmark would be in no capture (naming the dataset's file).
+    """
+    caps = list(dataset.captures)
+    if capture is None:
+        if hand_position_mm is None or hand_angle_deg is None:
+            raise ValueError("a new capture needs its hand position and hand angle")
+        old = None
+    elif not 0 <= capture < len(caps):
+        raise ValueError(f"capture {capture} does not exist (0 to {len(caps) - 1})")
+    else:
+        old = caps[capture]
+    position = old.hand_position_mm if hand_position_mm is None else hand_position_mm
+    angle = old.hand_angle_deg if hand_angle_deg is None else hand_angle_deg
+    new = Capture(position, angle, detection.landmarks, detection.image_px, detection.depth_mm)
+    k = len(caps) if capture is None else capture
+    if capture is None:
+        caps.append(new)
+    else:
+        caps[capture] = new
+    seen = set().union(*(c.landmarks.tolist() for c in caps))
+    for i, m in enumerate(dataset.touch_landmark.tolist()):
+        if m not in seen:
+            raise InputError(
+                dataset.source, f"captures[{k}].landmarks",
+                f"landmark {m} (touches[{i}]) would be in no capture: a touch needs a picture "
+                "of what it touched; take a picture that shows it",
+            )  # fmt: skip
+    # A version-1 dataset stays version 1 while it fits (one capture of every landmark).
+    return dataset.replace(captures=caps, version=None if dataset.version == 1 else 2)
 
 
 def overlay_image(image: np.ndarray, points_px: np.ndarray, labels: list[str]) -> np.ndarray:

@@ -82,6 +82,24 @@ def parse_float(text: str) -> float:
     return float(text)
 
 
+def parse_numbers(text: str, limit: float, unit: str, n: int | None = None) -> list[float]:
+    """Comma-separated finite numbers (``"320,-70,290"``), each at most ``limit`` in size, and
+    ``n`` of them if given; ``ValueError`` with a one-line reason otherwise."""
+    parts = [part.strip() for part in text.split(",")]
+    if n is not None and len(parts) != n:
+        raise ValueError(f"needs {n} numbers, comma-separated (got {len(parts)}: {text!r})")
+    out = []
+    for part in parts:
+        try:
+            v = parse_float(part)
+        except ValueError:
+            raise ValueError(f"not a number: {part!r}") from None
+        if not abs(v) <= limit:  # NaN fails too
+            raise ValueError(f"must be finite, at most {limit:g} {unit} in size (got {part})")
+        out.append(v)
+    return out
+
+
 class Reader:
     """Pulls typed fields out of a parsed TOML document, naming the field on failure."""
 

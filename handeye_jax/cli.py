@@ -235,6 +235,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     from ._calibrate import Settings
+    from ._cli_dataset import add_dataset_commands
     from ._cli_export import add_export_command
     from ._cli_twin import add_twin_commands
     from .models import model_registry
@@ -312,6 +313,7 @@ def build_parser() -> argparse.ArgumentParser:
     cal.set_defaults(func=_cmd_calibrate)
     add_twin_commands(sub)  # simulate, detect, evaluate
     add_export_command(sub)
+    add_dataset_commands(sub)  # convert, plan
 
     pre = sub.add_parser(
         "predict",

@@ -104,3 +104,17 @@ def test_recalibration_benchmark_tables_every_fit():
     # The pen moved 3-15 mm: the old result misses by millimetres, a recalibration does not.
     assert min(old) > 2.0 and max(full + prior + fix) < 1.0
     assert re.search(r"^\| 4 \| \d\.\d{3} \| \d+\.\d, \d+\.\d \| [01] of 1 \|", out, re.M)
+
+
+def test_partial_match_reads_no_picture_wrong():
+    out = run_in_process("partial_match.py", "--trials", "40", "--seed", "3")
+    total = [line.split() for line in out.splitlines() if line.strip().startswith("total")]
+    assert len(total) == 1
+    _, right, refused, wrong = total[0]
+    assert int(wrong) == 0 and int(right) + int(refused) == 40 and int(right) > 20
+
+
+def test_dots_by_height_finds_two_pixel_dots_from_80_mm_higher():
+    out = run_in_process("dots_by_height.py", "--seeds", "1", "1", "--rises", "80", "--dots", "2")
+    rows = [line for line in out.splitlines() if line.startswith("| 2 | 80 |")]
+    assert len(rows) == 1 and "| 1 of 1 |" in rows[0], out

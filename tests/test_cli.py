@@ -426,7 +426,7 @@ def _subcommands():
 
 
 SUBCOMMANDS = ["calibrate", "predict", "report", "tablet", "simulate", "detect", "evaluate",
-               "export"]  # fmt: skip
+               "export", "convert", "plan"]  # fmt: skip
 
 
 @pytest.mark.parametrize("name", SUBCOMMANDS)

@@ -22,7 +22,7 @@ from playwright.sync_api import sync_playwright
 from scipy import ndimage
 from test_tablet_server import ServerProcess
 
-from handeye_jax import load_dataset, save_dataset
+from handeye_jax import Capture, load_dataset, save_dataset
 from handeye_jax.tablet import grid_targets, make_server
 
 PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
@@ -594,3 +594,54 @@ def test_a_recalibration_run_of_three_landmarks_is_taken_and_saved(browser, tmp_
         page.context.close()
         server.shutdown()
         server.server_close()
+
+
+def test_pictures_show_every_landmark_alone_and_the_captures_are_listed(browser, tmp_path):
+    paper = load_dataset(PAPER)
+    first = paper.captures[0]
+    second = Capture([330.0, -60.0, 370.0], 60.0, [0, 4, 8], first.image_px[[0, 4, 8]],
+                        first.depth_mm[[0, 4, 8]] + 80.0)  # fmt: skip
+    path = tmp_path / "rig.toml"
+    save_dataset(paper.replace(captures=[first, second]), path)
+    before = path.read_bytes()
+    server = make_server(path, port=0, quiet=True)
+    threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True).start()
+    page = open_page(browser, server.secret_url)
+    try:
+        items = page.locator("#captures li").all_inner_texts()
+        assert items == [
+            "hand at (320.0, -70.0, 290.0) mm, 90.0 deg: 9 of 9 landmarks",
+            "hand at (330.0, -60.0, 370.0) mm, 60.0 deg: 3 of 9 landmarks",
+        ]
+        assert page.is_checked("#marks")  # rings and numbers on: a picture leaves them out
+        page.click("#start-pictures")
+        assert not page.locator("#panel").is_visible()
+        assert_dots_at(page, paper.tablet_px)  # every landmark at once
+        rgb = np.asarray(Image.open(io.BytesIO(page.screenshot())).convert("RGB"))
+        dot_side = round(SCALE)
+        assert int((rgb.min(axis=2) < 250).sum()) == paper.n_landmarks * dot_side**2
+        pen(page, (60, 60))  # the picture is taken: a touch brings the panel back
+        page.wait_for_selector("#panel", state="visible")
+        assert page.locator("#menu").is_visible() and prompt(page) == ""  # no run started
+        assert marked_pixels(page) > 10 * paper.n_landmarks * dot_side**2  # rings again
+        # Pictures from higher up see smaller dots: 2 tablet px, remembered in this browser.
+        page.select_option("#dot-px", "2")
+        page.reload()
+        page.wait_for_selector("#tablet-info:not(:empty)")
+        assert page.input_value("#dot-px") == "2"
+        page.click("#start-pictures")
+        assert_dots_at(page, paper.tablet_px)  # centred where they were
+        rgb = np.asarray(Image.open(io.BytesIO(page.screenshot())).convert("RGB"))
+        assert int((rgb.min(axis=2) < 250).sum()) == paper.n_landmarks * (2 * dot_side) ** 2
+        assert path.read_bytes() == before
+        assert page.errors == []
+    finally:
+        page.context.close()
+        server.shutdown()
+        server.server_close()
+
+
+def test_a_version_1_dataset_lists_its_one_picture_and_how_to_take_more(page):
+    items = page.locator("#captures li").all_inner_texts()
+    assert items[0] == "hand at (320.0, -70.0, 290.0) mm, 90.0 deg: 9 of 9 landmarks"
+    assert "handeye-jax convert" in items[1]

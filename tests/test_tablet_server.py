@@ -1142,3 +1142,26 @@ def test_a_calibration_run_of_one_landmark_is_taken(tmp_path):
         assert status == 400 and "needs one touch per landmark: 1 (got 2)" in json.dumps(doc)
     finally:
         stop(server)
+
+
+def test_a_v2_dataset_takes_the_touch_errors_or_refuses_touches_out_of_order(tmp_path):
+    paper = load_dataset(PAPER)
+    ds = tmp_path / "rig.toml"
+    first = paper.captures[0]
+    errors = np.full((9, 2), 1.5)
+    for order, expect in ((np.arange(9), 200), (np.r_[1, 0, 2:9], 409)):
+        two = paper.replace(captures=[first, first], touch_landmark=order)
+        save_dataset(two, ds)
+        before = ds.read_bytes()
+        server = start(ds)
+        try:
+            body = calibration_body(paper.tablet_px.tolist(), errors)
+            status, doc = request(server.url + "api/calibration", body)
+        finally:
+            stop(server)
+        assert status == expect, doc
+        if expect == 200:
+            assert load_dataset(ds) == two.replace(touch_error_px=errors)
+        else:
+            assert "one [[touches]] per landmark in landmark order" in doc["error"]
+            assert ds.read_bytes() == before

@@ -34,6 +34,12 @@ def apply_touch_errors(path: str | Path, post: CalibrationPost) -> Path | None:
                 409, "touches",
                 f"the landmarks of {path.name} are not the ones the page drew; reload the page",
             )  # fmt: skip
+        if not np.array_equal(ds.touch_landmark, np.arange(ds.n_landmarks)):
+            raise PostError(
+                409, "touches",
+                f"{path.name} does not hold one [[touches]] per landmark in landmark order "
+                "(landmark = 0, 1, ...), which the page's touches are: add them in that order",
+            )  # fmt: skip
         return ds.replace(touch_error_px=post.touch_error_px)
 
     return update_dataset(path, with_touch_errors, keep_backup=True, backup=backup_path(path))

@@ -152,6 +152,15 @@ class TabletApp:
                 "tablet_px": ds.tablet_px.tolist(),
                 "touch_error_px": ds.touch_error_px.tolist(),
                 "key": self._dataset_key(ds.tablet_px),
+                "version": ds.version,
+                "captures": [
+                    {
+                        "hand_position_mm": c.hand_position_mm.tolist(),
+                        "hand_angle_deg": c.hand_angle_deg,
+                        "landmarks": c.landmarks.tolist(),
+                    }
+                    for c in ds.captures
+                ],
             }
         if self.targets_px is not None:
             assert self.targets_path is not None

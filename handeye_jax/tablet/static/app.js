@@ -13,6 +13,8 @@ const app = {
   outbox: load("outbox", []),     // finished runs the server has not acknowledged yet
   parked: load("parked", []),     // runs kept for a dataset the server does not serve now
   marks: load("marks", true),     // draw the faint rings and numbers beside the dots
+  pictures: false,                // showing only the dots, for the camera's pictures
+  dotPx: [1, 2, 3].includes(load("dot_px", 1)) ? load("dot_px", 1) : 1, // dot side, tablet px
   stale: false,                   // app.run belongs to another dataset: the operator decides
   summary: null,
   locked: false,                  // the server refused this page's secret (it was restarted)
@@ -126,13 +128,14 @@ function draw() {
   ctx.fillStyle = "#fff";
   ctx.fillRect(0, 0, canvas.width, canvas.height);
   const targets = targetsOnScreen();
-  const run = app.stale ? null : app.run;
+  const run = app.stale || app.pictures ? null : app.run;
+  const marks = app.marks && !app.pictures; // a picture shows the dots alone
   ctx.font = `${Math.round(12 * dpr)}px system-ui, sans-serif`;
   targets.forEach(([x, y], m) => {
     const cx = x * dpr, cy = y * dpr;
     const current = run && run.current === m;
     ctx.lineWidth = Math.max(1, dpr);
-    if (app.marks) { // the faint ring and the number; off, only the one-pixel dot is left
+    if (marks) { // the faint ring and the number; off, only the one-pixel dot is left
       ctx.strokeStyle = current ? "#2a6fdb" : "#e0e0e0";
       ctx.beginPath();
       ctx.arc(cx, cy, (current ? 22 : 12) * dpr, 0, 2 * Math.PI);
@@ -151,8 +154,9 @@ function draw() {
       ctx.stroke();
     }
   });
-  // The landmark: one tablet px, black, centred on (x, y); drawn last so nothing covers it.
-  const side = Math.max(1, Math.round(dpr));
+  // The landmark: a square of dotPx tablet px (one, as the paper's, unless chosen), black,
+  // centred on (x, y); drawn last so nothing covers it.
+  const side = Math.max(1, Math.round(app.dotPx * dpr));
   ctx.fillStyle = "#000";
   for (const [x, y] of targets) {
     ctx.fillRect(Math.round(x * dpr - side / 2), Math.round(y * dpr - side / 2), side, side);
@@ -242,11 +246,40 @@ function showInfo() {
   $("grid-inputs").hidden = src.value !== "grid";
 }
 
+// The pictures the dataset holds (its captures): the hand pose of each and what it sees.
+function showCaptures() {
+  const ds = app.session && app.session.dataset;
+  $("start-pictures").disabled = !ds;
+  const caps = (ds && ds.captures) || [];
+  const items = caps.map((c) => {
+    const li = document.createElement("li");
+    const [x, y, z] = c.hand_position_mm.map((v) => fmt(v, 1));
+    li.textContent = `hand at (${x}, ${y}, ${z}) mm, ${fmt(c.hand_angle_deg, 1)} deg: ` +
+      `${c.landmarks.length} of ${ds.tablet_px.length} landmarks` +
+      (c.landmarks.length ? "" : ": to take");
+    return li;
+  });
+  if (ds && ds.version === 1) {
+    const li = document.createElement("li");
+    li.textContent = "a version-1 dataset holds one picture: handeye-jax convert it for more";
+    li.className = "note";
+    items.push(li);
+  }
+  $("captures").replaceChildren(...items);
+}
+
+function setPictures(on) {
+  app.pictures = on;
+  $("panel").hidden = on;
+  render();
+}
+
 function showRun() {
   const run = app.stale ? null : app.run;
   $("menu").hidden = !!app.run;
   $("run").hidden = !run;
   $("marks").checked = app.marks;
+  $("dot-px").value = String(app.dotPx);
   if (!run) return;
   const n = run.targets.length;
   const done = run.touches.filter(Boolean).length;
@@ -354,6 +387,7 @@ function showSummary(summary) {
 function render() {
   showWarnings();
   showInfo();
+  showCaptures();
   showRun();
   showOutbox();
   showSummary();
@@ -400,6 +434,11 @@ async function startEvaluation() {
 }
 
 function onPointerDown(ev) {
+  if (app.pictures) { // the picture is taken: any contact brings the panel back
+    ev.preventDefault();
+    setPictures(false);
+    return;
+  }
   const run = app.run;
   if (!run || app.stale || run.current < 0) return;
   const type = ev.pointerType;
@@ -548,6 +587,8 @@ function init() {
     startRun("calibration", ds.tablet_px, { key: ds.key, name: ds.name });
   };
   $("start-evaluation").onclick = startEvaluation;
+  $("start-pictures").onclick = () => setPictures(true);
+  window.addEventListener("keydown", (ev) => { if (ev.key === "Escape" && app.pictures) setPictures(false); });
   $("target-source").onchange = render;
   $("send").onclick = finishRun;
   $("abandon").onclick = () => {
@@ -558,6 +599,11 @@ function init() {
   $("marks").onchange = () => {
     app.marks = $("marks").checked;
     store("marks", app.marks);
+    render();
+  };
+  $("dot-px").onchange = () => {
+    app.dotPx = Number($("dot-px").value);
+    store("dot_px", app.dotPx);
     render();
   };
   window.addEventListener("resize", render);
