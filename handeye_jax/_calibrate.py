@@ -39,6 +39,7 @@ from ._objective import (
     chain_points,
     errors_of,
     fitness,
+    height_summary,
     norms,
     spread_landmarks,
     stage2_errors,
@@ -581,6 +582,7 @@ def fit(
         warnings=warnings,
         recalibration=recal,
         fits=(fit1, fit2),
+        heights=height_summary(fit1.model(), obs),
     )
 
 
@@ -940,7 +942,8 @@ def diagnose(
     if fits is not None and fits is not result.fits:
         sign_twin = _sign_twin(fits[0])
     if fits is not result.fits:  # a refit was adopted: the models are the new fits'
-        result = replace(result, model=fits[0].model(), correction=fits[1].model())
+        result = replace(result, model=fits[0].model(), correction=fits[1].model(),
+                         heights=height_summary(fits[0].model(), obs))  # fmt: skip
     return replace(
         result, stage1=stage1, stage2=stage2, centres_mm=centres, diagnostics=diagnostics,
         warnings=warnings, timings_s=timings, sign_twin=sign_twin, fits=fits,
