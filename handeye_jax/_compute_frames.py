@@ -8,7 +8,6 @@ JAX side that evaluates a model's ``camera_mount()``, ``tablet_pose()`` and ``t_
 from __future__ import annotations
 
 import math
-
 from collections.abc import Mapping
 from pathlib import Path
 

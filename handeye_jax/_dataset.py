@@ -363,8 +363,8 @@ class Dataset:
         if caps.size == 0:
             raise ValueError("no capture sees a touched landmark: nothing to calibrate")
         mm = self.mm_per_tablet_px
-        image = np.stack([self.captures[c].image_px[v] for c, v in zip(caps, views)])
-        depth = np.array([self.captures[c].depth_mm[v] for c, v in zip(caps, views)])
+        image = np.stack([self.captures[c].image_px[v] for c, v in zip(caps, views, strict=True)])
+        depth = np.array([self.captures[c].depth_mm[v] for c, v in zip(caps, views, strict=True)])
         position = np.stack([self.captures[c].hand_position_mm for c in caps])
         angle = np.array([self.captures[c].hand_angle_deg for c in caps])
         landmark = self.touch_landmark[touches]

@@ -120,8 +120,9 @@ def synthesize_captures(
     captures = []
     for position, angle in capture_poses:
         rig_c = capture_rig(rig, position, angle)
-        p_camera = tablet_to_camera(truth, rig_c, tablet_px * mm,
-                                    tablet_height_mm=tablet_height_mm, camera_z_mm=camera_z_mm)
+        p_camera = tablet_to_camera(
+            truth, rig_c, tablet_px * mm, tablet_height_mm=tablet_height_mm, camera_z_mm=camera_z_mm
+        )
         image_px, depth_mm = geo.project(p_camera, rig.fx_px, rig.fy_px, rig.cx_px, rig.cy_px)
         captures.append(Capture(np.asarray(position, float), float(angle), np.arange(n),
                                 np.asarray(image_px), np.asarray(depth_mm)))  # fmt: skip

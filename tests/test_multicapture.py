@@ -210,3 +210,22 @@ def test_points_csv_capture_columns(tmp_path):
     nan.write_text("u,v,depth,hand_angle,capture_angle\n1,2,300,10,nan\n")
     with pytest.raises(InputError, match="line 2.capture_angle"):
         read_capture_columns(nan, *read_points_csv(nan)[:2])
+
+
+def test_exports_carry_the_height(fitted):
+    """The JSON frames document and the standalone Python module give the same (x, y, z)."""
+    import json
+
+    from handeye_jax import Frames
+    from handeye_jax._export import export_text
+
+    model, rig, _, r = fitted
+    frames = r.frames()
+    uv, depth, theta, position, angle, want = _targets(model, rig, seed=2, k=5)
+    again = Frames.from_dict(json.loads(export_text(frames, "json")))
+    assert again.pen_minus_camera_z_mm == frames.pen_minus_camera_z_mm
+    namespace: dict = {}
+    exec(compile(export_text(frames, "python"), "handeye_calibration.py", "exec"), namespace)
+    got = namespace["hand_command"](uv, depth, theta, capture_position_mm=position,
+                                    capture_hand_angle_deg=angle, axes="xyz")  # fmt: skip
+    assert np.abs(got - want).max() < 1e-6
