@@ -50,6 +50,7 @@ from __future__ import annotations
 import datetime as dt
 import difflib
 import math
+import re
 import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -489,8 +490,10 @@ def _one_line_arrays(text: str) -> str:
             for item in lines:
                 if item == "]":
                     break
-                items.append(item.strip().rstrip(","))
-            line = f"{line[:-1]}[{', '.join(items)}]"
+                items.append(item.strip())
+            # Nested arrays (a capture's image_px) too: "[", "1.0,", "2.0,", "]," -> [1.0, 2.0]
+            joined = re.sub(r"\[\s+", "[", " ".join(["[", *items, "]"]))
+            line = line[:-1] + re.sub(r",?\s*\]", "]", joined)
         out.append(line)
     return "\n".join(out)
 
@@ -513,9 +516,11 @@ def dataset_to_toml(ds: Dataset, version: int | None = None) -> str:
     doc = dataset_to_document(ds, version)
     raw = tomli_w.dumps(doc)
     text = _commented(_one_line_arrays(raw), doc["format"])
-    if tomllib.loads(text) != tomllib.loads(raw):  # the reflow must not change a value
-        text = raw
-    return text
+    try:  # the reflow must not change a value (nor break nested arrays)
+        same = tomllib.loads(text) == tomllib.loads(raw)
+    except tomllib.TOMLDecodeError:
+        same = False
+    return text if same else raw
 
 
 def backup_path(path: str | Path, now: dt.datetime | None = None) -> Path:
