@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ._result import CalibrationResult, StageResult
+from ._scope import scope_lines
 from .models import AffinePair
 
 
@@ -128,6 +129,7 @@ def format_summary(result: CalibrationResult) -> str:
         lines += diagnostic_lines(
             diag, "stage1", dict(zip(model_cls.param_names, model_cls.param_units, strict=True))
         )
+    lines += scope_lines((diag or {}).get("scope"), result.heights)
     lines.append("")
     lines += _stage_lines(
         "stage 2", result.stage2, AffinePair.param_names, AffinePair.param_units, early_stop,

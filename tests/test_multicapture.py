@@ -229,3 +229,55 @@ def test_exports_carry_the_height(fitted):
     got = namespace["hand_command"](uv, depth, theta, capture_position_mm=position,
                                     capture_hand_angle_deg=angle, axes="xyz")  # fmt: skip
     assert np.abs(got - want).max() < 1e-6
+
+
+# -- the twin ----------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module", params=[1, 4])  # conventions (90°, −1) and (0°, +1)
+def exact_twin(request, tmp_path_factory):
+    """A noise-free three-capture twin written to a folder, and its calibration."""
+    from dataclasses import replace
+
+    from handeye_jax._simulate import PRESETS, simulate, write_twin
+    from handeye_jax._twin import draw_truth
+
+    truth = replace(draw_truth(request.param, dot_px=2.0), pen_z_mm=95.0)
+    twin = simulate(truth, PRESETS["none"], request.param, exact=True, n_heldout=5, captures=3)
+    folder = tmp_path_factory.mktemp(f"twin{request.param}")
+    write_twin(twin, folder)
+    return twin, folder, calibrate(twin.dataset, Settings(seed=0, generations=400))
+
+
+def test_twin_draws_captures_at_several_heights_and_hand_angles(exact_twin):
+    twin, folder, _ = exact_twin
+    caps = twin.dataset.captures
+    z = [c.hand_position_mm[2] for c in caps]
+    assert len(caps) == 3 and max(z) - min(z) >= 80.0
+    assert len({round(c.hand_angle_deg, 6) for c in caps}) == 3
+    assert twin.dataset.has_hand_z and twin.dataset.version == 2
+    for name in ("capture_1.png", "depth_2.png", "heldout.csv", "dataset.toml"):
+        assert (folder / name).is_file()
+    rises = twin.heldout_capture_position_mm[:, 2] - z[0]
+    assert set(np.round(rises, 9)) == {0.0, 60.0} and set(twin.heldout_above_mm) == {0.0, 50.0}
+
+
+def test_exact_twin_is_recovered_from_any_capture_pose(exact_twin):
+    """The renderer (a rotation matrix per capture) and the fit (eq. 1 turned by φc) agree
+    under the twin's hand-angle convention: F < 1e-6 mm, and x-y and z commands to 1e-6 mm
+    for targets on and 50 mm above the display, seen from the first capture and from a new
+    pose 60 mm higher at another hand angle."""
+    from handeye_jax._evaluate import evaluate_twin, format_evaluation
+
+    twin, folder, r = exact_twin
+    assert r.stage1.F < 1e-6 and r.stage2.F < 1e-6, (r.stage1.F, r.stage2.F)
+    dz = twin.truth.pen_z_mm - twin.truth.camera_z_mm
+    assert abs(r.heights["pen_minus_camera_mm"] - dz) < 1e-6
+    path = folder / "result.json"
+    save_result(r, path)
+    rows = evaluate_twin(path, folder)
+    assert [e.label for e in rows] == ["stage 1", "stage 2", "oracle", "oracle + stage 2"]
+    for e in rows:
+        assert e.xy_mm.max() < 1e-6 and e.z_mm.max() < 1e-6, e.label
+    table = format_evaluation(rows)
+    assert "| 60 | 50 | 5 |" in table and "capture above the first" in table
