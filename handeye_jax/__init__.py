@@ -39,6 +39,7 @@ _EXPORTS = {
     "CalibrationResult": "_result",
     "Camera": "_dataset",
     "Capture": "_dataset",
+    "capture_scope": "_scope",
     "CauchyLoss": "_losses",
     "chain_points": "_objective",
     "ChainPoints": "_objective",
@@ -54,6 +55,7 @@ _EXPORTS = {
     "draw_truth": "_twin",
     "errors_of": "_objective",
     "evaluate": "_evaluate",
+    "evaluate_points": "_evaluate",
     "evaluate_twin": "_evaluate",
     "export_text": "_export",
     "fill_dataset": "_detect",
@@ -69,6 +71,7 @@ _EXPORTS = {
     "get_loss": "_losses",
     "get_model": "models",
     "hand_command": "_predict",
+    "HeightOffsets": "_objective",
     "HTMModel": "models",
     "HuberLoss": "_losses",
     "InputError": "_errors",
@@ -85,6 +88,7 @@ _EXPORTS = {
     "Observations": "_observations",
     "ParameterSpace": "_params",
     "Plan": "_calibrate",
+    "PointErrors": "_evaluate",
     "Predictor": "_predictor",
     "PRESETS": "_simulate",
     "Prior": "_params",
@@ -99,6 +103,7 @@ _EXPORTS = {
     "save_result": "_result_io",
     "Settings": "_settings",
     "simulate": "_simulate",
+    "simulate_captures": "_simulate",
     "snake_grid_px": "_synthetic",
     "SquaresBlock": "_objective",
     "Stage1Objective": "_objective",
@@ -106,6 +111,7 @@ _EXPORTS = {
     "StageErrors": "_objective",
     "StageFit": "_calibrate",
     "StageResult": "_result",
+    "synthesize_captures": "_synthetic",
     "synthesize_dataset": "_synthetic",
     "TouchingError": "_evaluate",
     "Twin": "_simulate",
@@ -168,7 +174,15 @@ if TYPE_CHECKING:
     )
     from ._detect import Detection, DetectSettings, detect_landmarks, fill_dataset
     from ._errors import InputError
-    from ._evaluate import TouchingError, evaluate, evaluate_twin, format_evaluation, load_heldout
+    from ._evaluate import (
+        PointErrors,
+        TouchingError,
+        evaluate,
+        evaluate_points,
+        evaluate_twin,
+        format_evaluation,
+        load_heldout,
+    )
     from ._export import export_text
     from ._frames import Frames
     from ._identifiability import analyse_jacobian, jacobian_diagnostics
@@ -177,6 +191,7 @@ if TYPE_CHECKING:
         AbstractBlock,
         AbstractObjective,
         ChainPoints,
+        HeightOffsets,
         LengthBlock,
         LossObjective,
         PriorObjective,
@@ -196,10 +211,11 @@ if TYPE_CHECKING:
     from ._report import render, write_report
     from ._result import CalibrationResult, StageResult
     from ._result_io import load_result, save_result
+    from ._scope import capture_scope
     from ._settings import Settings
-    from ._simulate import PRESETS, NoisePreset, Twin, simulate, write_twin
+    from ._simulate import PRESETS, NoisePreset, Twin, simulate, simulate_captures, write_twin
     from ._summary import format_summary
-    from ._synthetic import snake_grid_px, synthesize_dataset
+    from ._synthetic import snake_grid_px, synthesize_captures, synthesize_dataset
     from ._twin import TwinTruth, draw_truth, load_truth
     from ._x64 import float64
     from ._xla import vectorise_small_loops
@@ -297,4 +313,10 @@ __all__ = [
     "vectorise_small_loops",
     "write_report",
     "write_twin",
+    "capture_scope",
+    "evaluate_points",
+    "HeightOffsets",
+    "PointErrors",
+    "simulate_captures",
+    "synthesize_captures",
 ]

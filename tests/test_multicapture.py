@@ -19,16 +19,13 @@ from handeye_jax import (
     get_model,
     load_result,
     save_result,
-)
-from handeye_jax._observations import Rig
-from handeye_jax._predict import read_capture_columns, read_points_csv
-from handeye_jax._synthetic import (
-    seen_from,
     snake_grid_px,
     synthesize_captures,
     synthesize_dataset,
-    true_command,
 )
+from handeye_jax._observations import Rig
+from handeye_jax._predict import read_capture_columns, read_points_csv
+from handeye_jax._synthetic import seen_from, true_command
 
 TRUTH = {
     "htm": dict(xc=-3.0, yc=35.0, alpha_c=-1.5, beta_c=2.0, gamma_c=4.0, xt=150.0, yt=40.0,
