@@ -278,3 +278,25 @@ def test_exact_twin_is_recovered_from_any_capture_pose(exact_twin):
         assert e.xy_mm.max() < 1e-6 and e.z_mm.max() < 1e-6, e.label
     table = format_evaluation(rows)
     assert "| 60 | 50 | 5 |" in table and "capture above the first" in table
+
+
+def test_predict_command_reads_capture_columns_and_writes_hand_z(fitted, tmp_path):
+    """`predict` takes each point's capture pose from the CSV and appends hand_z: the same
+    numbers as the Python API, and the truth to 1e-6 mm (the CSV keeps 6 decimals)."""
+    from handeye_jax.cli import main
+
+    model, rig, _, r = fitted
+    result = tmp_path / "r.json"
+    save_result(r, result)
+    uv, depth, theta, position, angle, want = _targets(model, rig, seed=3, k=3)
+    points = tmp_path / "p.csv"
+    rows = ["u,v,depth,hand_angle,capture_x,capture_y,capture_z,capture_angle"]
+    rows += [",".join(repr(float(x)) for x in (*uv[i], depth[i], theta[i], *position, angle))
+             for i in range(3)]  # fmt: skip
+    points.write_text("\n".join(rows) + "\n")
+    out = tmp_path / "out.csv"
+    assert main(["predict", str(result), str(points), "--out", str(out)]) == 0
+    lines = out.read_text().splitlines()
+    assert lines[0].endswith(",hand_x,hand_y,hand_z")
+    got = np.array([[float(x) for x in line.split(",")[-3:]] for line in lines[1:]])
+    assert np.abs(got - want).max() < 2e-6
