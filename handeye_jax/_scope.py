@@ -135,7 +135,8 @@ def scope_lines(scope: dict[str, Any] | None, heights: dict[str, float] | None) 
             f"{heights['n_touches']:.0f} touch rows, depths of {heights['n_views']:.0f} views); "
             f"z_camera and z_pen alone are not (z_tablet + z_camera = "
             f"{heights['tablet_plus_camera_mm']:.3f} mm); mean |z error| views "
-            f"{heights['f1z_mm']:.3f} mm, touches {heights['f2z_mm']:.3f} mm"
+            f"{heights['f1z_mm']:.3f} mm, touches {heights['f2z_mm']:.3f} mm (stage 1's DE "
+            "and LM values are F plus these two)"
         )
     elif scope:
         lines.append("heights: the touches recorded no hand height: commands are x-y only")
