@@ -300,3 +300,32 @@ def test_predict_command_reads_capture_columns_and_writes_hand_z(fitted, tmp_pat
     assert lines[0].endswith(",hand_x,hand_y,hand_z")
     got = np.array([[float(x) for x in line.split(",")[-3:]] for line in lines[1:]])
     assert np.abs(got - want).max() < 2e-6
+
+
+def test_summary_says_where_the_calibration_holds():
+    """One capture: the camera shift/tilt trade-off is reported and the covariance expects a
+    much larger error from a capture 50 mm away; three captures: the trade-off is gone and
+    the error stays about the same. Hand positions rounded to 0.1 mm give the fit a spread."""
+    from handeye_jax import diagnose, format_summary
+
+    rig, ds3 = _dataset("htm", 90.0, -1)
+    ds1 = synthesize_dataset(_truth("htm"), rig, snake_grid_px(), 22.5 * np.arange(9))
+    s = Settings(seed=0, population=200, generations=300, restarts=4)
+    scopes = {}
+    for k, ds in ((1, ds1), (3, ds3)):
+        ds = ds.replace(hand_xy_mm=np.round(ds.hand_xy_mm, 1))
+        r = diagnose(calibrate(ds, s))
+        scopes[k] = (r.diagnostics["scope"], format_summary(r))
+    one, text1 = scopes[1]
+    three, text3 = scopes[3]
+    assert one["captures"] == 1 and one["camera_tradeoffs"]
+    assert min(one["expected_error_mm"]["+50"], one["expected_error_mm"]["-50"]) > (
+        5 * one["expected_error_mm"]["+0"]
+    )
+    assert "scope: one capture: the calibration holds only for pictures taken from this" in text1
+    assert "heights: the touches recorded no hand height" in text1
+    assert three["captures"] == 3 and not three["camera_tradeoffs"]
+    e = three["expected_error_mm"]
+    assert max(e["+50"], e["-50"]) < 3 * e["+0"]
+    assert "trade-offs of a single picture (xc/βc, yc/αc) are gone" in text3
+    assert "z_pen − z_camera = 4.000" in text3
