@@ -40,6 +40,7 @@ _EXPORTS = {
     "Camera": "_dataset",
     "change_truth": "_twin",
     "Capture": "_dataset",
+    "capture_scope": "_scope",
     "CauchyLoss": "_losses",
     "chain_points": "_objective",
     "ChainPoints": "_objective",
@@ -55,6 +56,7 @@ _EXPORTS = {
     "draw_truth": "_twin",
     "errors_of": "_objective",
     "evaluate": "_evaluate",
+    "evaluate_points": "_evaluate",
     "evaluate_twin": "_evaluate",
     "export_text": "_export",
     "fill_capture": "_detect",
@@ -74,6 +76,7 @@ _EXPORTS = {
     "get_model": "models",
     "Heldout": "_evaluate",
     "hand_command": "_predict",
+    "HeightOffsets": "_objective",
     "HTMModel": "models",
     "HuberLoss": "_losses",
     "InputError": "_errors",
@@ -90,6 +93,7 @@ _EXPORTS = {
     "Observations": "_observations",
     "ParameterSpace": "_params",
     "Plan": "_calibrate",
+    "PointErrors": "_evaluate",
     "Predictor": "_predictor",
     "PRESETS": "_simulate",
     "Prior": "_params",
@@ -105,6 +109,7 @@ _EXPORTS = {
     "save_result": "_result_io",
     "Settings": "_settings",
     "simulate": "_simulate",
+    "simulate_captures": "_simulate",
     "snake_grid_px": "_synthetic",
     "SquaresBlock": "_objective",
     "Stage1Objective": "_objective",
@@ -112,6 +117,7 @@ _EXPORTS = {
     "StageErrors": "_objective",
     "StageFit": "_calibrate",
     "StageResult": "_result",
+    "synthesize_captures": "_synthetic",
     "synthesize_dataset": "_synthetic",
     "TouchingError": "_evaluate",
     "Twin": "_simulate",
@@ -176,8 +182,10 @@ if TYPE_CHECKING:
     from ._errors import InputError
     from ._evaluate import (
         Heldout,
+        PointErrors,
         TouchingError,
         evaluate,
+        evaluate_points,
         evaluate_twin,
         format_evaluation,
         load_heldout,
@@ -192,6 +200,7 @@ if TYPE_CHECKING:
         ChainPoints,
         GaussianBlock,
         GaussianObjective,
+        HeightOffsets,
         LengthBlock,
         LossObjective,
         PriorObjective,
@@ -212,10 +221,11 @@ if TYPE_CHECKING:
     from ._report import render, write_report
     from ._result import CalibrationResult, StageResult
     from ._result_io import load_result, save_result
+    from ._scope import capture_scope
     from ._settings import Settings
-    from ._simulate import PRESETS, NoisePreset, Twin, simulate, write_twin
+    from ._simulate import PRESETS, NoisePreset, Twin, simulate, simulate_captures, write_twin
     from ._summary import format_summary
-    from ._synthetic import snake_grid_px, synthesize_dataset
+    from ._synthetic import snake_grid_px, synthesize_captures, synthesize_dataset
     from ._twin import TwinTruth, change_truth, draw_truth, load_truth
     from ._x64 import float64
     from ._xla import vectorise_small_loops
@@ -319,4 +329,10 @@ __all__ = [
     "vectorise_small_loops",
     "write_report",
     "write_twin",
+    "capture_scope",
+    "evaluate_points",
+    "HeightOffsets",
+    "PointErrors",
+    "simulate_captures",
+    "synthesize_captures",
 ]

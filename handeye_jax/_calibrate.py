@@ -40,6 +40,7 @@ from ._objective import (
     chain_points,
     errors_of,
     fitness,
+    height_summary,
     norms,
     spread_landmarks,
     stage2_errors,
@@ -48,6 +49,7 @@ from ._observations import Observations
 from ._params import FIXED, ParameterSpace, Prior, put, resolve_names
 from ._refits import REFIT_LANDMARKS
 from ._result import CalibrationResult, StageResult
+from ._scope import capture_scope
 from ._settings import Settings
 from ._validate import MAX_RESTARTS
 from ._x64 import in_float64
@@ -609,6 +611,7 @@ def fit(
         warnings=warnings,
         recalibration=recal,
         fits=(fit1, fit2),
+        heights=height_summary(fit1.model(), obs),
     )
 
 
@@ -970,8 +973,11 @@ def diagnose(
     if fits is not None and fits is not result.fits:
         sign_twin = _sign_twin(fits[0])
     if fits is not result.fits:  # a refit was adopted: the models are the new fits'
-        result = replace(result, model=fits[0].model(), correction=fits[1].model())
-    return replace(
+        result = replace(result, model=fits[0].model(), correction=fits[1].model(),
+                         heights=height_summary(fits[0].model(), obs))  # fmt: skip
+    result = replace(
         result, stage1=stage1, stage2=stage2, centres_mm=centres, diagnostics=diagnostics,
         warnings=warnings, timings_s=timings, sign_twin=sign_twin, fits=fits,
     )  # fmt: skip
+    diagnostics["scope"] = capture_scope(result)  # where the calibration holds (_scope)
+    return result

@@ -16,7 +16,16 @@ from ._atomic import StagedFiles, check_folder_output, check_output, same_file, 
 from ._dataset_io import backup_path, save_dataset, update_dataset
 from ._detect import DetectSettings, overlay_image, read_image
 from ._errors import InputError
-from ._simulate import DERIVED_FILES, DERIVED_FOLDER, SEED_RANGE, encode_png
+from ._simulate import (
+    CAPTURE_RISE_MM,
+    DERIVED_FILES,
+    DERIVED_FOLDER,
+    HELDOUT_ABOVE_MM,
+    HELDOUT_RISES_MM,
+    MAX_CAPTURES,
+    SEED_RANGE,
+    encode_png,
+)
 from ._twin import CHANGES, MAX_DOT_PX
 from ._validate import MAX_DEG, MAX_HELDOUT, MAX_MM, parse_float, parse_int, parse_numbers
 
@@ -38,6 +47,10 @@ def _positive_int(text: str) -> int:
 
 def _heldout(text: str) -> int:
     return _whole_number(text, 1, MAX_HELDOUT)
+
+
+def _captures(text: str) -> int:
+    return _whole_number(text, 1, MAX_CAPTURES)
 
 
 def _twin_seed(text: str) -> int:
@@ -114,7 +127,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     else:
         truth = draw_truth(args.seed, dot_px=1.0 if args.dot_px is None else args.dot_px)
     twin = simulate(truth, PRESETS[args.preset], args.seed, exact=args.exact,
-                    n_heldout=args.heldout)  # fmt: skip
+                    n_heldout=args.heldout, captures=args.captures)  # fmt: skip
     paths = write_twin(twin, out, force=args.force)
     how = "exact" if args.exact else "detected"
     if args.change:
@@ -335,7 +348,17 @@ def add_twin_commands(sub: argparse._SubParsersAction) -> None:
         help="take image_px and depth from the truth instead of the detector",
     )
     sim.add_argument("--heldout", type=_heldout, default=20,
-                     help=f"held-out targets, 1 to {MAX_HELDOUT:,} (default 20)")  # fmt: skip
+                     help=f"held-out targets, 1 to {MAX_HELDOUT:,} (default 20; with --captures, "
+                     "this many for each capture and target height)")  # fmt: skip
+    sim.add_argument(
+        "--captures", type=_captures, default=1,
+        help=f"pictures, 1 to {MAX_CAPTURES} (default 1, the paper's): the others from capture "
+        f"poses rising to {CAPTURE_RISE_MM:g} mm above the first, at other positions and hand "
+        "angles (capture_1.png, depth_1.png, ...); the touches then record the hand's height, "
+        "and the held-out targets are seen from the first capture and one "
+        f"{HELDOUT_RISES_MM[1]:g} mm above it at a new pose, on the display and "
+        f"{HELDOUT_ABOVE_MM[1]:g} mm above it",
+    )  # fmt: skip
     sim.add_argument(
         "--dot-px",
         type=_dot_px,

@@ -7,6 +7,7 @@ JAX side that evaluates a model's ``camera_mount()``, ``tablet_pose()`` and ``t_
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -30,7 +31,9 @@ AGREEMENT_TOL = 1e-9
 
 
 def capture_hand_angle_deg(rig: Rig) -> float:
-    """The hand angle θh at which φ = 0, the capture pose of every calibration so far (eq. 1)."""
+    """The hand angle θc at the rig's capture: given, or the one at which φ = 0 (eq. 1)."""
+    if rig.capture_hand_angle_deg is not None:
+        return float(rig.capture_hand_angle_deg)
     return float(-rig.angle_zero_deg * rig.angle_sign)
 
 
@@ -48,6 +51,7 @@ def compute_frames(
     centres_mm: Float[ArrayLike, "2 2"] | None = None,
     *,
     known: Mapping[str, float] | None = None,
+    pen_minus_camera_z_mm: float | None = None,
 ) -> Frames:
     """The frames of a fitted model, as plain numbers.
 
@@ -59,6 +63,8 @@ def compute_frames(
         known: values, mm, for components the data leaves undetermined but that are known
             otherwise (a measured camera height, a synthetic twin's truth), by name, e.g.
             ``{"t_hand_camera_mm.z": 12.0}``.
+        pen_minus_camera_z_mm: ``z_p − z_c``, mm, when the hand's heights at the touches
+            determined it (see :class:`~handeye_jax.HeightOffsets`).
     """
     known = dict(known or {})
     unknown = sorted(set(known) - set(UNDETERMINED))
@@ -93,6 +99,7 @@ def compute_frames(
         A1=A1, A2=A2, centres_mm=centres,
         undetermined=tuple(n for n in UNDETERMINED if n not in known),
         model=getattr(model, "name", ""),
+        pen_minus_camera_z_mm=pen_minus_camera_z_mm,
     )  # fmt: skip
 
 
@@ -100,7 +107,8 @@ def _numbers(f: Frames) -> np.ndarray:
     """Every number of ``f`` as one vector (undetermined components as NaN)."""
     parts = [f.R_hand_camera, f.R_base_tablet, f.capture_position_mm, f.centres_mm,
              f.A1.as_tuple(), f.A2.as_tuple(), f.camera_px,
-             (f.hand_angle_zero_deg, f.hand_angle_sign, f.capture_hand_angle_deg),
+             (f.hand_angle_zero_deg, f.hand_angle_sign, f.capture_hand_angle_deg,
+              math.nan if f.pen_minus_camera_z_mm is None else f.pen_minus_camera_z_mm),
              *(getattr(f, t) for t in TRANSLATIONS)]  # fmt: skip
     return np.concatenate([np.ravel(np.asarray(p, dtype=np.float64)) for p in parts])
 

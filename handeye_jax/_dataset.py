@@ -252,6 +252,14 @@ class Dataset:
         return int(self.hand_xy_mm.shape[0])
 
     @property
+    def n_rows(self) -> int:
+        """Rows of :meth:`observations`: the landmarks of a simple dataset, else the views
+        of touched landmarks paired with their touches (:meth:`rows`)."""
+        if self.is_simple():
+            return self.n_landmarks
+        return int(self.rows()[0].size)
+
+    @property
     def has_hand_z(self) -> bool:
         """Whether any touch recorded the hand's height."""
         return bool(np.isfinite(self.hand_z_mm).any())
@@ -299,16 +307,44 @@ class Dataset:
     # -- arrays for the models ---------------------------------------------------------------
     @in_float64
     def rig(self) -> Rig:
-        """The known quantities as JAX arrays (float64), with the first capture's pose."""
-        c = self.camera
+        """The known quantities as JAX arrays (float64), with the first capture's pose (its
+        hand angle only when it is not the paper's φ = 0)."""
+        c, first = self.camera, self.captures[0]
+        angle = None
+        if first.hand_angle_deg != capture_angle_at_zero(self.hand_angle_zero_deg,
+                                                         self.hand_angle_sign):  # fmt: skip
+            angle = first.hand_angle_deg
         return Rig(
-            c.fx_px, c.fy_px, c.cx_px, c.cy_px, self.captures[0].hand_position_mm,
-            self.hand_angle_zero_deg, self.hand_angle_sign,
+            c.fx_px, c.fy_px, c.cx_px, c.cy_px, first.hand_position_mm,
+            self.hand_angle_zero_deg, self.hand_angle_sign, angle,
         )  # fmt: skip
+
+    def rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The rows of :meth:`observations` for data from several captures: each view of a
+        landmark (a capture that sees it) paired with each touch of that landmark, capture
+        by capture, touches in order. Returns ``(capture, view, touch)`` indices, ``(r,)``
+        each (``view`` indexes the capture's own landmark arrays)."""
+        caps, views, touches = [], [], []
+        for c, cap in enumerate(self.captures):
+            where = {int(m): k for k, m in enumerate(cap.landmarks)}
+            for t, m in enumerate(self.touch_landmark):
+                if int(m) in where:
+                    caps.append(c)
+                    views.append(where[int(m)])
+                    touches.append(t)
+        return (np.asarray(caps, dtype=np.int64), np.asarray(views, dtype=np.int64),
+                np.asarray(touches, dtype=np.int64))  # fmt: skip
 
     @in_float64
     def observations(self) -> Observations:
-        """The landmark data as JAX arrays (float64), tablet quantities converted to mm."""
+        """The landmark data as JAX arrays (float64), tablet quantities converted to mm.
+
+        A simple dataset (the paper's) gives one row per landmark, seen from the rig's
+        capture pose. Any other gives one row per view of a touched landmark and touch of it
+        (:meth:`rows`), each with its capture's pose and its touch's hand z.
+        """
+        if not self.is_simple() or self.has_hand_z:
+            return self._capture_observations()
         cap = self._simple("observations()")
         mm = self.mm_per_tablet_px
         return Observations(
@@ -321,6 +357,36 @@ class Dataset:
             touch_error_mm=jnp.asarray(self.touch_error_px * mm, dtype=float),
             centre_index=centre_landmark(self.tablet_px),
         )
+
+    def _capture_observations(self) -> Observations:
+        caps, views, touches = self.rows()
+        if caps.size == 0:
+            raise ValueError("no capture sees a touched landmark: nothing to calibrate")
+        mm = self.mm_per_tablet_px
+        image = np.stack([self.captures[c].image_px[v] for c, v in zip(caps, views, strict=True)])
+        depth = np.array([self.captures[c].depth_mm[v] for c, v in zip(caps, views, strict=True)])
+        position = np.stack([self.captures[c].hand_position_mm for c in caps])
+        angle = np.array([self.captures[c].hand_angle_deg for c in caps])
+        landmark = self.touch_landmark[touches]
+        hand_z = self.hand_z_mm[touches]
+        centre = centre_landmark(self.tablet_px)
+        hits = np.flatnonzero(landmark == centre)
+        if hits.size:
+            centre_row = int(hits[0])  # the first capture that sees the centre landmark
+        else:  # the row whose landmark is drawn nearest the centre one
+            d = np.linalg.norm(self.tablet_px[landmark] - self.tablet_px[centre], axis=1)
+            centre_row = int(np.argmin(d))
+        f = lambda a: jnp.asarray(a, dtype=float)  # noqa: E731
+        return Observations(
+            rig=self.rig(), image_px=f(image), depth_mm=f(depth),
+            tablet_mm=f(self.tablet_px[landmark] * mm), hand_xy_mm=f(self.hand_xy_mm[touches]),
+            hand_angle_deg=f(self.hand_angle_deg[touches]),
+            touch_error_mm=f(self.touch_error_px[touches] * mm), centre_index=centre_row,
+            capture_position_mm=f(position), capture_hand_angle_deg=f(angle),
+            hand_z_mm=f(hand_z) if np.isfinite(hand_z).any() else None,
+            capture_index=jnp.asarray(caps),
+            touch_index=jnp.asarray(touches),
+        )  # fmt: skip
 
     # -- copies ----------------------------------------------------------------------------
     def _kwargs(self) -> dict[str, Any]:

@@ -527,9 +527,11 @@ def dataset_to_toml(ds: Dataset, version: int | None = None) -> str:
     doc = dataset_to_document(ds, version)
     raw = tomli_w.dumps(doc)
     text = _commented(_one_line_arrays(raw), doc["format"])
-    if tomllib.loads(text) != tomllib.loads(raw):  # the reflow must not change a value
-        text = raw
-    return text
+    try:  # the reflow must not change a value (nor break nested arrays)
+        same = tomllib.loads(text) == tomllib.loads(raw)
+    except tomllib.TOMLDecodeError:
+        same = False
+    return text if same else raw
 
 
 def backup_path(path: str | Path, now: dt.datetime | None = None) -> Path:

@@ -27,7 +27,7 @@ from ._predict import csv_number, hand_command, read_points_csv
 from ._result import CalibrationResult
 from ._result_io import load_result
 from ._twin import TwinTruth, load_truth
-from ._validate import MAX_PX
+from ._validate import MAX_DEG, MAX_MM, MAX_PX
 from ._x64 import in_float64
 from .models import AbstractModel
 
@@ -41,29 +41,54 @@ class Heldout:
         depth_mm: measured depth, mm, ``(k,)``.
         hand_angle_deg: hand angle to touch it with, deg, ``(k,)``.
         tablet_px: where it is drawn on the display, tablet px, ``(k, 2)``.
+        capture_position_mm, capture_angle_deg: the capture pose each target was seen from
+            (mm ``(k, 3)``, deg ``(k,)``), a multi-capture twin's; else ``None``.
+        true_mm: each target's true position, base frame, mm, ``(k, 3)``, or ``None``.
+        above_mm: how far above the display each target stands, mm, ``(k,)``, or ``None``.
     """
 
     image_px: np.ndarray
     depth_mm: np.ndarray
     hand_angle_deg: np.ndarray
     tablet_px: np.ndarray
+    capture_position_mm: np.ndarray | None = None
+    capture_angle_deg: np.ndarray | None = None
+    true_mm: np.ndarray | None = None
+    above_mm: np.ndarray | None = None
+
+
+#: The columns of a multi-capture twin's held-out targets beyond the single capture's.
+_POINT_COLUMNS = {
+    "capture_x": MAX_MM, "capture_y": MAX_MM, "capture_z": MAX_MM, "capture_angle": MAX_DEG,
+    "true_x": MAX_MM, "true_y": MAX_MM, "true_z": MAX_MM, "above_mm": MAX_MM,
+}  # fmt: skip
 
 
 def load_heldout(path: str | Path) -> Heldout:
-    """Read ``heldout.csv`` (``u,v,depth,hand_angle,tablet_x,tablet_y``); InputError if bad."""
+    """Read ``heldout.csv`` (``u,v,depth,hand_angle,tablet_x,tablet_y``, and a multi-capture
+    twin's capture pose, true position and height columns); InputError if bad."""
     path = Path(path)
     header, rows, values = read_points_csv(path)
-    cols = []
-    for name in ("tablet_x", "tablet_y"):
+
+    def column(name: str, limit: float) -> np.ndarray:
         if name not in header:
             raise InputError(path, "header", f"missing column {name}")
         j = header.index(name)
-        cols.append(
-            np.array(
-                [csv_number(path, f"line {i}.{name}", r[j], MAX_PX) for i, r in enumerate(rows, 2)]
-            )
+        return np.array(
+            [csv_number(path, f"line {i}.{name}", r[j], limit) for i, r in enumerate(rows, 2)]
         )
-    return Heldout(values[:, :2], values[:, 2], values[:, 3], np.column_stack(cols))
+
+    tablet = np.column_stack([column(c, MAX_PX) for c in ("tablet_x", "tablet_y")])
+    if "true_x" not in header:
+        return Heldout(values[:, :2], values[:, 2], values[:, 3], tablet)
+    c = {name: column(name, limit) for name, limit in _POINT_COLUMNS.items()}
+    return Heldout(
+        values[:, :2], values[:, 2], values[:, 3], tablet,
+        capture_position_mm=np.column_stack([c["capture_x"], c["capture_y"], c["capture_z"]]),
+        capture_angle_deg=c["capture_angle"],
+        true_mm=np.column_stack([c["true_x"], c["true_y"], c["true_z"]]),
+        above_mm=c["above_mm"],
+    )  # fmt: skip
 
 
 @in_float64
@@ -162,6 +187,95 @@ def evaluate(
     ]
 
 
+@dataclass(frozen=True)
+class PointErrors:
+    """Errors of hand commands for held-out targets with known 3-D positions.
+
+    Attributes:
+        label: what sent the hand (``"stage 1"``, ``"stage 2"``, ``"oracle"``…).
+        xy_mm: |command − true command| in x-y per target, mm (where the pen tip lands off
+            the target, seen from above).
+        z_mm: |command z − true z| per target, mm; ``None`` when the calibration determines
+            no height.
+        rise_mm: how far above the calibration's first capture each target's capture was, mm.
+        above_mm: how far above the display each target stands, mm.
+    """
+
+    label: str
+    xy_mm: np.ndarray
+    z_mm: np.ndarray | None
+    rise_mm: np.ndarray
+    above_mm: np.ndarray
+
+    def groups(self) -> list[tuple[float, float, np.ndarray]]:
+        """``(rise mm, above mm, mask)`` of each group of targets, in order."""
+        rise = np.round(self.rise_mm, 6)
+        keys = sorted({(float(r), float(a)) for r, a in zip(rise, self.above_mm, strict=True)})
+        return [(r, a, (rise == r) & (self.above_mm == a)) for r, a in keys]
+
+
+@in_float64
+def evaluate_points(
+    result: CalibrationResult,
+    truth: TwinTruth,
+    heldout: Heldout,
+    dataset: Dataset | None = None,
+) -> list[PointErrors]:
+    """x-y and z errors of the result's stages and of the oracle for held-out targets seen
+    from their own capture poses (a multi-capture twin's ``heldout.csv``).
+
+    The oracle sends the hand with the true parameters (and the true ``z_p − z_c``) from the
+    same measurements; ``oracle + stage 2`` adds a stage-2 correction fitted to ``dataset``
+    on top of them.
+    """
+    image_px = jnp.asarray(heldout.image_px)
+    depth_mm = jnp.asarray(heldout.depth_mm)
+    angle = jnp.asarray(heldout.hand_angle_deg)
+    pose = dict(capture_position_mm=heldout.capture_position_mm,
+                capture_hand_angle_deg=heldout.capture_angle_deg)  # fmt: skip
+    axes = "xyz" if result.heights else "xy"
+    rows = [(label, result.predict(image_px, depth_mm, angle, stage, axes=axes, **pose))
+            for label, stage in (("stage 1", 1), ("stage 2", 2))]  # fmt: skip
+    model, rig = truth.htm(), truth.rig()
+    jpose = {k: jnp.asarray(v) for k, v in pose.items()}
+    dz = jnp.asarray(truth.pen_z_mm - truth.camera_z_mm)
+    rows.append(("oracle", hand_command(model, rig, image_px, depth_mm, angle, **jpose,
+                                        pen_minus_camera_mm=dz)))  # fmt: skip
+    if dataset is not None:
+        correction, centres = fit_correction(dataset, model, oracle_settings(result))
+        rows.append(("oracle + stage 2", hand_command(
+            model, rig, image_px, depth_mm, angle, correction, jnp.asarray(centres), **jpose,
+            pen_minus_camera_mm=dz)))  # fmt: skip
+    want = truth.true_command(heldout.true_mm, heldout.hand_angle_deg)
+    rise = heldout.capture_position_mm[:, 2] - truth.capture_position_mm[2]
+    out = []
+    for label, cmd in rows:
+        cmd = np.asarray(cmd)
+        z = np.abs(cmd[:, 2] - want[:, 2]) if cmd.shape[1] == 3 else None
+        out.append(PointErrors(label, np.linalg.norm(cmd[:, :2] - want[:, :2], axis=1), z,
+                               rise, heldout.above_mm))  # fmt: skip
+    return out
+
+
+def format_point_errors(rows: list[PointErrors]) -> str:
+    """A Markdown table of mean x-y (and z) errors by capture height and target height, mm."""
+    lines = [
+        f"held-out errors over {len(rows[0].xy_mm)} targets, mean mm (x-y: where the pen tip "
+        "lands off the target seen from above; z: hand height)",
+        "",
+        "| capture above the first, mm | target above the display, mm | targets | "
+        + " | ".join(f"{r.label} x-y" for r in rows) + " | "
+        + " | ".join(f"{r.label} z" for r in rows if r.z_mm is not None) + " |",
+        "|" + "---|" * (3 + len(rows) + sum(r.z_mm is not None for r in rows)),
+    ]  # fmt: skip
+    for rise, above, mask in rows[0].groups():
+        xy = [f"{r.xy_mm[mask].mean():.3f}" for r in rows]
+        z = [f"{r.z_mm[mask].mean():.3f}" for r in rows if r.z_mm is not None]
+        lines.append(f"| {rise:.0f} | {above:.0f} | {int(mask.sum())} | " + " | ".join(xy)
+                     + " | " + " | ".join(z) + " |")  # fmt: skip
+    return "\n".join(lines).replace(" |  |", " |")
+
+
 def oracle_settings(result: CalibrationResult) -> Settings:
     """How the oracle's stage 2 is fitted: as the result's stage 2 was (its seed and DE
     settings), but with at most the default population, generations and restarts.
@@ -179,8 +293,9 @@ def oracle_settings(result: CalibrationResult) -> Settings:
 
 def evaluate_twin(
     result: CalibrationResult | str | Path, twin_dir: str | Path
-) -> list[TouchingError]:
-    """:func:`evaluate` on a folder written by ``simulate``, with the oracle's stage 2.
+) -> list[TouchingError] | list[PointErrors]:
+    """:func:`evaluate` on a folder written by ``simulate``, with the oracle's stage 2
+    (:func:`evaluate_points` for a multi-capture twin).
 
     Reads ``truth.json``, ``heldout.csv`` and ``dataset.toml`` from ``twin_dir``; ``result``
     is a result or its file. Raises :class:`InputError` unless the result was fitted on that
@@ -197,6 +312,8 @@ def evaluate_twin(
     check_fitted_on(result, dataset, result_path)
     truth = load_truth(twin_dir / "truth.json")
     heldout = load_heldout(twin_dir / "heldout.csv")
+    if heldout.true_mm is not None:
+        return evaluate_points(result, truth, heldout, dataset)
     return evaluate(result, truth, heldout, dataset)
 
 
@@ -244,14 +361,17 @@ def check_fitted_on(
     if not np.array_equal(np.asarray(mine, float), np.asarray(theirs, float)):
         refuse(f"fitted on a dataset {name!r} with another camera, capture position or "
                f"hand-angle convention than {where}")  # fmt: skip
-    n = len(result.stage1.residuals_mm) or dataset.n_landmarks
-    if n != dataset.n_landmarks:
+    n = len(result.stage1.residuals_mm) or dataset.n_rows
+    if n != dataset.n_rows:
         refuse(f"fitted on {n} landmarks of a dataset {name!r}; {where} has "
-               f"{dataset.n_landmarks}")  # fmt: skip
+               f"{dataset.n_rows}")  # fmt: skip
 
 
-def format_evaluation(rows: list[TouchingError]) -> str:
-    """A Markdown table of the touching errors, mm and tablet px."""
+def format_evaluation(rows: list[TouchingError] | list[PointErrors]) -> str:
+    """A Markdown table of the touching errors, mm and tablet px (by capture and target
+    height for a multi-capture twin: :func:`format_point_errors`)."""
+    if isinstance(rows[0], PointErrors):
+        return format_point_errors(rows)
     n = len(rows[0].errors_px)
     lines = [
         f"held-out touching error over {n} targets (landing minus target on the display)",

@@ -369,6 +369,8 @@ A1 = ({", ".join(map(_num, f.A1.as_tuple()))})
 A2 = ({", ".join(map(_num, f.A2.as_tuple()))})
 CENTRES_MM = {_py_matrix(f.centres_mm)}
 UNDETERMINED = {tuple(f.undetermined)!r}
+# z_pen − z_camera along the hand's z, mm: a command's height (None: the touches recorded none).
+PEN_MINUS_CAMERA_Z_MM = {None if f.pen_minus_camera_z_mm is None else _num(f.pen_minus_camera_z_mm)}
 
 
 def hand_command(
@@ -378,8 +380,10 @@ def hand_command(
     stage=2,
     capture_position_mm=None,
     capture_hand_angle_deg=None,
+    axes="xy",
 ):
-    """Where to send the hand, (x, y) in mm in the robot base frame, shape (n, 2).
+    """Where to send the hand, (x, y) in mm in the robot base frame, shape (n, 2); with
+    axes="xyz" (x, y, z), shape (n, 3), if the calibration determined heights.
 
     Args:
         image_px: (u, v) of each target in the picture, px, shape (n, 2).
@@ -389,9 +393,12 @@ def hand_command(
         capture_position_mm: the hand position when the picture was taken, mm, (3,) or
             (n, 3); default: the calibration's capture.
         capture_hand_angle_deg: the hand angle θh then, deg; default: the calibration's.
+        axes: "xy", or "xyz" to add the hand's height.
     """
     if stage not in (1, 2):
         raise ValueError(f"stage must be 1 or 2 (got {{stage!r}})")
+    if axes not in ("xy", "xyz") or (axes == "xyz" and PEN_MINUS_CAMERA_Z_MM is None):
+        raise ValueError(f"axes must be 'xy' (or 'xyz' with heights; got {{axes!r}})")
     uv = np.asarray(image_px, dtype=np.float64).reshape(-1, 2)
     n = uv.shape[0]
     depth = np.broadcast_to(np.asarray(depth_mm, dtype=np.float64), (n,))
@@ -400,11 +407,16 @@ def hand_command(
     cap_angle = CAPTURE_HAND_ANGLE_DEG if capture_hand_angle_deg is None else (
         np.asarray(capture_hand_angle_deg, dtype=np.float64)
     )
-    return hand_command_xy(
+    cap = np.asarray(cap, dtype=np.float64)
+    xy = hand_command_xy(
         uv, depth, HAND_ANGLE_ZERO_DEG + HAND_ANGLE_SIGN * angle, stage, CAMERA_PX,
-        R_HAND_CAMERA, T_HAND_CAMERA_MM, T_HAND_PEN_MM, np.asarray(cap, dtype=np.float64),
+        R_HAND_CAMERA, T_HAND_CAMERA_MM, T_HAND_PEN_MM, cap,
         HAND_ANGLE_ZERO_DEG + HAND_ANGLE_SIGN * cap_angle, A1, A2, CENTRES_MM,
     )
+    if axes == "xy":
+        return xy
+    z = image_to_base_z(uv, depth, CAMERA_PX, R_HAND_CAMERA, cap)
+    return np.column_stack([xy, z + PEN_MINUS_CAMERA_Z_MM])
 
 
 # The chain: handeye_jax._npchain, verbatim.

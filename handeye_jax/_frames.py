@@ -58,8 +58,14 @@ STAGE2_RULE = (
 )
 HAND_ANGLE_RULE = "φ = zero_deg + sign·θh; R_base_hand(θh) = Ry(180)·Rz(φ)"
 CAPTURE_NOTE = (
-    "the hand pose when the picture was taken: position in the base frame, and the hand angle "
-    "θh (φ = 0 for every calibration so far)"
+    "the hand pose when the (first) picture was taken: position in the base frame, and the "
+    "hand angle θc; R_base_hand = Ry(180)·Rz(zero_deg + sign·θc) there, and the camera turns "
+    "with the hand. The default capture pose of a hand command"
+)
+HEIGHT_RULE = (
+    "hand_z = z_b + pen_minus_camera_mm, z_b the z of T_base_hand(capture)·T_hand_camera·p_c "
+    "with t_hand_camera z taken as 0: only z_pen − z_camera is determined (from the hand's "
+    "heights at the touches), not each"
 )
 #: Largest file :func:`read_json` reads: a result with its data is well under 1 MB.
 MAX_FILE_BYTES = 64 * 1024 * 1024
@@ -114,6 +120,9 @@ class Frames:
         undetermined: components the data did not determine, e.g. ``"t_hand_pen_mm.z"``;
             they are NaN in the arrays above.
         model: the name of the model that was fitted (``"htm"``, ``"dh"``), for the record.
+        pen_minus_camera_z_mm: ``z_p − z_c``, the pen tip's minus the camera's offset along
+            the hand's z, mm: what commanding a height needs (:data:`HEIGHT_RULE`); ``None``
+            when the touches recorded no hand height.
     """
 
     R_hand_camera: np.ndarray
@@ -134,6 +143,7 @@ class Frames:
     centres_mm: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
     undetermined: tuple[str, ...] = ()
     model: str = ""
+    pen_minus_camera_z_mm: float | None = None
 
     def __post_init__(self):
         shapes = {"R_hand_camera": (3, 3), "R_base_tablet": (3, 3), "capture_position_mm": (3,),
@@ -160,6 +170,15 @@ class Frames:
                     self.capture_hand_angle_deg)]  # fmt: skip
         if not all(np.isfinite(n).all() for n in numbers):
             raise ValueError("every number but the undetermined components must be finite")
+        if self.pen_minus_camera_z_mm is not None:
+            object.__setattr__(self, "pen_minus_camera_z_mm", float(self.pen_minus_camera_z_mm))
+            if not math.isfinite(self.pen_minus_camera_z_mm):
+                raise ValueError("pen_minus_camera_z_mm must be finite or None (undetermined)")
+
+    @property
+    def has_height(self) -> bool:
+        """Whether the calibration determines the hand's height for a command."""
+        return self.pen_minus_camera_z_mm is not None
 
     def phi_deg(self, hand_angle_deg: Any) -> np.ndarray:
         """The hand's turn about its own z, ``φ = zero + sign·θh``, deg, for hand angles θh."""
@@ -188,7 +207,7 @@ class Frames:
         def matrix(R: np.ndarray) -> list[list[float]]:
             return [[float(x) for x in row] for row in R]
 
-        return {
+        doc = {
             "format": FORMAT,
             "model": self.model,
             "units": dict(UNITS),
@@ -231,6 +250,10 @@ class Frames:
                 for c in self.undetermined
             ],
         }
+        if self.has_height:
+            doc["heights"] = {"pen_minus_camera_mm": self.pen_minus_camera_z_mm,
+                              "rule": HEIGHT_RULE}  # fmt: skip
+        return doc
 
     @classmethod
     def from_dict(cls, doc: Any, path: str | Path | None = None, where: str = "") -> Frames:
@@ -244,7 +267,7 @@ class Frames:
         r = _Check(path)
         d = r.table(doc, where, ("format", "model", "units", "T_hand_camera", "T_base_tablet",
                                  "pen_tip", "camera_px", "hand_angle", "capture", "stage2",
-                                 "undetermined"), ("axes", "convention"))  # fmt: skip
+                                 "undetermined"), ("axes", "convention", "heights"))  # fmt: skip
         at = lambda key: f"{where}.{key}" if where else key  # noqa: E731
         if d["format"] != FORMAT:
             r.fail(at("format"), f"expected {FORMAT!r} (got {d['format']!r:.60})")
@@ -293,6 +316,11 @@ class Frames:
                 else:
                     r.number(a[key], w, MAX_DEG if key == "theta_deg" else MAX_MM)
             affines.append(Affine(*(float(a[key]) for key in AFFINE_KEYS)))
+        height = None
+        if "heights" in d:
+            hd = r.table(d["heights"], at("heights"), ("pen_minus_camera_mm",), ("rule",))
+            height = r.number(hd["pen_minus_camera_mm"], at("heights.pen_minus_camera_mm"),
+                              MAX_MM)  # fmt: skip
         return cls(
             R_hand_camera=r.rotation(T_hc["R"], at("T_hand_camera.R")),
             t_hand_camera_mm=values["t_hand_camera_mm"],
@@ -316,6 +344,7 @@ class Frames:
                                                            at("stage2.centres_mm"), 2))],
             undetermined=tuple(undetermined),
             model=d["model"],
+            pen_minus_camera_z_mm=height,
         )  # fmt: skip
 
 

@@ -7,7 +7,8 @@ writes, so it imports nothing but NumPy.
 The hand points down at the capture and at every touch (eq. 1): ``R_base_hand = Ry(180)·Rz(φ)``,
 whose x-y block is ``[[-cos φ, sin φ], [sin φ, cos φ]]`` and whose third column is
 ``(0, 0, -1)``. The x and y of every point therefore never depend on a z (of the camera, the
-pen or the tablet), which the data leaves undetermined; these functions never read one.
+pen or the tablet); these functions never read one. Heights need only ``z_p − z_c``
+(:func:`image_to_base_z`), which touches with the hand's heights determine.
 Lengths in mm, angles in degrees, image coordinates in px.
 """
 
@@ -55,6 +56,25 @@ def image_to_base_xy(
     s, c = sincos_deg(capture_phi_deg)
     cap = np.asarray(capture_mm, dtype=np.float64)
     return np.stack([-c * hx + s * hy + cap[..., 0], s * hx + c * hy + cap[..., 1]], axis=-1)
+
+
+def image_to_base_z(image_px, depth_mm, camera_px, R_hand_camera, capture_mm):
+    """``z`` of image points in the base frame with the camera at ``z_c = 0`` on the hand, mm,
+    shape (n,): the capture's height minus the point's height below the hand (the hand
+    points down, so its turn φ does not enter). A command's height adds ``z_p − z_c``.
+
+    Args:
+        image_px, depth_mm, camera_px, R_hand_camera: as for :func:`image_to_base_xy`.
+        capture_mm: hand position at the capture, mm, (3,) or (n, 3); only z is read.
+    """
+    fx, fy, cx, cy = camera_px
+    d = np.asarray(depth_mm, dtype=np.float64)
+    uv = np.asarray(image_px, dtype=np.float64)
+    p0 = d * (uv[:, 0] - cx) / fx
+    p1 = d * (uv[:, 1] - cy) / fy
+    R = np.asarray(R_hand_camera, dtype=np.float64)
+    hz = R[2, 0] * p0 + R[2, 1] * p1 + R[2, 2] * d
+    return np.asarray(capture_mm, dtype=np.float64)[..., 2] - hz
 
 
 def pen_offset_xy(t_hand_pen_mm, phi_deg):

@@ -50,25 +50,106 @@ class ChainPoints(eqx.Module):
         tablet_xy: landmarks through the tablet chain, ``x_bt`` of eq. (10).
         pen_offset_xy: the pen offset ``x'`` at each touch, eqs. (6)–(7).
         hand_target_xy: the touch-compensated hand positions ``x_r'`` of eq. (20).
+        image_z, tablet_z, touched_z: where touches carry the hand's height, the z of each
+            row's view (the camera at ``z_c = 0`` on the hand), of its landmark through the
+            tablet chain (the tablet at ``z_t = 0``) and of the touched point relative to its
+            landmark, mm; else ``None``.
+        hand_z: the hand's height at each row's touch, mm (NaN where not recorded), or None.
     """
 
     image_xy: Float[Array, "n 2"]
     tablet_xy: Float[Array, "n 2"]
     pen_offset_xy: Float[Array, "n 2"]
     hand_target_xy: Float[Array, "n 2"]
+    image_z: Float[Array, " n"] | None = None
+    tablet_z: Float[Array, " n"] | None = None
+    touched_z: Float[Array, " n"] | None = None
+    hand_z: Float[Array, " n"] | None = None
 
 
 def chain_points(model: AbstractModel, obs: Observations) -> ChainPoints:
     """Evaluate the model's transform chain on one calibration's observations."""
-    x_bi = model.image_to_base(obs.image_px, obs.depth_mm, obs.rig)
+    x_bi = model.image_to_base(
+        obs.image_px, obs.depth_mm, obs.rig, obs.capture_position_mm, obs.capture_phi_deg()
+    )
     x_bt = model.tablet_to_base(obs.tablet_mm)
     x_off = model.pen_offset(obs.phi_deg())
     touch_base = model.tablet_vector_to_base(obs.touch_error_mm)
+    z = {}
+    if obs.hand_z_mm is not None:
+        z = dict(image_z=x_bi[:, 2], tablet_z=x_bt[:, 2], touched_z=touch_base[:, 2],
+                 hand_z=obs.hand_z_mm)  # fmt: skip
     return ChainPoints(
         image_xy=x_bi[:, :2],
         tablet_xy=x_bt[:, :2],
         pen_offset_xy=x_off[:, :2],
         hand_target_xy=obs.hand_xy_mm - touch_base[:, :2],
+        **z,
+    )
+
+
+class HeightOffsets(eqx.Module):
+    """The vertical terms the data determine, mm: sums and differences of the heights
+    ``z_c`` (camera on the hand, along its z), ``z_t`` (tablet in the base) and ``z_p`` (pen
+    tip on the hand) that no x-y term sees.
+
+    Attributes:
+        tablet_plus_camera_mm: ``z_t + z_c``, from the views' depths at their capture heights.
+        tablet_plus_pen_mm: ``z_t + z_p``, from the hand's heights at the touches.
+        pen_minus_camera_mm: ``z_p − z_c``: what commanding a height needs (a point seen at
+            height ``z`` with the camera taken at ``z_c = 0`` is touched with the hand at
+            ``z + z_p − z_c``).
+    """
+
+    tablet_plus_camera_mm: Float[Array, ""]
+    tablet_plus_pen_mm: Float[Array, ""]
+
+    @property
+    def pen_minus_camera_mm(self) -> Float[Array, ""]:
+        return self.tablet_plus_pen_mm - self.tablet_plus_camera_mm
+
+
+def height_summary(model: AbstractModel, obs: Observations) -> dict[str, float] | None:
+    """What the hand's heights at the touches determine, for a result (``None`` without).
+
+    ``pen_minus_camera_mm`` (``z_p − z_c``, what commanding a height needs),
+    ``tablet_plus_camera_mm`` and ``tablet_plus_pen_mm``, mm; ``f1z_mm``, ``f2z_mm`` the mean
+    |z error| of the views and of the touches; ``pen_minus_camera_sigma_mm`` its standard
+    error from the z scatter; ``n_views``, ``n_touches`` the rows behind each.
+    """
+    if obs.hand_z_mm is None:
+        return None
+    points = chain_points(model, obs)
+    h = height_offsets(points)
+    e = stage1_errors(points)
+    ok = np.isfinite(np.asarray(obs.hand_z_mm))
+    r1 = np.asarray(e.image_vs_tablet_z)
+    r2 = np.asarray(points.hand_z - points.tablet_z - points.touched_z)[ok]
+    r2 = r2 - r2.mean()
+    n1, n2 = r1.size, int(ok.sum())
+    sigma = math.sqrt(float(np.mean(r1**2)) / n1 + float(np.mean(r2**2)) / n2)
+    return {
+        "pen_minus_camera_mm": float(h.pen_minus_camera_mm),
+        "tablet_plus_camera_mm": float(h.tablet_plus_camera_mm),
+        "tablet_plus_pen_mm": float(h.tablet_plus_pen_mm),
+        "pen_minus_camera_sigma_mm": sigma,
+        "f1z_mm": float(np.mean(np.abs(r1))), "f2z_mm": float(np.mean(np.abs(r2))),
+        "n_views": n1, "n_touches": n2,
+    }  # fmt: skip
+
+
+def _finite_mean(x: Float[Array, " n"]) -> Float[Array, ""]:
+    ok = jnp.isfinite(x)
+    return jnp.sum(jnp.where(ok, x, 0.0)) / jnp.sum(ok)
+
+
+def height_offsets(points: ChainPoints) -> HeightOffsets:
+    """The determined vertical terms at a stage-1 model's chain points (``points`` with
+    heights): each the mean over the rows that carry it, the least-squares value given the
+    rest of the model."""
+    return HeightOffsets(
+        tablet_plus_camera_mm=jnp.mean(points.image_z - points.tablet_z),
+        tablet_plus_pen_mm=_finite_mean(points.hand_z - points.tablet_z - points.touched_z),
     )
 
 
@@ -77,14 +158,35 @@ class StageErrors(eqx.Module):
 
     image_vs_tablet: Float[Array, "n 2"]
     hand: Float[Array, "n 2"]
+    image_vs_tablet_z: Float[Array, " n"] | None = None
+    hand_z: Float[Array, " n"] | None = None
 
 
 def stage1_errors(points: ChainPoints) -> StageErrors:
-    """Eqs. (18)–(19): ``x_bi − x_bt`` and ``(x_bi − x') − x_r'``."""
-    return StageErrors(
+    """Eqs. (18)–(19): ``x_bi − x_bt`` and ``(x_bi − x') − x_r'``.
+
+    With the hand's heights, also the z errors of the views against the tablet chain and of
+    the touches, each less its mean (:func:`height_offsets`: the determined vertical terms
+    are profiled out, so the model needs no z parameter); a touch without a height gives 0.
+    """
+    errors = StageErrors(
         image_vs_tablet=points.image_xy - points.tablet_xy,
         hand=points.image_xy - points.pen_offset_xy - points.hand_target_xy,
     )
+    if points.hand_z is None:
+        return errors
+    h = height_offsets(points)
+    e1 = points.image_z - points.tablet_z - h.tablet_plus_camera_mm
+    e2 = points.hand_z - points.tablet_z - points.touched_z - h.tablet_plus_pen_mm
+    ok = jnp.isfinite(e2)
+    # Scaled so the block's mean over all rows is the mean over the rows with a height.
+    e2 = jnp.where(ok, e2, 0.0) * (ok.shape[0] / jnp.sum(ok))
+    return dataclasses.replace(errors, image_vs_tablet_z=e1, hand_z=e2)
+
+
+def _as_vectors(e: Float[Array, " n"]) -> Float[Array, "n 2"]:
+    # 1-D errors as 2-D vectors with a zero y: their lengths are |e|.
+    return jnp.stack([e, jnp.zeros_like(e)], axis=-1)
 
 
 def stage2_errors(
@@ -290,7 +392,9 @@ def _free(template: AbstractParametric, free: Sequence[str] | None) -> tuple[str
 
 
 class Stage1Objective(AbstractObjective):
-    """F1st (eq. 17): blocks ``f1`` (eq. 18) and ``f2`` (eq. 19).
+    """F1st (eq. 17): blocks ``f1`` (eq. 18) and ``f2`` (eq. 19); with the hand's heights at
+    the touches also ``f1z`` and ``f2z``, the mean |z error| of the views and of the touches
+    (see :func:`stage1_errors`).
 
     Attributes:
         template: the model; parameters not in ``free`` keep its values.
@@ -319,7 +423,11 @@ class Stage1Objective(AbstractObjective):
 
     def blocks(self, theta):
         e = _stage1_errors(self.template, self.free, self.obs, theta)
-        return {"f1": LengthBlock(e.image_vs_tablet), "f2": LengthBlock(e.hand)}
+        out = {"f1": LengthBlock(e.image_vs_tablet), "f2": LengthBlock(e.hand)}
+        if e.hand_z is not None:  # the hand's heights were recorded: the z blocks
+            out["f1z"] = LengthBlock(_as_vectors(e.image_vs_tablet_z))
+            out["f2z"] = LengthBlock(_as_vectors(e.hand_z))
+        return out
 
     def on_landmarks(self, idx):
         return Stage1Objective(self.template, landmark_subset(self.obs, idx), self.free)
@@ -514,6 +622,12 @@ _LANDMARK_FIELDS = (
 )  # fmt: skip
 
 
+#: The optional per-row fields of data from several captures.
+_ROW_FIELDS = (
+    "capture_position_mm", "capture_hand_angle_deg", "hand_z_mm", "capture_index", "touch_index",
+)  # fmt: skip
+
+
 def spread_landmarks(n: int, k: int, include: int | None = None) -> Int[np.ndarray, " m"]:
     """Up to ``k`` landmark indices spread evenly over ``0 … n−1`` (touch order), sorted, plus
     ``include`` (e.g. the centre of rotation); all ``n`` when ``n <= k``."""
@@ -527,6 +641,7 @@ def landmark_subset(obs: Observations, idx: Int[np.ndarray, " m"]) -> Observatio
     """The observations of landmarks ``idx`` (sorted) alone; the centre of rotation becomes
     the nearest of them to the old one's index if it is not among them."""
     idx = np.asarray(idx)
-    pick = {f: getattr(obs, f)[idx] for f in _LANDMARK_FIELDS}
+    fields = _LANDMARK_FIELDS + tuple(f for f in _ROW_FIELDS if getattr(obs, f) is not None)
+    pick = {f: getattr(obs, f)[idx] for f in fields}
     centre = int(np.argmin(np.abs(idx - obs.centre_index)))
     return dataclasses.replace(obs, **pick, centre_index=centre)

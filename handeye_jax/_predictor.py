@@ -106,9 +106,8 @@ class Predictor:
     @property
     def axes(self) -> str:
         """The coordinates the calibration determines for a hand command: ``"xy"``, or
-        ``"xyz"`` once the data determines the z of the camera and the pen."""
-        z = ("t_hand_camera_mm.z", "t_hand_pen_mm.z")
-        return "xy" if any(c in self._frames.undetermined for c in z) else "xyz"
+        ``"xyz"`` when the touches recorded the hand's heights (``z_p − z_c`` is known)."""
+        return "xyz" if self._frames.has_height else "xy"
 
     def hand_command(
         self,
@@ -120,7 +119,9 @@ class Predictor:
         capture_hand_angle_deg: Any = None,
         axes: str = "xy",
     ) -> np.ndarray:
-        """Hand commands ``(x, y)`` in mm in the base frame, shape (n, 2).
+        """Hand commands ``(x, y)`` in mm in the base frame, shape (n, 2), or ``(x, y, z)``,
+        shape (n, 3), with ``axes="xyz"``. A target is any point seen in a picture at its
+        depth, from any capture pose.
 
         Args:
             image_px: ``(u, v)`` of each target in the captured picture, px, shape (n, 2).
@@ -131,15 +132,18 @@ class Predictor:
                 (n, 3); default: the calibration's capture.
             capture_hand_angle_deg: the hand angle θh when the picture was taken, deg, scalar
                 or (n,); default: the calibration's. The camera turns with the hand.
-            axes: ``"xy"``. ``"xyz"`` will add the height once a calibration determines it;
-                today it is refused with the components that are undetermined.
+            axes: ``"xy"``, or ``"xyz"`` to add the hand's height (a calibration whose
+                touches recorded the hand's heights; else refused, see :attr:`axes`).
         """
         if stage not in (1, 2):
             raise ValueError(f"stage must be 1 or 2 (got {stage!r})")
-        if axes != "xy":
+        if axes not in ("xy", "xyz"):
+            raise ValueError(f"axes must be 'xy' or 'xyz' (got {axes!r})")
+        if axes == "xyz" and not self._frames.has_height:
             missing = [c for c in self._frames.undetermined if c.endswith(".z")]
             raise ValueError(f"axes must be 'xy': the calibration does not determine "
-                             f"{', '.join(missing) or 'the height'}")  # fmt: skip
+                             f"{', '.join(missing) or 'the height'} nor z_pen − z_camera (its "
+                             "touches recorded no hand height)")  # fmt: skip
         uv = _finite(image_px, "image_px")
         if uv.ndim != 2 or uv.shape[1] != 2:
             raise ValueError(f"image_px must have shape (n, 2), got {uv.shape}")
@@ -161,11 +165,15 @@ class Predictor:
             if cap_angle.shape not in ((), (n,)):
                 raise ValueError(f"capture_hand_angle_deg must be a scalar or have shape "
                                  f"({n},), got {cap_angle.shape}")  # fmt: skip
-        return _npchain.hand_command_xy(
+        xy = _npchain.hand_command_xy(
             uv, depth, phi, stage, f.camera_px, f.R_hand_camera, self._t_hand_camera,
             self._t_hand_pen, cap, f.phi_deg(cap_angle), f.A1.as_tuple(), f.A2.as_tuple(),
             f.centres_mm,
         )  # fmt: skip
+        if axes == "xy":
+            return xy
+        z = _npchain.image_to_base_z(uv, depth, f.camera_px, f.R_hand_camera, cap)
+        return np.column_stack([xy, z + f.pen_minus_camera_z_mm])
 
 
 def _finite(x: Any, name: str, shape: tuple[int, ...] | None = None) -> np.ndarray:

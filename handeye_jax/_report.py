@@ -105,10 +105,25 @@ def _figure(**kwargs):
     return fig
 
 
-def _label_points(ax, xy, dx=0.0, dy=0.0, **kwargs):
+def _label_points(ax, xy, dx=0.0, dy=0.0, labels=None, **kwargs):
+    """Number each point (``labels``, default its index); a label at a point already
+    labelled so (one landmark's rows from several captures) is written once."""
+    done = set()
     for m, (x, y) in enumerate(xy):
-        ax.annotate(str(m), (x, y), xytext=(4 + dx, 4 + dy), textcoords="offset points",
+        text = str(m if labels is None else int(labels[m]))
+        key = (text, round(float(x), 6), round(float(y), 6))
+        if key in done:
+            continue
+        done.add(key)
+        ax.annotate(text, (x, y), xytext=(4 + dx, 4 + dy), textcoords="offset points",
                     fontsize=9, **kwargs)  # fmt: skip
+
+
+def _row_landmarks(data) -> np.ndarray | None:
+    """The landmark of each row of the fit (several captures), or None (one per landmark)."""
+    if data is None or data.is_simple():
+        return None
+    return data.touch_landmark[data.rows()[2]]
 
 
 def fig_landmarks(result: CalibrationResult):
@@ -118,8 +133,13 @@ def fig_landmarks(result: CalibrationResult):
     hand = np.asarray(data.hand_xy_mm)
     fig = _figure(figsize=(11, 4.8))
     ax1, ax2 = fig.subplots(1, 2)
-    ax1.plot(image[:, 0], image[:, 1], "o", color="C0", label="landmark m in the image")
-    _label_points(ax1, image)
+    for c, cap in enumerate(data.captures):  # one colour per picture
+        label = "landmark m in the image"
+        if len(data.captures) > 1:
+            z = cap.hand_position_mm[2]
+            label = f"capture {c} (hand z {z:.0f} mm, θ {cap.hand_angle_deg:.0f} deg)"
+        ax1.plot(cap.image_px[:, 0], cap.image_px[:, 1], "o", color=f"C{c}", label=label)
+        _label_points(ax1, cap.image_px, labels=cap.landmarks)
     ax1.plot(data.camera.cx_px, data.camera.cy_px, "+", color="k", ms=12,
              label="principal point")  # fmt: skip
     ax1.set_xlim(0, max(640.0, image[:, 0].max() + 40))
@@ -128,9 +148,12 @@ def fig_landmarks(result: CalibrationResult):
     ax1.set_xlabel("u (px)")
     ax1.set_ylabel("v (px)")
     ax1.set_title("landmarks in the captured image")
-    ax1.legend(loc="lower right", fontsize=9)
+    if len(data.captures) > 1:  # below the axes: the pictures' points fill them
+        ax1.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), fontsize=8, ncol=2)
+    else:
+        ax1.legend(loc="lower right", fontsize=9)
     ax2.plot(hand[:, 0], hand[:, 1], "s", color="C1", label="hand position at touch m")
-    _label_points(ax2, hand)
+    _label_points(ax2, hand, labels=data.touch_landmark)
     capture = np.array([c.hand_position_mm for c in data.captures])
     ax2.plot(capture[:, 0], capture[:, 1], "*", color="k", ms=12, label="hand at capture")
     ax2.set_aspect("equal", adjustable="datalim")
@@ -166,7 +189,8 @@ def fig_chains(result: CalibrationResult, data: ChainPlotData, stage: int):
         # ("E"), quiverkey puts the arrow's tip at the given point.
         ax.quiverkey(q, *key_xy, k * KEY_MM, f"{KEY_MM:g} mm error", labelpos="E",
                      coordinates="data", fontproperties={"size": 8})  # fmt: skip
-        _label_points(ax, target, dx=2, dy=-14, color="0.3")
+        _label_points(ax, target, dx=2, dy=-14, labels=_row_landmarks(result.data),
+                      color="0.3")  # fmt: skip
         ax.set_xlabel("x, base frame (mm)")
         ax.set_ylabel("y, base frame (mm)")
         ax.grid(alpha=0.3)

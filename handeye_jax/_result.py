@@ -96,6 +96,9 @@ class CalibrationResult:
             others entered (``"prior"`` or ``"fixed"``), or ``None``.
         fits: the stages' fits in memory (objectives, final DE populations), for the
             diagnostics of a result just computed; not written to the file.
+        heights: when the touches recorded the hand's heights, what they determine
+            (:func:`~handeye_jax._objective.height_summary`: ``pen_minus_camera_mm``, the
+            ``z_p − z_c`` a height command needs, and how well); else ``None``.
     """
 
     model: AbstractModel
@@ -114,6 +117,7 @@ class CalibrationResult:
     diagnostics: dict[str, Any] = field(default_factory=dict)
     recalibration: dict[str, Any] | None = None
     fits: tuple[Any, Any] | None = field(default=None, repr=False)
+    heights: dict[str, float] | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "centres_mm", np.asarray(self.centres_mm, dtype=float))
@@ -135,10 +139,32 @@ class CalibrationResult:
         depth_mm: Float[Array, " n"],
         hand_angle_deg: Float[Array, " n"],
         stage: int = 2,
+        capture_position_mm: Float[Array, "n 3"] | None = None,
+        capture_hand_angle_deg: Float[Array, " n"] | None = None,
+        axes: str = "xy",
     ) -> np.ndarray:
-        """Hand commands ``(x, y)`` in mm for image points, eq. (25) (stage 2) or (8) (stage 1)."""
+        """Hand commands ``(x, y)`` in mm for image points, eq. (25) (stage 2) or (8) (stage 1).
+
+        Args:
+            image_px, depth_mm: each target in its picture, px, and its depth, mm: any point
+                seen at any depth, on the tablet or not.
+            hand_angle_deg: the hand angle θh to touch each with, deg.
+            stage: 2 (with the affine correction, a planar map) or 1.
+            capture_position_mm: the hand position each picture was taken from, mm, ``(3,)``
+                or ``(n, 3)``; default: the calibration's first capture.
+            capture_hand_angle_deg: the hand angle θc then, deg, scalar or ``(n,)``; default:
+                the first capture's. ``R_base_hand = Ry(-180)·Rz(zero + sign·θc)``.
+            axes: ``"xy"``, or ``"xyz"`` for ``(x, y, z)`` when the touches recorded the
+                hand's heights (:attr:`heights`).
+        """
         if stage not in (1, 2):
             raise ValueError(f"stage must be 1 or 2 (got {stage})")
+        if axes not in ("xy", "xyz"):
+            raise ValueError(f"axes must be 'xy' or 'xyz' (got {axes!r})")
+        if axes == "xyz" and not self.heights:
+            raise ValueError("axes must be 'xy': the touches recorded no hand height, so the "
+                             "calibration does not determine z_pen − z_camera")  # fmt: skip
+        f = lambda a: None if a is None else jnp.asarray(a, dtype=float)  # noqa: E731
         out = hand_command(
             self.model,
             self.rig,
@@ -147,12 +173,18 @@ class CalibrationResult:
             jnp.asarray(hand_angle_deg, dtype=float),
             correction=self.correction if stage == 2 else None,
             centres_mm=jnp.asarray(self.centres_mm, dtype=float),
-        )
+            capture_position_mm=f(capture_position_mm),
+            capture_hand_angle_deg=f(capture_hand_angle_deg),
+            pen_minus_camera_mm=f(self.heights["pen_minus_camera_mm"]) if axes == "xyz"
+            else None,
+        )  # fmt: skip
         return np.asarray(out)
 
     def frames(self) -> Frames:
         """The fitted frames as plain numbers (NumPy), from the parameters and the rig."""
-        return compute_frames(self.model, self.rig, self.correction, self.centres_mm)
+        z = None if not self.heights else self.heights["pen_minus_camera_mm"]
+        return compute_frames(self.model, self.rig, self.correction, self.centres_mm,
+                              pen_minus_camera_z_mm=z)  # fmt: skip
 
     @in_float64
     def posterior(self, stage: str = "stage1", source: str | None = None) -> Prior:

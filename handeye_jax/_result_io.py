@@ -71,7 +71,7 @@ _LEGACY_LIMITS = {
 
 
 def rig_to_dict(rig: Rig) -> dict[str, Any]:
-    return {
+    out = {
         "camera_px": {
             "fx": float(rig.fx_px), "fy": float(rig.fy_px),
             "cx": float(rig.cx_px), "cy": float(rig.cy_px),
@@ -79,6 +79,9 @@ def rig_to_dict(rig: Rig) -> dict[str, Any]:
         "capture_hand_position_mm": np.asarray(rig.capture_position_mm).tolist(),
         "hand_angle": {"zero_deg": float(rig.angle_zero_deg), "sign": int(rig.angle_sign)},
     }  # fmt: skip
+    if rig.capture_hand_angle_deg is not None:  # else the paper's capture, at φ = 0
+        out["capture_hand_angle_deg"] = float(rig.capture_hand_angle_deg)
+    return out
 
 
 def _stage_doc(s: StageResult) -> dict[str, Any]:
@@ -115,6 +118,8 @@ def result_to_document(result: CalibrationResult) -> dict[str, Any]:
     }
     if result.recalibration:
         doc["recalibration"] = result.recalibration
+    if result.heights:
+        doc["heights"] = result.heights
     if result.diagnostics:
         doc["diagnostics"] = result.diagnostics
     if result.data is not None:
@@ -141,6 +146,7 @@ def rig_from_dict(d: dict[str, Any]) -> Rig:
     return Rig(
         cam["fx"], cam["fy"], cam["cx"], cam["cy"],
         d["capture_hand_position_mm"], d["hand_angle"]["zero_deg"], d["hand_angle"]["sign"],
+        d.get("capture_hand_angle_deg"),
     )  # fmt: skip
 
 
@@ -182,7 +188,7 @@ def load_result(path: str | Path) -> CalibrationResult:
     for name in AFFINE_SCALES:
         if stage2.params[name] <= 0:
             r.fail(f"stage2.params.{name}", f"must be > 0, a scale (got {stage2.params[name]})")
-    n = data.n_landmarks if data is not None else None
+    n = data.n_rows if data is not None else None
     for key, s in (("stage1", stage1), ("stage2", stage2)):
         n = n or len(s.residuals_mm) or None
         if s.residuals_mm and len(s.residuals_mm) != n:
@@ -221,7 +227,20 @@ def load_result(path: str | Path) -> CalibrationResult:
         warnings=warnings,
         diagnostics=_diagnostics(r, doc, n, (stage1, stage2)),
         recalibration=recal,
+        heights=_heights(r, doc),
     )
+
+
+#: The keys of a result's ``heights`` (what the hand's heights at the touches determined).
+HEIGHT_KEYS = ("pen_minus_camera_mm", "tablet_plus_camera_mm", "tablet_plus_pen_mm",
+               "pen_minus_camera_sigma_mm", "f1z_mm", "f2z_mm", "n_views", "n_touches")  # fmt: skip
+
+
+def _heights(r: Reader, doc: dict[str, Any]) -> dict[str, float] | None:
+    if "heights" not in doc:
+        return None
+    h = r.table(doc["heights"], "heights", HEIGHT_KEYS)
+    return {k: r.number(h[k], f"heights.{k}", limit=MAX_MM) for k in HEIGHT_KEYS}
 
 
 def _data(r: Reader, doc: dict[str, Any], rig: dict, name: str, path: Path) -> Dataset | None:
@@ -323,7 +342,10 @@ _POLISH = {
 
 
 def _rig(r: Reader, value: Any) -> dict[str, Any]:
-    rig = r.table(value, "rig", ("camera_px", "capture_hand_position_mm", "hand_angle"))
+    rig = r.table(value, "rig", ("camera_px", "capture_hand_position_mm", "hand_angle"),
+                  optional=("capture_hand_angle_deg",))  # fmt: skip
+    if "capture_hand_angle_deg" in rig:
+        r.number(rig["capture_hand_angle_deg"], "rig.capture_hand_angle_deg", limit=MAX_DEG)
     cam = r.table(rig["camera_px"], "rig.camera_px", ("fx", "fy", "cx", "cy"))
     for k in ("fx", "fy"):
         r.number(cam[k], f"rig.camera_px.{k}", True, MAX_PX, minimum=1, unit="px")

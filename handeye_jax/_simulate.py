@@ -21,14 +21,14 @@ stale is left beside the new twin.
 from __future__ import annotations
 
 import io
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from ._atomic import reason, write_folder_atomic
-from ._dataset import Dataset
+from ._dataset import Camera, Capture, Dataset
 from ._dataset_io import dataset_to_toml
 from ._detect import BlobCountError, DetectSettings, depth_at, find_blobs, order_blobs
 from ._errors import InputError
@@ -39,12 +39,26 @@ from ._twin import TwinTruth
 from ._validate import MAX_HELDOUT
 
 HELDOUT_HEADER = ("u", "v", "depth", "hand_angle", "tablet_x", "tablet_y")
+#: A multi-capture twin's held-out targets also carry the capture pose they were seen from
+#: (mm, deg), their true position (base frame, mm), and how far above the display they stand.
+HELDOUT_CAPTURE_HEADER = (*HELDOUT_HEADER, "capture_x", "capture_y", "capture_z",
+                          "capture_angle", "true_x", "true_y", "true_z", "above_mm")  # fmt: skip
+#: A multi-capture twin's captures rise this far above the first one, mm (each but the
+#: first jittered by ±5 mm): 3 captures spread over 85 to 95 mm.
+CAPTURE_RISE_MM = 90.0
+#: Held-out targets of a multi-capture twin are seen from captures this far above the first
+#: (0: the first capture itself; others at new positions and hand angles), mm, and stand
+#: this far above the display (0: drawn on it; else the top of an object), mm.
+HELDOUT_RISES_MM = (0.0, 60.0)
+HELDOUT_ABOVE_MM = (0.0, 50.0)
 #: The files :func:`write_twin` writes.
 TWIN_FILES = ("dataset.toml", "truth.json", "heldout.csv", "capture.png", "depth.png")
 #: What the README's loop makes from a twin beside its files (``detect --overlay``, ``detect``
 #: in place, ``calibrate --out``, ``report``): stale once the twin is replaced.
 DERIVED_FILES = ("overlay.png", "dataset.toml.*.bak", "dataset.toml.bak", "result.json")
 DERIVED_FOLDER = "result_report"
+#: A multi-capture twin's pictures beyond the first: an old twin's are stale once replaced.
+MORE_CAPTURE_FILES = ("capture_*.png", "depth_*.png")
 #: Seeds numpy's generators take: 0 to 2^63 - 1.
 SEED_RANGE = (0, 2**63 - 1)
 
@@ -111,6 +125,12 @@ class Twin:
         heldout_image_px, heldout_depth_mm: each target as the user measures it (image px,
             mm): its true image point plus ``target_sigma_px`` noise, and the depth image's
             median around it.
+        more_captures, more_depths: the pictures and depth images of captures 2, 3, … of a
+            multi-capture twin.
+        heldout_capture_position_mm, heldout_capture_angle_deg: the capture pose each
+            held-out target was seen from (mm ``(k, 3)``, deg ``(k,)``), multi-capture only.
+        heldout_true_mm: each target's true position, base frame, mm, ``(k, 3)``.
+        heldout_above_mm: how far above the display each target stands, mm, ``(k,)``.
     """
 
     truth: TwinTruth
@@ -124,6 +144,16 @@ class Twin:
     heldout_hand_angle_deg: np.ndarray
     heldout_image_px: np.ndarray
     heldout_depth_mm: np.ndarray
+    more_captures: tuple[np.ndarray, ...] = ()
+    more_depths: tuple[np.ndarray, ...] = ()
+    heldout_capture_position_mm: np.ndarray | None = None
+    heldout_capture_angle_deg: np.ndarray | None = None
+    heldout_true_mm: np.ndarray | None = None
+    heldout_above_mm: np.ndarray | None = None
+
+    @property
+    def n_captures(self) -> int:
+        return 1 + len(self.more_captures)
 
 
 def simulate(
@@ -134,8 +164,13 @@ def simulate(
     exact: bool = False,
     n_heldout: int = 20,
     detect_settings: DetectSettings | None = None,
+    captures: int = 1,
 ) -> Twin:
     """Run the twin once.
+
+    With ``captures > 1`` (:func:`simulate_captures`) the acquisition holds several pictures,
+    from capture poses at other heights, positions and hand angles, and the touches record
+    the hand's height.
 
     Args:
         truth: the rig truth.
@@ -145,6 +180,7 @@ def simulate(
         n_heldout: how many held-out targets (1 to 10,000), uniform over the landmarks' area
             on the display with hand angles uniform in [0, 180) deg.
         detect_settings: how to detect the landmarks.
+        captures: how many pictures (1 to 8).
 
     Raises:
         BlobCountError: the detector does not find one blob per landmark in the picture.
@@ -153,7 +189,12 @@ def simulate(
     check_seed(seed)
     if not 1 <= n_heldout <= MAX_HELDOUT:
         raise ValueError(f"n_heldout must be 1 to {MAX_HELDOUT:,} (got {n_heldout})")
+    if not 1 <= captures <= MAX_CAPTURES:
+        raise ValueError(f"captures must be 1 to {MAX_CAPTURES} (got {captures})")
     detect_settings = detect_settings or DetectSettings()
+    if captures > 1:
+        return simulate_captures(truth, preset, seed, captures, exact=exact,
+                                 n_heldout=n_heldout, detect_settings=detect_settings)  # fmt: skip
     rng_image, rng_depth, rng_touch, rng_held = np.random.default_rng(seed).spawn(4)
     capture = render_capture(truth, preset.imaging, rng_image)
     depth = render_depth(truth, preset.depth, rng_depth)
@@ -201,6 +242,169 @@ def simulate(
     )  # fmt: skip
 
 
+#: The most pictures a twin takes.
+MAX_CAPTURES = 8
+
+
+def draw_capture_poses(
+    truth: TwinTruth, k: int, rng: np.random.Generator, rise_mm: float = CAPTURE_RISE_MM
+) -> list[tuple[np.ndarray, float]]:
+    """``k`` capture poses ``(hand position mm, hand angle deg)`` that see every landmark.
+
+    The first is the truth's own. The others rise evenly to ``rise_mm`` above it (±5 mm),
+    move up to 15 mm sideways, and turn the hand by 8 to 25 deg either way.
+    """
+    first = np.asarray(truth.capture_position_mm, dtype=float)
+    angle0 = truth.capture_angle_deg
+    poses = [(first, angle0)]
+    for rise in np.linspace(0.0, rise_mm, k)[1:]:
+        for _ in range(1000):
+            position = first + [*rng.uniform(-15.0, 15.0, 2), rise + rng.uniform(-5.0, 5.0)]
+            angle = angle0 + rng.choice([-1.0, 1.0]) * rng.uniform(8.0, 25.0)
+            if truth.at_capture(position, angle).sees(truth.landmarks_tablet_px):
+                break
+        else:
+            raise ValueError("could not draw a capture pose that sees every landmark")
+        poses.append((position, float(angle)))
+    return poses
+
+
+def _pictures(
+    truth_c: TwinTruth,
+    preset: NoisePreset,
+    rng: np.random.Generator,
+    exact: bool,
+    settings: DetectSettings,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One capture's picture, depth image, and the landmarks' image points and depths in
+    them (detected, or the truth's with ``exact``)."""
+    picture = render_capture(truth_c, preset.imaging, rng)
+    depth = render_depth(truth_c, preset.depth, rng)
+    if exact:
+        image_px, depth_mm = truth_c.project(truth_c.landmarks_tablet_px)
+        return picture, depth, image_px, depth_mm
+    n = len(truth_c.landmarks_tablet_px)
+    blobs = find_blobs(picture, settings)
+    if len(blobs.image_px) != n:
+        hint = "; try exact=True (simulate --exact) or larger dots (--dot-px)"
+        raise BlobCountError("capture.png (simulated)", blobs, n, hint)
+    image_px = blobs.image_px[order_blobs(blobs.image_px, truth_c.landmarks_tablet_px)]
+    return picture, depth, image_px, depth_at(depth, image_px, settings.depth_window_px)
+
+
+def simulate_captures(
+    truth: TwinTruth,
+    preset: NoisePreset,
+    seed: int,
+    captures: int = 3,
+    *,
+    exact: bool = False,
+    n_heldout: int = 20,
+    detect_settings: DetectSettings | None = None,
+) -> Twin:
+    """A multi-capture twin (see :func:`simulate`): ``captures`` pictures from the poses of
+    :func:`draw_capture_poses`, the touches with the hand's height (rounded as the hand's
+    x-y), and ``n_heldout`` held-out targets for each capture rise of
+    :data:`HELDOUT_RISES_MM` and each height of :data:`HELDOUT_ABOVE_MM` above the display.
+
+    A held-out target above the display is the top of an object standing there, parallel to
+    the display; the depth image of such a target is rendered with the object's top as the
+    surface. With ``exact`` the held-out targets' image points and depths are the truth's too.
+    """
+    settings = detect_settings or DetectSettings()
+    rng_pose, rng_image, rng_touch, rng_held = np.random.default_rng(seed).spawn(4)
+    poses = draw_capture_poses(truth, captures, rng_pose)
+    shots = [_pictures(truth.at_capture(p, a), preset, rng_image, exact, settings)
+             for p, a in poses]  # fmt: skip
+    mm = truth.mm_per_tablet_px
+    n = len(truth.landmarks_tablet_px)
+    touch_px = rng_touch.normal(0.0, preset.touch_sigma_mm, (n, 2)) / mm
+    touched = truth.surface_points(truth.landmarks_tablet_px + touch_px)
+    hand = truth.true_command(touched, truth.landmarks_hand_angle_deg)
+    if preset.hand_round_mm:
+        hand = np.round(hand / preset.hand_round_mm) * preset.hand_round_mm
+    caps = [Capture(p, a, np.arange(n), image_px, depth_mm)
+            for (p, a), (_, _, image_px, depth_mm) in zip(poses, shots, strict=True)]  # fmt: skip
+    c = truth.camera_px
+    dataset = Dataset(
+        name=f"twin-seed{seed}-{preset.name}-{captures}captures",
+        camera=Camera(c["fx"], c["fy"], c["cx"], c["cy"]), tablet_ppi=truth.ppi,
+        tablet_scale=truth.scale, hand_angle_zero_deg=truth.hand_angle_zero_deg,
+        hand_angle_sign=truth.hand_angle_sign, search={}, tablet_px=truth.landmarks_tablet_px,
+        captures=caps, hand_xy_mm=hand[:, :2], hand_z_mm=hand[:, 2],
+        hand_angle_deg=truth.landmarks_hand_angle_deg, touch_error_px=np.round(touch_px),
+        version=2,
+    )  # fmt: skip
+    held = heldout_targets(truth, preset, rng_held, n_heldout, exact, settings)
+    first_px, first_depth = truth.project(truth.landmarks_tablet_px)
+    return Twin(
+        truth=truth, preset=preset, dataset=dataset, capture=shots[0][0], depth=shots[0][1],
+        landmarks_image_px=first_px, landmarks_depth_mm=first_depth,
+        more_captures=tuple(s[0] for s in shots[1:]), more_depths=tuple(s[1] for s in shots[1:]),
+        **held,
+    )  # fmt: skip
+
+
+def heldout_targets(
+    truth: TwinTruth,
+    preset: NoisePreset,
+    rng: np.random.Generator,
+    n_each: int,
+    exact: bool = False,
+    settings: DetectSettings | None = None,
+    rises_mm: tuple[float, ...] = HELDOUT_RISES_MM,
+    above_mm: tuple[float, ...] = HELDOUT_ABOVE_MM,
+) -> dict[str, np.ndarray]:
+    """Held-out targets for each capture rise (mm above the truth's capture; 0 is that
+    capture, any other a new position and hand angle) and each height above the display (mm),
+    ``n_each`` of each, uniform over the landmarks' area where the picture sees them; as
+    :class:`Twin`'s ``heldout_*`` fields."""
+    settings = settings or DetectSettings()
+    lo, hi = truth.landmark_area_px()
+    first = np.asarray(truth.capture_position_mm, dtype=float)
+    out: dict[str, list] = {k: [] for k in ("tablet_px", "angle", "image_px", "depth", "position",
+                                            "cap_angle", "true", "above")}  # fmt: skip
+    for rise in rises_mm:
+        position, angle = first, truth.capture_angle_deg
+        if rise:
+            position = first + [*rng.uniform(-15.0, 15.0, 2), rise]
+            angle = angle + rng.choice([-1.0, 1.0]) * rng.uniform(10.0, 30.0)
+        for above in above_mm:
+            seen = replace(truth.at_capture(position, angle),
+                           tablet_height_mm=truth.tablet_height_mm + above)  # fmt: skip
+            depth_image = None if exact else render_depth(seen, preset.depth, rng)
+            tab = np.empty((0, 2))
+            for _ in range(1000):  # targets the picture sees
+                cand = rng.uniform(lo, hi, (n_each, 2))
+                tab = np.vstack([tab, [p for p in cand if seen.sees(p[None])]])[:n_each]
+                if len(tab) == n_each:
+                    break
+            else:
+                raise ValueError("the picture sees too little of the landmarks' area")
+            true_px, true_depth = seen.project(tab)
+            image_px = true_px + rng.normal(0.0, 1.0, true_px.shape) * preset.target_sigma_px
+            depth = true_depth if exact else depth_at(depth_image, image_px,
+                                                      settings.depth_window_px)  # fmt: skip
+            if exact:
+                image_px = true_px
+            k = len(tab)
+            out["tablet_px"].append(tab)
+            out["angle"].append(rng.uniform(0.0, 180.0, k))
+            out["image_px"].append(image_px)
+            out["depth"].append(depth)
+            out["position"].append(np.tile(position, (k, 1)))
+            out["cap_angle"].append(np.full(k, float(angle)))
+            out["true"].append(truth.surface_points(tab, above))
+            out["above"].append(np.full(k, float(above)))
+    cat = {k: np.concatenate(v) for k, v in out.items()}
+    return dict(
+        heldout_tablet_px=cat["tablet_px"], heldout_hand_angle_deg=cat["angle"],
+        heldout_image_px=cat["image_px"], heldout_depth_mm=cat["depth"],
+        heldout_capture_position_mm=cat["position"], heldout_capture_angle_deg=cat["cap_angle"],
+        heldout_true_mm=cat["true"], heldout_above_mm=cat["above"],
+    )  # fmt: skip
+
+
 def check_seed(seed: int) -> int:
     """``seed`` if numpy's generators take it (0 to 2^63 - 1); ``ValueError`` if not."""
     lo, hi = SEED_RANGE
@@ -210,11 +414,19 @@ def check_seed(seed: int) -> int:
 
 
 def heldout_csv_text(twin: Twin) -> str:
-    """The held-out targets as ``u,v,depth,hand_angle,tablet_x,tablet_y`` (px, px, mm, deg, px)."""
+    """The held-out targets as ``u,v,depth,hand_angle,tablet_x,tablet_y`` (px, px, mm, deg, px);
+    a multi-capture twin's also with :data:`HELDOUT_CAPTURE_HEADER`'s capture pose (mm, deg),
+    true position (mm) and height above the display (mm)."""
     out = io.StringIO()
-    out.write(",".join(HELDOUT_HEADER) + "\n")
-    rows = np.column_stack([twin.heldout_image_px, twin.heldout_depth_mm,
-                            twin.heldout_hand_angle_deg, twin.heldout_tablet_px])  # fmt: skip
+    columns = [twin.heldout_image_px, twin.heldout_depth_mm, twin.heldout_hand_angle_deg,
+               twin.heldout_tablet_px]  # fmt: skip
+    header = HELDOUT_HEADER
+    if twin.heldout_true_mm is not None:
+        header = HELDOUT_CAPTURE_HEADER
+        columns += [twin.heldout_capture_position_mm, twin.heldout_capture_angle_deg,
+                    twin.heldout_true_mm, twin.heldout_above_mm]  # fmt: skip
+    out.write(",".join(header) + "\n")
+    rows = np.column_stack(columns)
     for row in rows:
         out.write(",".join(repr(float(v)) for v in row) + "\n")
     return out.getvalue()
@@ -248,7 +460,8 @@ def check_twin_folder(out_dir: str | Path, force: bool = False, field: str = "")
             f"another, or pass --force to replace the old twin's files and remove "
             f"{', '.join(DERIVED_FILES)} and {DERIVED_FOLDER}/ made from it",
         )  # fmt: skip
-    stale = [p for pattern in DERIVED_FILES for p in sorted(folder.glob(pattern))]
+    stale = [p for pattern in (*DERIVED_FILES, *MORE_CAPTURE_FILES)
+             for p in sorted(folder.glob(pattern))]  # fmt: skip
     figures = folder / DERIVED_FOLDER
     stale += [figures / f"{name}.{ext}" for name in FIGURES for ext in FORMATS]
     return [p for p in stale if p.is_file() or p.is_symlink()]
@@ -291,6 +504,11 @@ def write_twin(
         "capture.png": encode_png(twin.capture),
         "depth.png": encode_png(twin.depth),
     }
+    # Captures 2, 3, … of a multi-capture twin (the dataset's captures in order).
+    for i, (picture, depth) in enumerate(zip(twin.more_captures, twin.more_depths,
+                                             strict=True), start=1):  # fmt: skip
+        files[f"capture_{i}.png"] = encode_png(picture)
+        files[f"depth_{i}.png"] = encode_png(depth)
     paths = write_folder_atomic(out_dir, files, field)
-    _remove(stale, field)
+    _remove([p for p in stale if p.name not in files], field)
     return paths

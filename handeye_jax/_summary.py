@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ._result import CalibrationResult, StageResult
+from ._scope import scope_lines
 from .models import AffinePair
 
 
@@ -119,6 +120,7 @@ def format_summary(result: CalibrationResult) -> str:
     lines.append("")
     early_stop = settings.early_stop
     diag = result.diagnostics
+    rows = result.data is not None and not result.data.is_simple()
     lines += _stage_lines(
         "stage 1", result.stage1, model_cls.param_names, model_cls.param_units, early_stop,
         diag.get("stage1", {}).get("std") if diag else None,
@@ -132,8 +134,10 @@ def format_summary(result: CalibrationResult) -> str:
         )
     if diag:
         lines += diagnostic_lines(
-            diag, "stage1", dict(zip(model_cls.param_names, model_cls.param_units, strict=True))
-        )
+            diag, "stage1", dict(zip(model_cls.param_names, model_cls.param_units, strict=True)),
+            rows,
+        )  # fmt: skip
+    lines += scope_lines((diag or {}).get("scope"), result.heights)
     lines.append("")
     lines += _stage_lines(
         "stage 2", result.stage2, AffinePair.param_names, AffinePair.param_units, early_stop,
@@ -146,8 +150,9 @@ def format_summary(result: CalibrationResult) -> str:
     )
     if diag:
         lines += diagnostic_lines(
-            diag, "stage2", dict(zip(AffinePair.param_names, AffinePair.param_units, strict=True))
-        )
+            diag, "stage2", dict(zip(AffinePair.param_names, AffinePair.param_units, strict=True)),
+            rows,
+        )  # fmt: skip
         lines += convention_lines(diag.get("convention", {}))
     for w in result.warnings:
         lines.append(f"warning: {w}")
@@ -181,10 +186,13 @@ def _modes_line(label: str, modes: list[dict], units: dict[str, str]) -> list[st
     return out
 
 
-def diagnostic_lines(diag: dict, stage: str, units: dict[str, str]) -> list[str]:
+def diagnostic_lines(
+    diag: dict, stage: str, units: dict[str, str], rows: bool = False
+) -> list[str]:
     """The diagnostics of one stage: weak directions, optima, bounds, LOO, outliers.
 
-    ``units`` maps the stage's parameter names to their units.
+    ``units`` maps the stage's parameter names to their units; ``rows``: the data came from
+    several captures, and each m is a row (a view paired with a touch), not a landmark.
     """
     d = diag.get(stage)
     if not d:
@@ -218,8 +226,9 @@ def diagnostic_lines(diag: dict, stage: str, units: dict[str, str]) -> list[str]
     loo = d.get("loo")
     if loo:
         what = "stage 1 refitted" if stage == "stage1" else "stages 1 and 2 refitted"
+        unit = "row m (one view and its touch)" if rows else "landmark m"
         lines.append(
-            f"  leave-one-out ({what} without landmark m, m predicted): held-out F = "
+            f"  leave-one-out ({what} without {unit}, m predicted): held-out F = "
             f"{loo['F']:.4f} mm (f1 = {loo['f1']:.4f}, f2 = {loo['f2']:.4f} mm); in-sample "
             f"F = {loo['in_sample_F']:.4f} mm"
         )

@@ -86,6 +86,10 @@ class TwinTruth:
         landmarks_tablet_px: where the landmarks are drawn, tablet px, in touch order.
         landmarks_hand_angle_deg: the hand angle θh of each touch, deg.
         seed: the seed it was drawn with (``None`` when written by hand).
+        capture_hand_angle_deg: the hand angle θc at the capture, deg; ``None``: where φ = 0
+            (eq. 1). The camera turns with the hand: ``R_base_hand = Ry(-180)·Rz(φc)``.
+        pen_z_mm: the pen tip's offset along the hand's z axis, ``zp``, mm (the hand's height
+            at a touch is the touched point's plus this).
     """
 
     image_size_px: tuple[int, int]
@@ -104,6 +108,8 @@ class TwinTruth:
     landmarks_tablet_px: np.ndarray = field(repr=False)
     landmarks_hand_angle_deg: np.ndarray = field(repr=False)
     seed: int | None = None
+    capture_hand_angle_deg: float | None = None
+    pen_z_mm: float = 0.0
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, TwinTruth):
@@ -122,8 +128,39 @@ class TwinTruth:
         c = self.camera_px
         return Rig(
             c["fx"], c["fy"], c["cx"], c["cy"], np.asarray(self.capture_position_mm),
-            self.hand_angle_zero_deg, self.hand_angle_sign,
+            self.hand_angle_zero_deg, self.hand_angle_sign, self.capture_hand_angle_deg,
         )  # fmt: skip
+
+    def at_capture(self, position_mm: Any, hand_angle_deg: float) -> TwinTruth:
+        """The same rig with the picture taken from another hand pose (mm, deg)."""
+        return replace(self, capture_position_mm=tuple(float(x) for x in position_mm),
+                       capture_hand_angle_deg=float(hand_angle_deg))  # fmt: skip
+
+    @property
+    def capture_angle_deg(self) -> float:
+        """The hand angle θc at the capture, deg (where φ = 0 unless given)."""
+        if self.capture_hand_angle_deg is not None:
+            return float(self.capture_hand_angle_deg)
+        return float(-self.hand_angle_zero_deg * self.hand_angle_sign) + 0.0
+
+    @in_float64
+    def true_command(
+        self, p_base_mm: Float[np.ndarray, "k 3"], hand_angle_deg: Float[np.ndarray, " k"]
+    ) -> Float[np.ndarray, "k 3"]:
+        """The hand position ``(x, y, z)``, mm, that puts the pen tip on base-frame points at
+        hand angles θh, deg."""
+        p = jnp.asarray(p_base_mm, dtype=float)
+        off = self.htm().pen_offset(self.rig().phi_deg(jnp.asarray(hand_angle_deg, dtype=float)))
+        return np.asarray(jnp.concatenate([p[:, :2] - off[:, :2], p[:, 2:] + self.pen_z_mm], 1))
+
+    @in_float64
+    def surface_points(
+        self, tablet_px: Float[np.ndarray, "k 2"], above_mm: float = 0.0
+    ) -> Float[np.ndarray, "k 3"]:
+        """Display points (tablet px) in the base frame, mm, lifted ``above_mm`` straight up
+        (the top of an object standing there)."""
+        p = self.htm().tablet_to_base(jnp.asarray(tablet_px, float) * self.mm_per_tablet_px)
+        return np.asarray(p.at[:, 2].add(self.tablet_height_mm + above_mm))
 
     @in_float64
     def htm(self) -> HTMModel:
@@ -149,6 +186,10 @@ class TwinTruth:
                             c["cx"], c["cy"])  # fmt: skip
         return np.asarray(uv), np.asarray(z)
 
+    def sees(self, tablet_px: Float[np.ndarray, "n 2"]) -> bool:
+        """Whether every display point (tablet px) is in the picture, :data:`MARGIN_PX` in."""
+        return _in_view(self, np.asarray(tablet_px, dtype=float))
+
     def landmark_area_px(self) -> tuple[np.ndarray, np.ndarray]:
         """The landmarks' bounding box on the display, ``(lower, upper)`` corners, tablet px."""
         return self.landmarks_tablet_px.min(axis=0), self.landmarks_tablet_px.max(axis=0)
@@ -160,6 +201,11 @@ class TwinTruth:
         d["landmarks_hand_angle_deg"] = self.landmarks_hand_angle_deg.tolist()
         for k in ("image_size_px", "capture_position_mm", "display_px"):
             d[k] = list(d[k])
+        # Written only when set: a truth of one capture at φ = 0 reads as before.
+        if d["capture_hand_angle_deg"] is None:
+            del d["capture_hand_angle_deg"]
+        if d["pen_z_mm"] == 0.0:
+            del d["pen_z_mm"]
         return {"format": FORMAT, **d}
 
     def to_json(self) -> str:
@@ -343,7 +389,7 @@ def load_truth(path: str | Path) -> TwinTruth:
     if doc.get("format") != FORMAT:
         r.fail("format", f"expected {FORMAT!r} (got {describe(doc.get('format'))})")
     keys = ("format", *TwinTruth.__dataclass_fields__)
-    r.table(doc, "", keys, optional=("seed",))
+    r.table(doc, "", keys, optional=("seed", "capture_hand_angle_deg", "pen_z_mm"))
     size = r.vector(doc["image_size_px"], "image_size_px", 2, 1e5)
     if any(s < 8 or s != int(s) for s in size):
         r.fail("image_size_px", f"must be two whole numbers >= 8 (got {size})")
@@ -400,7 +446,10 @@ def load_truth(path: str | Path) -> TwinTruth:
         landmarks_tablet_px=np.array(tab),
         landmarks_hand_angle_deg=np.array(angles),
         seed=seed,
-    )
+        capture_hand_angle_deg=None if doc.get("capture_hand_angle_deg") is None else
+        r.number(doc["capture_hand_angle_deg"], "capture_hand_angle_deg", limit=MAX_DEG),
+        pen_z_mm=r.number(doc.get("pen_z_mm", 0.0), "pen_z_mm", limit=MAX_MM),
+    )  # fmt: skip
     if not _in_view(truth, truth.landmarks_tablet_px):
         r.fail("", f"some landmark is not in the picture (or within {MARGIN_PX:g} px of its edge)")
     return truth

@@ -170,13 +170,16 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 def _cmd_predict(args: argparse.Namespace) -> int:
     from ._compute_frames import load_frames
-    from ._predict import points_csv_text, read_points_csv
+    from ._predict import points_csv_text, read_capture_columns, read_points_csv
     from ._predictor import Predictor
 
     out = _output_path(args.out, "--out", [args.result, args.points])
     predictor = Predictor.from_frames(load_frames(args.result))  # NumPy from here on
     header, rows, values = read_points_csv(args.points)
-    hand_xy = predictor.hand_command(values[:, :2], values[:, 2], values[:, 3], stage=args.stage)
+    position, angle = read_capture_columns(args.points, header, rows)
+    hand_xy = predictor.hand_command(values[:, :2], values[:, 2], values[:, 3], stage=args.stage,
+                                     capture_position_mm=position, capture_hand_angle_deg=angle,
+                                     axes=predictor.axes)  # fmt: skip
     text = points_csv_text(header, rows, hand_xy)
     if out is None:
         sys.stdout.write(text)
@@ -320,7 +323,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="hand commands for image points",
         description="Read a CSV with header u,v,depth,hand_angle (px, px, mm, deg) and write it "
         "back with hand_x,hand_y (mm, robot base frame) added: where to send the hand so "
-        "that the pen touches each point.",
+        "that the pen touches each point; and hand_z (mm) when the calibration's touches "
+        "recorded the hand's heights. Optional columns capture_x,capture_y,capture_z (mm) "
+        "and capture_angle (deg): the hand pose each point's picture was taken from "
+        "(default: the calibration's first capture).",
     )
     pre.add_argument("result", help="result file from 'calibrate --out'")
     pre.add_argument("points", help="CSV with header u,v,depth,hand_angle")

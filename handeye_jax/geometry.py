@@ -172,6 +172,23 @@ def R_base_hand_down() -> Float[Array, "3 3"]:
     return rot_y(HAND_DOWN_Y_DEG)
 
 
+def hand_to_base(
+    p_hand_mm: Float[Array, "n 3"], phi_deg: Float[Array, " n"], t_base_hand_mm: Float[Array, "n 3"]
+) -> Float[Array, "n 3"]:
+    """Points in the hand frame to the base frame with the hand pointing down and turned by φ:
+    ``Ry(-180)·Rz(φ)·p + t``, eq. (1) at any hand angle (one pose per point).
+
+    Args:
+        p_hand_mm: the points in the hand frame, mm.
+        phi_deg: the hand's turn ``φ = zero + sign·θh`` of each point's pose, deg.
+        t_base_hand_mm: the hand position of each point's pose, mm.
+    """
+    s, c = sincos_deg(phi_deg)
+    x, y, z = p_hand_mm[:, 0], p_hand_mm[:, 1], p_hand_mm[:, 2]
+    # Ry(-180) = diag(-1, 1, -1) after Rz(φ), as eq. (7) writes it for the pen.
+    return jnp.stack([-(c * x - s * y), s * x + c * y, -z], axis=-1) + t_base_hand_mm
+
+
 def backproject(
     image_px: Float[Array, "n 2"],
     depth_mm: Float[Array, " n"],

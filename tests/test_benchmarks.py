@@ -118,3 +118,20 @@ def test_dots_by_height_finds_two_pixel_dots_from_80_mm_higher():
     out = run_in_process("dots_by_height.py", "--seeds", "1", "1", "--rises", "80", "--dots", "2")
     rows = [line for line in out.splitlines() if line.startswith("| 2 | 80 |")]
     assert len(rows) == 1 and "| 1 of 1 |" in rows[0], out
+
+
+def test_multicapture_runs_recovers_noise_free_twins_and_plots(tmp_path):
+    """Issue 18's acceptance at a tiny size: noise-free three-capture twins (HTM on the twin,
+    DH on its own truth) recovered to F < 1e-6 mm with x-y and z commands to 1e-6 mm from a
+    capture pose no fit used; one paper-noise twin scored by capture and target height."""
+    fig = tmp_path / "multicapture.png"
+    out = run_in_process("multicapture.py", "--quick", "--figure", str(fig))
+    rows = re.findall(r"^\| (HTM twin seed 1|DH, its own truth) \| 90, -1 \| (\S+) \| (\S+) \| "
+                      r"(\S+) \| (\S+) \|$", out, re.M)  # fmt: skip
+    assert len(rows) == 2, out
+    for _, *numbers in rows:
+        assert all(float(x) < 1e-6 for x in numbers), rows
+    for group in ("60 mm higher (new pose), on the display", "all targets 50 mm above"):
+        assert re.search(rf"^\| {re.escape(group)}[^|]* \|( \d+\.\d{{3}} \|){{7}}$", out, re.M)
+    png = fig.read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000

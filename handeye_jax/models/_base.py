@@ -103,20 +103,34 @@ class AbstractModel(AbstractParametric):
         """The pen tip in the hand frame at φ = 0, mm (``z_p`` is not identifiable: 0)."""
 
     def image_to_base(
-        self, image_px: Float[Array, "n 2"], depth_mm: Float[Array, " n"], rig: Rig
+        self,
+        image_px: Float[Array, "n 2"],
+        depth_mm: Float[Array, " n"],
+        rig: Rig,
+        capture_position_mm: Float[Array, "n 3"] | None = None,
+        capture_phi_deg: Float[Array, " n"] | None = None,
     ) -> Float[Array, "n 3"]:
         """Image points with depth to the base frame, ``x_bi`` of eq. (5), mm.
+
+        Its z takes the camera at ``z_c = 0`` on the hand (the models carry no z, which the
+        x-y objective never sees): the true height is this z minus ``z_c``.
 
         Args:
             image_px: ``(u, v)`` in pixels.
             depth_mm: depth at each point in mm.
-            rig: intrinsics and the capture pose of the hand.
+            rig: intrinsics and (by default) the capture pose of the hand.
+            capture_position_mm: each point's capture position, mm, ``(n, 3)``; with
+                ``capture_phi_deg``, each point's capture pose instead of the rig's.
+            capture_phi_deg: the hand's turn ``φc = zero + sign·θc`` at each point's capture,
+                deg: ``R_base_hand = Ry(-180)·Rz(φc)`` (the camera turns with the hand).
         """
         p_camera = rig.p_camera(image_px, depth_mm)
         R_hand_camera, t_hand_camera = self.camera_mount()
-        R_base_hand, t_base_hand = rig.T_base_hand_capture()
         p_hand = geo.transform_points(R_hand_camera, t_hand_camera, p_camera)
-        return geo.transform_points(R_base_hand, t_base_hand, p_hand)
+        if capture_position_mm is None:
+            R_base_hand, t_base_hand = rig.T_base_hand_capture()
+            return geo.transform_points(R_base_hand, t_base_hand, p_hand)
+        return geo.hand_to_base(p_hand, capture_phi_deg, capture_position_mm)
 
     def tablet_to_base(self, tablet_mm: Float[Array, "n 2"]) -> Float[Array, "n 3"]:
         """Tablet points (mm, on the display plane) to the base frame, ``x_bt`` of eq. (10)."""
