@@ -28,6 +28,8 @@ import cv2
 import numpy as np
 
 from ._atomic import reason, write_folder_atomic
+from ._constants import DERIVED_FILES, DERIVED_FOLDER
+from ._constants import TWIN_SEED_RANGE as SEED_RANGE
 from ._dataset import Dataset
 from ._dataset_io import dataset_to_toml
 from ._detect import BlobCountError, DetectSettings, depth_at, find_blobs, order_blobs
@@ -39,14 +41,6 @@ from ._twin import TwinTruth
 from ._validate import MAX_HELDOUT
 
 HELDOUT_HEADER = ("u", "v", "depth", "hand_angle", "tablet_x", "tablet_y")
-#: The files :func:`write_twin` writes.
-TWIN_FILES = ("dataset.toml", "truth.json", "heldout.csv", "capture.png", "depth.png")
-#: What the README's loop makes from a twin beside its files (``detect --overlay``, ``detect``
-#: in place, ``calibrate --out``, ``report``): stale once the twin is replaced.
-DERIVED_FILES = ("overlay.png", "dataset.toml.*.bak", "dataset.toml.bak", "result.json")
-DERIVED_FOLDER = "result_report"
-#: Seeds numpy's generators take: 0 to 2^63 - 1.
-SEED_RANGE = (0, 2**63 - 1)
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,7 @@ import numpy as np
 from jaxtyping import Float
 
 from . import geometry as geo
+from ._constants import MAX_DOT_PX
 from ._dataset_io import check_tablet_px
 from ._io import load_json
 from ._observations import Rig
@@ -60,8 +61,6 @@ HAND_ANGLE_CONVENTIONS = ((90.0, -1), (90.0, 1), (0.0, 1), (0.0, -1))  # (zero d
 MARGIN_PX = 24.0
 #: Largest lens blur σ in a truth file, image px: the PSF patch of each dot is 10 σ wide.
 MAX_LENS_BLUR_PX = 20.0
-#: Largest landmark dot, tablet px: larger dots merge with their neighbours.
-MAX_DOT_PX = 50.0
 
 
 @dataclass(frozen=True, eq=False)
