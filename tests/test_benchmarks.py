@@ -90,3 +90,16 @@ def test_robust_flags_the_touched_landmark():
     assert len(rows) == 2
     # landmark 6 was touched 5 mm off: both losses flag it, and only it
     assert all(row.split(" | ")[2] == "[6]" for row in rows), rows
+
+
+def test_startup_times_every_command_and_the_parts_of_a_calibration():
+    out = run_in_process("startup.py", "--quick")
+    for row in ("calibrate cold", "calibrate warm", "predict", "handeye-jax --help",
+                "calibrate --help", "export --help", "detect --help"):  # fmt: skip
+        assert re.search(rf"^\| {row} \| \d+\.\d\d \[\d+\.\d\d, \d+\.\d\d\] \| [\d.]+ \|$",
+                         out, re.M), row  # fmt: skip
+    # the instrumented runs: each stage with its tracing, lowering and compilation, cold and warm
+    for kind in ("cold", "warm"):
+        for part in ("import", "stage1_de", "stage1_polish", "stage2_polish", "whole process"):
+            assert re.search(rf"^\| {kind} \| {part} \| \d+\.\d\d \| ", out, re.M), (kind, part)
+    assert re.search(r"NumPy Predictor, in this process: \d+\.\d+ µs per point", out)
