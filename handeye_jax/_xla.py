@@ -32,12 +32,20 @@ machine it made a DE generation at N = 10,000 about 1.3× faster (``benchmarks/R
 from __future__ import annotations
 
 import functools
+import hashlib
+import importlib
+import inspect
+import json
 import os
+import re
 from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import equinox as eqx
 import jax
+import numpy as np
 
 _NO_YNN_FUSION: dict[str, Any] = {"xla_cpu_experimental_ynn_fusion_type": ""}
 _CLASSIC_EMITTERS: dict[str, Any] = {"xla_cpu_use_fusion_emitters": False}
@@ -91,9 +99,23 @@ def _built_at_first_call(fn: Callable, options: Callable[[], dict], jit: Callabl
     def jitted():
         return jit(fn, compiler_options=options(), **jit_kwargs)
 
+    name = f"{fn.__module__}.{fn.__qualname__}"
+
     @functools.wraps(fn)
     def call(*args, **kwargs):
-        return jitted()(*args, **kwargs)
+        folder = _store.folder
+        if folder is None or jit_kwargs:
+            return jitted()(*args, **kwargs)
+        call_ = _Call.of(name, args, kwargs, filtered=jit is eqx.filter_jit, options=options())
+        if call_ is None:  # an argument without a stable description: not stored
+            return jitted()(*args, **kwargs)
+        programs = _store.programs
+        if call_.key not in programs:
+            programs[call_.key] = _load(folder, call_) or _build(folder, call_, fn)
+        program = programs[call_.key]
+        if program is None:  # this program cannot be exported (e.g. a host callback)
+            return jitted()(*args, **kwargs)
+        return program(*call_.dynamic)
 
     return call
 
@@ -142,3 +164,268 @@ def _backend_started() -> bool:
         return True
     started = getattr(xla_bridge, "backends_are_initialized", None)
     return True if started is None else bool(started())
+
+
+# -- serialized programs -------------------------------------------------------------------
+#
+# A warm run of the command line used to trace and lower every program again (seconds of
+# Python) only to find XLA's compiled code in the persistent cache. With a folder set
+# (store_programs), each program of fast_compile and hot_loop is also kept as jax.export's
+# serialized StableHLO, under a key that names everything the program depends on: the
+# function, this package's source, the arguments' structure, static values, shapes and
+# dtypes, the compiler options, the JAX version, x64 and the backend. A later process loads
+# it instead of tracing, and XLA's cache supplies the compiled code. A file that cannot be
+# read back (truncated, another JAX) is rebuilt; an argument that has no exact description
+# (an object whose repr shows an address or elides numbers) is not stored at all.
+
+FORMAT = b"handeye-jax.program/1\n"
+
+
+class _Store:
+    def __init__(self):
+        self.folder: Path | None = None
+        self.announce: Callable[[str], None] | None = None
+        self.programs: dict[str, Callable | None] = {}  # loaded or built, by key
+
+
+_store = _Store()
+
+
+def store_programs(
+    folder: str | os.PathLike | None, announce: Callable[[str], None] | None = None
+) -> None:
+    """Keep this package's compiled programs serialized (``jax.export``) in ``folder``, so a
+    later process neither traces nor lowers them; ``None`` turns it off (the default).
+
+    Pair it with JAX's persistent compilation cache (``jax_compilation_cache_dir``), which
+    keeps the compiled code: the command line puts this folder inside that one.
+
+    Args:
+        folder: where the programs are kept (created when the first is stored).
+        announce: called with a program's name before it is built (traced, exported and
+            compiled), which takes a second or so each on a first run; e.g. to say so.
+    """
+    _store.folder = None if folder is None else Path(folder)
+    _store.announce = announce
+    _store.programs = {}
+
+
+@functools.cache
+def _source_digest() -> str:
+    """SHA-256 of this package's source: any change of the code makes new programs."""
+    root = Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        h.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+_SAFE_STATIC = (type(None), bool, int, float, complex, str, bytes)
+# A description that shows an address, an elided array or NumPy's rounded printout does not
+# say exactly what the program was built for.
+_UNSTABLE = re.compile(r" at 0x|\.\.\.|array\(|<locals>")
+
+
+def _describe(treedef) -> str:
+    """A pytree structure with each node's type by its full name (JAX's own printout names a
+    class without its module) and its data."""
+    node = treedef.node_data()
+    if node is None:
+        return "*"
+    cls, aux = node
+    name = f"{cls.__module__}.{cls.__qualname__}"
+    children = ",".join(_describe(c) for c in treedef.children())
+    return f"{name}[{aux!r}]({children})"
+
+
+def _static_repr(x: Any) -> str | None:
+    if isinstance(x, _SAFE_STATIC) or isinstance(x, np.generic) and x.ndim == 0:
+        return repr(x)
+    if isinstance(x, type) or inspect.isfunction(x):
+        return f"{x.__module__}.{x.__qualname__}"
+    return None
+
+
+@dataclass
+class _Call:
+    """One call of a stored program: its key, its options and its arguments as flat arrays."""
+
+    key: str
+    name: str
+    description: str
+    options: dict[str, Any]
+    dynamic: list[Any]
+    specs: list[jax.ShapeDtypeStruct]
+    rebuild: Callable[[list[Any]], tuple[tuple, dict]]
+
+    @classmethod
+    def of(cls, name: str, args, kwargs, *, filtered: bool, options: dict) -> _Call | None:
+        if filtered:  # eqx.filter_jit: arrays are traced, everything else is static
+            dyn, static = eqx.partition((args, kwargs), eqx.is_array)
+        else:  # jax.jit: every leaf is traced
+            dyn, static = (args, kwargs), None
+        leaves, treedef = jax.tree.flatten(dyn)
+        static_leaves, static_def = jax.tree.flatten(static)
+        statics = [_static_repr(x) for x in static_leaves]
+        if any(r is None for r in statics):
+            return None
+        try:
+            avals = [jax.typeof(x) for x in leaves]
+        except TypeError:
+            return None
+        description = repr((
+            name, _describe(treedef), statics, _describe(static_def),
+            [(a.shape, str(a.dtype), a.weak_type) for a in avals], sorted(options.items()),
+            jax.__version__, jax.config.jax_enable_x64, jax.default_backend(), _source_digest(),
+        ))  # fmt: skip
+        if _UNSTABLE.search(description):
+            return None
+
+        def rebuild(flat: list[Any]) -> tuple[tuple, dict]:
+            a, k = jax.tree.unflatten(treedef, flat)
+            return eqx.combine((a, k), static) if filtered else (a, k)
+
+        specs = [jax.ShapeDtypeStruct(a.shape, a.dtype, weak_type=a.weak_type) for a in avals]
+        key = hashlib.sha256(description.encode()).hexdigest()
+        return cls(key, name, description, options, leaves, specs, rebuild)
+
+
+class _Probe(eqx.Module):
+    x: Any
+
+
+# What a Module without static fields carries through JAX's flattening: all a result of that
+# kind needs to be serialized (jax.export serializes only the pytree nodes it is told about).
+_PLAIN_MODULE_AUX = jax.tree.structure(_Probe(0)).node_data()[1]
+_registered: set[type] = set()
+
+
+def _register(cls: type) -> None:
+    if cls not in _registered:
+        jax.export.register_pytree_node_serialization(
+            cls, serialized_name=f"{cls.__module__}.{cls.__qualname__}",
+            serialize_auxdata=lambda aux: b"",
+            deserialize_auxdata=lambda data: _PLAIN_MODULE_AUX,
+        )  # fmt: skip
+        _registered.add(cls)
+
+
+def _result_classes(treedef) -> list[type] | None:
+    """The Module classes in a result's structure, if each is one jax.export can be told
+    about (no static fields); ``None`` otherwise."""
+    found: list[type] = []
+    node = treedef.node_data()
+    if node is not None and node[0] not in (tuple, list, dict, type(None)):
+        cls, aux = node
+        if not (isinstance(cls, type) and issubclass(cls, eqx.Module)) or aux != _PLAIN_MODULE_AUX:
+            return None
+        if "<locals>" in cls.__qualname__:
+            return None
+        found.append(cls)
+    for child in treedef.children():
+        more = _result_classes(child)
+        if more is None:
+            return None
+        found.extend(more)
+    return found
+
+
+def _class_at(path: str) -> type | None:
+    module, _, qualname = path.partition(":")
+    if not module.startswith(f"{__package__}."):  # only this package's own result types
+        return None
+    obj: Any = importlib.import_module(module)
+    for part in qualname.split("."):
+        obj = getattr(obj, part)
+    return obj if isinstance(obj, type) and issubclass(obj, eqx.Module) else None
+
+
+def _path(folder: Path, call: _Call) -> Path:
+    return folder / f"{call.key}.program"
+
+
+def _runner(exported, call: _Call) -> Callable:
+    return jax.jit(exported.call, compiler_options=call.options or None)
+
+
+def _load(folder: Path, call: _Call) -> Callable | None:
+    """The stored program of ``call``, ready to run; ``None`` if there is none that reads."""
+    try:
+        data = _path(folder, call).read_bytes()
+    except OSError:
+        return None
+    try:
+        if not data.startswith(FORMAT):
+            return None
+        header, _, blob = data[len(FORMAT) :].partition(b"\n")
+        meta = json.loads(header)
+        if meta["description"] != call.description:
+            return None
+        if meta["sha256"] != hashlib.sha256(blob).hexdigest():  # truncated or damaged
+            return None
+        for path in meta["classes"]:
+            cls = _class_at(path)
+            if cls is None:
+                return None
+            _register(cls)
+        exported = jax.export.deserialize(bytearray(blob))
+        if [(a.shape, a.dtype) for a in exported.in_avals] != [
+            (s.shape, s.dtype) for s in call.specs
+        ]:
+            return None
+    except Exception:  # truncated, or written by another JAX: rebuilt by the caller
+        return None
+    return _runner(exported, call)
+
+
+def _custom_calls(lowered_text: str) -> set[str]:
+    return set(re.findall(r"custom_call @([\w.$-]+)", lowered_text)) | set(
+        re.findall(r'call_target_name = "([^"]+)"', lowered_text)
+    )
+
+
+def _build(folder: Path, call: _Call, fn: Callable) -> Callable | None:
+    """Export ``fn`` for ``call``, store it, and return it ready to run (``None`` if it
+    cannot be exported or serialized: then it is jitted as usual)."""
+
+    if _store.announce is not None:
+        _store.announce(call.name)
+
+    def flat(*leaves):
+        a, k = call.rebuild(list(leaves))
+        return fn(*a, **k)
+
+    jitted = jax.jit(flat)
+    try:
+        try:
+            exported = jax.export.export(jitted)(*call.specs)
+        except ValueError:
+            # LAPACK's solvers are custom calls JAX does not promise to keep across versions;
+            # the key holds the JAX version, so a stored program never meets another one.
+            targets = _custom_calls(jitted.lower(*call.specs).as_text())
+            checks = [jax.export.DisabledSafetyCheck.custom_call(t) for t in sorted(targets)]
+            exported = jax.export.export(jitted, disabled_checks=checks)(*call.specs)
+        classes = _result_classes(exported.out_tree)
+        if classes is None:
+            return None
+        for cls in classes:
+            _register(cls)
+        blob = exported.serialize()
+    except Exception:  # e.g. a host callback, or no flatbuffers to serialize with
+        return None
+    meta = {
+        "description": call.description,
+        "classes": sorted({f"{c.__module__}:{c.__qualname__}" for c in classes}),
+        "sha256": hashlib.sha256(blob).hexdigest(),
+    }
+    data = FORMAT + json.dumps(meta).encode() + b"\n" + bytes(blob)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        tmp = folder / f".{call.key}.{os.getpid()}.tmp"
+        tmp.write_bytes(data)
+        os.replace(tmp, _path(folder, call))  # whole or not at all, for a concurrent run
+    except OSError:  # an unwritable folder only costs time
+        pass
+    # Run what a later process will load, so that both lower to the same module and the
+    # compilation cache serves the second run already.
+    return _runner(jax.export.deserialize(blob), call)

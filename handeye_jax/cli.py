@@ -396,19 +396,20 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _start_jax(*modules: str) -> None:
-    """Before JAX's first computation: XLA's flags and the persistent compilation cache; and
-    the command's ``modules`` (names relative to this package) imported."""
+def _start_jax(*modules: str, announce: bool = False) -> None:
+    """Before JAX's first computation: XLA's flags and the persistent compilation cache (and
+    ``announce`` each program compiled for it); the command's ``modules`` (names relative to
+    this package) imported."""
     with _interrupt.deferred():  # the imports take a second or more: Ctrl-C waits for them
         from ._xla import vectorise_small_loops
 
         vectorise_small_loops()
-        _enable_compilation_cache()
+        _enable_compilation_cache(announce)
         for name in modules:
             importlib.import_module(name, __package__)
 
 
-def _enable_compilation_cache() -> None:
+def _enable_compilation_cache(announce: bool = False) -> None:
     """Keep XLA's compiled programs between runs, so only the first run pays for compiling.
 
     The command line owns its process, so it may set this global JAX option; the library does
@@ -426,9 +427,20 @@ def _enable_compilation_cache() -> None:
         return  # an unwritable cache only costs time
     import jax
 
+    from ._xla import store_programs
+
     jax.config.update("jax_compilation_cache_dir", where)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    # Beside XLA's compiled code, the programs themselves: a warm run neither traces nor lowers.
+    store_programs(os.path.join(where, "programs"), _announce if announce else None)
+
+
+def _announce(name: str) -> None:
+    from tqdm import tqdm  # above a progress bar, if one is drawn
+
+    short = name.rsplit(".", 1)[-1].lstrip("_")
+    tqdm.write(f"compiling {short} for this machine (once: later runs load it)", file=sys.stderr)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -448,7 +460,8 @@ def _run_command(argv: Sequence[str] | None) -> int:
         if getattr(args, "serves", False):  # a server: Ctrl-C is how it ends, after its saves
             _interrupt.stop_recording()
         if getattr(args, "jax", True):
-            _start_jax(*getattr(args, "imports", ()))
+            announce = getattr(args, "quiet", True) is False  # calibrate, unless --quiet
+            _start_jax(*getattr(args, "imports", ()), announce=announce)
         code = args.func(args)
         _interrupt.check()  # a Ctrl-C that a callback swallowed, and nothing written since
         return code
