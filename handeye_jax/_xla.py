@@ -106,7 +106,7 @@ def _built_at_first_call(fn: Callable, options: Callable[[], dict], jit: Callabl
         folder = _store.folder
         if folder is None or jit_kwargs:
             return jitted()(*args, **kwargs)
-        call_ = _Call.of(name, args, kwargs, filtered=jit is eqx.filter_jit, options=options())
+        call_, dynamic = _signature(name, args, kwargs, jit is eqx.filter_jit, options())
         if call_ is None:  # an argument without a stable description: not stored
             return jitted()(*args, **kwargs)
         programs = _store.programs
@@ -115,7 +115,7 @@ def _built_at_first_call(fn: Callable, options: Callable[[], dict], jit: Callabl
         program = programs[call_.key]
         if program is None:  # this program cannot be exported (e.g. a host callback)
             return jitted()(*args, **kwargs)
-        return program(*call_.dynamic)
+        return program(*dynamic)
 
     return call
 
@@ -186,6 +186,7 @@ class _Store:
         self.folder: Path | None = None
         self.announce: Callable[[str], None] | None = None
         self.programs: dict[str, Callable | None] = {}  # loaded or built, by key
+        self.calls: dict[tuple, _Call | None] = {}  # described calls, by signature
 
 
 _store = _Store()
@@ -208,6 +209,7 @@ def store_programs(
     _store.folder = None if folder is None else Path(folder)
     _store.announce = announce
     _store.programs = {}
+    _store.calls = {}
 
 
 @functools.cache
@@ -248,46 +250,83 @@ def _static_repr(x: Any) -> str | None:
 
 @dataclass
 class _Call:
-    """One call of a stored program: its key, its options and its arguments as flat arrays."""
+    """A stored program's signature: its key, options, argument shapes and how to rebuild
+    its arguments from the traced arrays (the rest of them fixed, as in ``jit``)."""
 
     key: str
     name: str
     description: str
     options: dict[str, Any]
-    dynamic: list[Any]
     specs: list[jax.ShapeDtypeStruct]
-    rebuild: Callable[[list[Any]], tuple[tuple, dict]]
+    treedef: Any
+    positions: list[int]  # where the traced arrays go among the leaves
+    template: list[Any]  # the leaves, the static ones in place
+
+    def rebuild(self, dynamic: list[Any]) -> tuple[tuple, dict]:
+        leaves = list(self.template)
+        for i, x in zip(self.positions, dynamic, strict=True):
+            leaves[i] = x
+        return jax.tree.unflatten(self.treedef, leaves)
 
     @classmethod
-    def of(cls, name: str, args, kwargs, *, filtered: bool, options: dict) -> _Call | None:
-        if filtered:  # eqx.filter_jit: arrays are traced, everything else is static
-            dyn, static = eqx.partition((args, kwargs), eqx.is_array)
-        else:  # jax.jit: every leaf is traced
-            dyn, static = (args, kwargs), None
-        leaves, treedef = jax.tree.flatten(dyn)
-        static_leaves, static_def = jax.tree.flatten(static)
-        statics = [_static_repr(x) for x in static_leaves]
+    def of(cls, name, treedef, leaves, positions, options) -> _Call | None:
+        positions_set = set(positions)
+        statics = [_static_repr(x) for i, x in enumerate(leaves) if i not in positions_set]
         if any(r is None for r in statics):
             return None
         try:
-            avals = [jax.typeof(x) for x in leaves]
+            avals = [jax.typeof(leaves[i]) for i in positions]
         except TypeError:
             return None
         description = repr((
-            name, _describe(treedef), statics, _describe(static_def),
+            name, _describe(treedef), positions, statics,
             [(a.shape, str(a.dtype), a.weak_type) for a in avals], sorted(options.items()),
             jax.__version__, jax.config.jax_enable_x64, jax.default_backend(), _source_digest(),
         ))  # fmt: skip
         if _UNSTABLE.search(description):
             return None
-
-        def rebuild(flat: list[Any]) -> tuple[tuple, dict]:
-            a, k = jax.tree.unflatten(treedef, flat)
-            return eqx.combine((a, k), static) if filtered else (a, k)
-
         specs = [jax.ShapeDtypeStruct(a.shape, a.dtype, weak_type=a.weak_type) for a in avals]
+        template = [None if i in positions_set else x for i, x in enumerate(leaves)]
         key = hashlib.sha256(description.encode()).hexdigest()
-        return cls(key, name, description, options, leaves, specs, rebuild)
+        return cls(key, name, description, options, specs, treedef, positions, template)
+
+
+def _leaf_signature(x: Any) -> tuple:
+    try:
+        return (x.shape, x.dtype, getattr(x, "weak_type", False))
+    except AttributeError:  # a Python scalar, traced by jax.jit
+        return (type(x),)
+
+
+def _signature(name: str, args, kwargs, filtered: bool, options: dict):
+    """The call's ``_Call`` (``None`` if it cannot be stored) and its traced arrays.
+
+    Describing a call exactly takes about a millisecond of Python; calls of the same shapes
+    and static values share one, looked up by a signature that takes microseconds (a
+    program of the LM's batches is called hundreds of times per calibration)."""
+    leaves, treedef = jax.tree.flatten((args, kwargs))
+    if filtered:  # eqx.filter_jit: arrays are traced, everything else is static
+        positions = [i for i, x in enumerate(leaves) if eqx.is_array(x)]
+    else:  # jax.jit: every leaf is traced
+        positions = list(range(len(leaves)))
+    dynamic = [leaves[i] for i in positions]
+    traced = set(positions)
+    # By type and, for floats, repr too: 1, 1.0 and True are equal, and so are 0.0 and -0.0.
+    statics = tuple(
+        (type(x), repr(x) if isinstance(x, float | complex) else x)
+        for i, x in enumerate(leaves) if i not in traced
+    )  # fmt: skip
+    signature = (name, treedef, str(treedef), tuple(positions), statics,
+                 tuple(_leaf_signature(x) for x in dynamic), tuple(sorted(options.items())),
+                 jax.config.jax_enable_x64)  # fmt: skip
+    try:
+        return _store.calls[signature], dynamic
+    except KeyError:
+        pass
+    except TypeError:  # an unhashable static value: described afresh
+        return _Call.of(name, treedef, leaves, positions, options), dynamic
+    call = _store.calls[signature] = _Call.of(name, treedef, leaves, positions, options)
+    return call, dynamic
 
 
 class _Probe(eqx.Module):
@@ -344,8 +383,14 @@ def _path(folder: Path, call: _Call) -> Path:
     return folder / f"{call.key}.program"
 
 
+def _named(f: Callable, call: _Call) -> Callable:
+    f.__name__ = f.__qualname__ = call.name.rsplit(".", 1)[-1]  # as JAX's compile log names it
+    return f
+
+
 def _runner(exported, call: _Call) -> Callable:
-    return jax.jit(exported.call, compiler_options=call.options or None)
+    run = _named(lambda *a: exported.call(*a), call)
+    return jax.jit(run, compiler_options=call.options or None)
 
 
 def _load(folder: Path, call: _Call) -> Callable | None:
@@ -391,11 +436,11 @@ def _build(folder: Path, call: _Call, fn: Callable) -> Callable | None:
     if _store.announce is not None:
         _store.announce(call.name)
 
-    def flat(*leaves):
-        a, k = call.rebuild(list(leaves))
+    def flat(*dynamic):
+        a, k = call.rebuild(list(dynamic))
         return fn(*a, **k)
 
-    jitted = jax.jit(flat)
+    jitted = jax.jit(_named(flat, call))
     try:
         try:
             exported = jax.export.export(jitted)(*call.specs)
