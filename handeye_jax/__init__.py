@@ -106,6 +106,7 @@ _EXPORTS = {
     "StageErrors": "_objective",
     "StageFit": "_calibrate",
     "StageResult": "_result",
+    "store_programs": "_xla",
     "synthesize_dataset": "_synthetic",
     "TouchingError": "_evaluate",
     "Twin": "_simulate",
@@ -202,7 +203,7 @@ if TYPE_CHECKING:
     from ._synthetic import snake_grid_px, synthesize_dataset
     from ._twin import TwinTruth, draw_truth, load_truth
     from ._x64 import float64
-    from ._xla import vectorise_small_loops
+    from ._xla import store_programs, vectorise_small_loops
     from .models import AbstractCorrection, AbstractModel, AffinePair, DHModel, HTMModel, get_model
 
 __all__ = [
@@ -291,6 +292,7 @@ __all__ = [
     "save_result",
     "simulate",
     "snake_grid_px",
+    "store_programs",
     "synthesize_dataset",
     "tablet",
     "update_dataset",
