@@ -108,8 +108,10 @@ def _env(tree: Path, cache: str | None = None) -> dict[str, str]:
 
 
 def _wall(cmd: list[str], env: dict[str, str]) -> float:
+    # In the tree measured: ``python -m`` and ``-c`` put the working folder first on the path.
+    cwd = env["PYTHONPATH"]
     t0 = time.perf_counter()
-    p = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=900)
+    p = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=900, cwd=cwd)
     wall = time.perf_counter() - t0
     if p.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd[:4])}...: exit {p.returncode}: {p.stderr[-2000:]}")

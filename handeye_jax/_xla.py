@@ -34,6 +34,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import importlib
+import importlib.metadata
 import inspect
 import json
 import os
@@ -212,11 +213,21 @@ def store_programs(
     _store.calls = {}
 
 
+#: The libraries whose code a traced program holds besides this package's own.
+_TRACED_LIBRARIES = ("jax", "jaxlib", "equinox", "optimistix", "lineax", "numpy")
+
+
 @functools.cache
 def _source_digest() -> str:
-    """SHA-256 of this package's source: any change of the code makes new programs."""
+    """SHA-256 of this package's source and its libraries' versions: any change of the code
+    makes new programs."""
     root = Path(__file__).resolve().parent
     h = hashlib.sha256()
+    for name in _TRACED_LIBRARIES:
+        try:
+            h.update(f"{name} {importlib.metadata.version(name)}\0".encode())
+        except importlib.metadata.PackageNotFoundError:
+            h.update(f"{name} -\0".encode())
     for path in sorted(root.rglob("*.py")):
         h.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes() + b"\0")
     return h.hexdigest()
@@ -225,7 +236,7 @@ def _source_digest() -> str:
 _SAFE_STATIC = (type(None), bool, int, float, complex, str, bytes)
 # A description that shows an address, an elided array or NumPy's rounded printout does not
 # say exactly what the program was built for.
-_UNSTABLE = re.compile(r" at 0x|\.\.\.|array\(|<locals>")
+_UNSTABLE = re.compile(r" at 0x|\.\.\.|array\(|<locals>|<lambda>")
 
 
 def _describe(treedef) -> str:
