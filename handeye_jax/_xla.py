@@ -434,6 +434,10 @@ def _load(folder: Path, call: _Call) -> Callable | None:
     return _runner(exported, call)
 
 
+#: Custom-call targets met in this process's programs (LAPACK's): allowed from the first try.
+_unstable_targets: set[str] = set()
+
+
 def _custom_calls(lowered_text: str) -> set[str]:
     return set(re.findall(r"custom_call @([\w.$-]+)", lowered_text)) | set(
         re.findall(r'call_target_name = "([^"]+)"', lowered_text)
@@ -452,15 +456,23 @@ def _build(folder: Path, call: _Call, fn: Callable) -> Callable | None:
         return fn(*a, **k)
 
     jitted = jax.jit(_named(flat, call))
+
+    def export(targets):
+        checks = [jax.export.DisabledSafetyCheck.custom_call(t) for t in sorted(targets)]
+        return jax.export.export(jitted, disabled_checks=checks)(*call.specs)
+
     try:
         try:
-            exported = jax.export.export(jitted)(*call.specs)
+            exported = export(_unstable_targets)
         except ValueError:
             # LAPACK's solvers are custom calls JAX does not promise to keep across versions;
-            # the key holds the JAX version, so a stored program never meets another one.
+            # the key holds the JAX version, so a stored program never meets another one. A
+            # Python callback is another custom call, and one that cannot be stored.
             targets = _custom_calls(jitted.lower(*call.specs).as_text())
-            checks = [jax.export.DisabledSafetyCheck.custom_call(t) for t in sorted(targets)]
-            exported = jax.export.export(jitted, disabled_checks=checks)(*call.specs)
+            if any("callback" in t for t in targets):
+                return None
+            _unstable_targets.update(targets)
+            exported = export(_unstable_targets)
         classes = _result_classes(exported.out_tree)
         if classes is None:
             return None

@@ -112,3 +112,17 @@ def test_an_argument_without_an_exact_description_is_not_stored(store):
         lm = minimise(Local(), LM, BOUNDS, x0=np.array([0.5, 0.5, 0.0]))
     np.testing.assert_allclose(np.asarray(lm.x), [1.0, 1.0, 0.3], atol=1e-6)
     assert not list(store.glob("*.program"))
+
+
+def _doubled_on_the_host(x):
+    out = jax.ShapeDtypeStruct(x.shape, x.dtype)
+    return jax.pure_callback(lambda v: np.asarray(v) * 2.0, out, x)
+
+
+def test_a_program_that_calls_back_into_python_is_not_stored(store):
+    """A callback is a pointer into this process: stored, it would call nothing later."""
+    _xla.store_programs(store)
+    doubled = _xla.fast_compile(_doubled_on_the_host)
+    with jax.enable_x64(True):
+        np.testing.assert_array_equal(doubled(jnp.arange(3.0)), [0.0, 2.0, 4.0])
+    assert not list(store.glob("*.program"))
