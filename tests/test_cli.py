@@ -287,6 +287,7 @@ def test_compilation_cache_goes_where_asked_and_can_be_turned_off(tmp_path):
     p = subprocess.run(base, capture_output=True, text=True, env=env)
     assert p.returncode == 0, p.stderr[-2000:]
     assert cache.is_dir() and any(cache.iterdir())
+    assert any((cache / "programs").glob("*.program"))  # jax.export's programs, beside XLA's
     home = tmp_path / "home"
     env = dict(os.environ, HANDEYE_JAX_CACHE_DIR="off", HOME=str(home), XDG_CACHE_HOME="")
     p = subprocess.run(base, capture_output=True, text=True, env=env)
