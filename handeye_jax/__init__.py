@@ -118,6 +118,7 @@ _EXPORTS = {
     "StageFit": "_calibrate",
     "StageResult": "_result",
     "synthesize_captures": "_synthetic",
+    "store_programs": "_xla",
     "synthesize_dataset": "_synthetic",
     "TouchingError": "_evaluate",
     "Twin": "_simulate",
@@ -228,7 +229,7 @@ if TYPE_CHECKING:
     from ._synthetic import snake_grid_px, synthesize_captures, synthesize_dataset
     from ._twin import TwinTruth, change_truth, draw_truth, load_truth
     from ._x64 import float64
-    from ._xla import vectorise_small_loops
+    from ._xla import store_programs, vectorise_small_loops
     from .models import AbstractCorrection, AbstractModel, AffinePair, DHModel, HTMModel, get_model
 
 __all__ = [
@@ -323,6 +324,7 @@ __all__ = [
     "save_result",
     "simulate",
     "snake_grid_px",
+    "store_programs",
     "synthesize_dataset",
     "tablet",
     "update_dataset",

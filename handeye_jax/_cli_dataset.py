@@ -7,21 +7,14 @@ import argparse
 from pathlib import Path
 
 from ._atomic import check_output, same_file
-from ._dataset_io import (
-    FORMAT_V2,
-    backup_path,
-    convert_path,
-    convert_to_v2,
-    load_dataset,
-    save_dataset,
-    update_dataset,
-)
+from ._constants import RECOMMENDED_CAPTURES as RECOMMENDED
 from ._errors import InputError
-from ._plan import RECOMMENDED, plan_captures
 from ._validate import MAX_DEG, MAX_MM, parse_numbers
 
 
 def _cmd_convert(args: argparse.Namespace) -> int:
+    from ._dataset_io import FORMAT_V2, backup_path, convert_path, convert_to_v2, load_dataset
+
     old = Path(args.dataset)
     ds = load_dataset(old)
     if ds.version == 2:  # nothing to do is not a failure: scripts may convert unconditionally
@@ -58,6 +51,9 @@ def _numbers(limit: float, unit: str):
 
 
 def _cmd_plan(args: argparse.Namespace) -> int:
+    from ._dataset_io import backup_path, load_dataset, save_dataset, update_dataset
+    from ._plan import plan_captures
+
     path = Path(args.dataset)
     out = None if args.out is None else check_output(args.out, "--out", [path])
     if out is None:
@@ -120,7 +116,7 @@ def add_dataset_commands(sub: argparse._SubParsersAction) -> None:
         help="write here (default: update DATASET in place, the old one kept as "
         "DATASET.<UTC time>.bak)",
     )  # fmt: skip
-    p.set_defaults(func=_cmd_plan)
+    p.set_defaults(func=_cmd_plan, imports=("._dataset_io", "._plan"))
 
 
 def add_convert_command(sub: argparse._SubParsersAction) -> None:
@@ -145,4 +141,4 @@ def add_convert_command(sub: argparse._SubParsersAction) -> None:
         help="replace an existing --out (also the dataset itself); the replaced file is kept "
         "as OUT.<UTC time>.bak",
     )  # fmt: skip
-    p.set_defaults(func=_cmd_convert)
+    p.set_defaults(func=_cmd_convert, imports=("._dataset_io",))

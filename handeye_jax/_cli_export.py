@@ -7,7 +7,6 @@ import sys
 
 from . import _export as export  # constants only: the formats import their libraries on use
 from ._atomic import check_output, write_output
-from ._compute_frames import load_frames
 
 PROG = "handeye-jax"
 
@@ -54,7 +53,7 @@ def add_export_command(sub) -> None:
         "--pen-frame", type=_name, default=export.DEFAULT_PEN_FRAME, metavar="NAME",
         help=f"the pen tip frame (urdf, ros2; default {export.DEFAULT_PEN_FRAME})",
     )  # fmt: skip
-    p.set_defaults(func=_cmd_export)
+    p.set_defaults(func=_cmd_export, imports=("._compute_frames", "._export"))
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
@@ -64,6 +63,8 @@ def _cmd_export(args: argparse.Namespace) -> int:
         print(f"{PROG}: error: --parent-link, --camera-frame and --pen-frame must differ "
               f"(got {', '.join(names)})", file=sys.stderr)  # fmt: skip
         return 2
+    from ._compute_frames import load_frames  # JAX: not imported for --help
+
     frames = load_frames(args.result)
     text = export.export_text(
         frames, args.fmt, parent_link=args.parent_link, camera_frame=args.camera_frame,

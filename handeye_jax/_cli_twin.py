@@ -8,26 +8,29 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-
-import numpy as np
-from jaxtyping import Float, Int
+from typing import TYPE_CHECKING
 
 from ._atomic import StagedFiles, check_folder_output, check_output, same_file, write_output
-from ._dataset_io import backup_path, save_dataset, update_dataset
-from ._detect import DetectSettings, overlay_image, read_image
-from ._errors import InputError
-from ._simulate import (
+from ._constants import (
     CAPTURE_RISE_MM,
+    CHANGES,
     DERIVED_FILES,
     DERIVED_FOLDER,
     HELDOUT_ABOVE_MM,
     HELDOUT_RISES_MM,
-    MAX_CAPTURES,
-    SEED_RANGE,
-    encode_png,
+    MAX_AREA_PX,
+    MAX_DOT_PX,
+    MIN_AREA_PX,
+    TWIN_FILES,
 )
-from ._twin import CHANGES, MAX_DOT_PX
+from ._constants import MAX_TWIN_CAPTURES as MAX_CAPTURES
+from ._constants import TWIN_SEED_RANGE as SEED_RANGE
+from ._errors import InputError
 from ._validate import MAX_DEG, MAX_HELDOUT, MAX_MM, parse_float, parse_int, parse_numbers
+
+if TYPE_CHECKING:  # the commands import OpenCV, JAX and tomlkit when they run, not for --help
+    import numpy as np
+    from jaxtyping import Float, Int
 
 
 def _whole_number(text: str, lo: int, hi: int | None = None) -> int:
@@ -87,6 +90,9 @@ def overlay_png(
 ) -> bytes:
     """The picture with each point circled and numbered (its landmark index, default 0, 1, …;
     with its depth in mm, if given), PNG."""
+    from ._detect import overlay_image, read_image
+    from ._simulate import encode_png
+
     image = read_image(capture)
     if depth_mm is None:
         labels = [f"?{i}" for i in range(len(points_px))]
@@ -107,7 +113,7 @@ def write_overlay(
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from ._simulate import PRESETS, TWIN_FILES, check_twin_folder, simulate, write_twin
+    from ._simulate import PRESETS, check_twin_folder, simulate, write_twin
     from ._twin import change_truth, draw_truth, load_truth
 
     out = Path(args.out_dir)
@@ -244,8 +250,8 @@ def _listed(ms) -> str:
 
 
 def _cmd_detect(args: argparse.Namespace) -> int:
-    from ._dataset_io import load_dataset
-    from ._detect import BlobCountError, detect_landmarks, fill_capture
+    from ._dataset_io import backup_path, load_dataset, save_dataset, update_dataset
+    from ._detect import BlobCountError, DetectSettings, detect_landmarks, fill_capture
 
     images = [args.capture_png, args.depth]
     out = _output(args.out, "--out", images)
@@ -372,7 +378,7 @@ def add_twin_commands(sub: argparse._SubParsersAction) -> None:
         f"what was made from it ({', '.join(DERIVED_FILES)}, the figures in {DERIVED_FOLDER}/);"
         " other files are left as they are",
     )
-    sim.set_defaults(func=_cmd_simulate)
+    sim.set_defaults(func=_cmd_simulate, imports=("._simulate",))
 
     det = sub.add_parser(
         "detect",
@@ -425,11 +431,11 @@ def add_twin_commands(sub: argparse._SubParsersAction) -> None:
         help="how dots are told from the background: Otsu's threshold on the top-hat, or "
         "OpenCV's adaptive threshold",
     )  # fmt: skip
-    det.add_argument("--min-area", type=_positive_int, default=DetectSettings.min_area_px,
+    det.add_argument("--min-area", type=_positive_int, default=MIN_AREA_PX,
                      help="smallest blob, px² (default: %(default)s)")  # fmt: skip
-    det.add_argument("--max-area", type=_positive_int, default=DetectSettings.max_area_px,
+    det.add_argument("--max-area", type=_positive_int, default=MAX_AREA_PX,
                      help="largest blob, px² (default: %(default)s)")  # fmt: skip
-    det.set_defaults(func=_cmd_detect)
+    det.set_defaults(func=_cmd_detect, imports=("._detect", "._dataset_io"))
 
     ev = sub.add_parser(
         "evaluate",
@@ -443,4 +449,4 @@ def add_twin_commands(sub: argparse._SubParsersAction) -> None:
     )
     ev.add_argument("result", help="result file from 'calibrate --out'")
     ev.add_argument("twin_dir", help="folder written by 'simulate'")
-    ev.set_defaults(func=_cmd_evaluate)
+    ev.set_defaults(func=_cmd_evaluate, imports=("._evaluate",))

@@ -38,6 +38,7 @@ import cv2
 import numpy as np
 from jaxtyping import Float, Int, UInt8, UInt16
 
+from ._constants import MAX_AREA_PX, MIN_AREA_PX
 from ._dataset import Capture, Dataset
 from ._errors import InputError
 from ._io import MAX_IMAGE_BYTES, read_bytes
@@ -70,8 +71,8 @@ class DetectSettings:
     smoothing_px: float = 1.0
     adaptive_block_px: int = 15
     adaptive_offset: float = 3.0
-    min_area_px: int = 2
-    max_area_px: int = 80
+    min_area_px: int = MIN_AREA_PX
+    max_area_px: int = MAX_AREA_PX
     centroid_window_px: int = 1
     depth_window_px: int = 2
 

@@ -29,7 +29,6 @@ import re
 import shlex
 import textwrap
 
-import jax
 import numpy as np
 
 from . import _npchain
@@ -66,6 +65,7 @@ def zero_filled(frames: Frames, fmt: str) -> list[str]:
 
 def rpy_radians(R: np.ndarray) -> tuple[float, float, float]:
     """Fixed-axis roll, pitch, yaw (URDF's ``rpy``: ``R = Rz(yaw)·Ry(pitch)·Rx(roll)``), rad."""
+    import jax  # here, not at the top: export's --help imports no JAX
     import jaxlie
 
     with jax.enable_x64(True):
@@ -75,6 +75,7 @@ def rpy_radians(R: np.ndarray) -> tuple[float, float, float]:
 
 def quaternion_xyzw(R: np.ndarray) -> tuple[float, float, float, float]:
     """The unit quaternion of ``R`` in ROS's order ``(x, y, z, w)``, with ``w >= 0``."""
+    import jax  # here, not at the top: export's --help imports no JAX
     import jaxlie
 
     with jax.enable_x64(True):

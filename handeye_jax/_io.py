@@ -12,6 +12,7 @@ than 4,300 digits, CSV fields over 131,072 characters) into an
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
 import os
@@ -225,3 +226,18 @@ def csv_rows(text: str, path: str | Path | None) -> Iterator[list[str]]:
             limit = csv.field_size_limit()
             raise InputError(path, where, f"has a field longer than {limit:,} characters") from None
         raise InputError(path, where, f"not valid CSV: {e}") from None
+
+
+# -- digests ---------------------------------------------------------------------------------
+
+#: The key under which a written document carries :func:`document_digest` of the rest of it.
+DIGEST_KEY = "content_sha256"
+
+
+def document_digest(doc: dict[str, Any]) -> str:
+    """SHA-256 (hex) of a JSON document's canonical text: sorted keys, no spaces, floats as
+    Python's shortest round-trip repr. The same document gives the same digest however its
+    file is indented, so a reader can tell a file as it was written from an edited one.
+    Raises ``ValueError`` for what JSON cannot hold (NaN, infinities)."""
+    text = json.dumps(doc, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode()).hexdigest()

@@ -13,10 +13,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ._constants import RECOMMENDED_CAPTURES as RECOMMENDED
 from ._dataset import Capture, Dataset
-
-#: The recommended further pictures: (rise above the first capture, mm; hand turn from it, deg).
-RECOMMENDED = ((40.0, 30.0), (80.0, -30.0))
 
 
 def plan_captures(

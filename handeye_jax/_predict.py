@@ -10,15 +10,19 @@ import io
 import itertools
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-from jaxtyping import Array, Float
 
 from ._errors import InputError
 from ._io import MAX_TEXT_BYTES, csv_rows, read_text
-from ._observations import Rig
 from ._validate import MAX_DEG, MAX_MM, MAX_POINTS, MAX_PX, parse_float
-from .models import AbstractCorrection, AbstractModel
+
+if TYPE_CHECKING:  # the CLI's predict reads the CSV here without JAX
+    from jaxtyping import Array, Float
+
+    from ._observations import Rig
+    from .models import AbstractCorrection, AbstractModel
 
 POINTS_HEADER = ("u", "v", "depth", "hand_angle")
 OUTPUT_COLUMNS = ("hand_x", "hand_y", "hand_z")

@@ -18,6 +18,7 @@ from . import _npchain
 from ._errors import InputError
 from ._frames import FORMAT as FRAMES_FORMAT
 from ._frames import MAX_FILE_BYTES, Frames
+from ._io import DIGEST_KEY, document_digest
 
 RESULT_FORMAT = "handeye-jax.result/1"
 
@@ -58,6 +59,30 @@ def read_json(path: str | Path) -> Any:
         raise InputError(path, "", f"not valid JSON: {e}") from None
     except (RecursionError, ValueError) as e:  # nesting, or an integer of too many digits
         raise InputError(path, "", f"not valid here: {type(e).__name__}") from None
+
+
+def stored_frames(path: str | Path) -> Frames | None:
+    """A result file's ``frames`` section if the file is as handeye-jax wrote it, else ``None``.
+
+    The writer stores the SHA-256 of the rest of the document (``content_sha256``). While it
+    matches, the frames are the ones the file's own parameters gave when it was written, so
+    they need no check against them, which takes JAX and a second or more. An older result,
+    an edited one, a frames file or one that cannot be read give ``None``: for those,
+    :func:`~handeye_jax.load_frames` validates the whole file and checks the frames.
+    """
+    try:
+        doc = read_json(path)
+    except InputError:  # the full reader says what is wrong, in its own words
+        return None
+    if not isinstance(doc, dict) or doc.get("format") != RESULT_FORMAT or "frames" not in doc:
+        return None
+    digest = doc.pop(DIGEST_KEY, None)
+    try:
+        if not isinstance(digest, str) or digest != document_digest(doc):
+            return None
+    except ValueError:  # NaN or infinity, which the writer never writes
+        return None
+    return Frames.from_dict(doc["frames"], path, "frames")
 
 
 class Predictor:

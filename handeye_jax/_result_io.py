@@ -10,6 +10,7 @@ The layout (every section but the first nine is optional; older files load)::
                            pulls[...]}, prior_F}
     centre_index, centres_mm[[x, y], [x, y]], sign_twin{...}, warnings[]
     frames{...}                 # the fitted frames as numbers, for the NumPy predictor
+    content_sha256              # of all the rest: while it matches, the frames need no check
     recalibration{previous, refit[], others}
     diagnostics{...}
     data{...}                   # the dataset fitted, as its own file's document (v1 or v2)
@@ -29,7 +30,7 @@ import numpy as np
 from ._atomic import write_output
 from ._dataset import Camera, Dataset
 from ._dataset_io import dataset_from_document, dataset_to_document
-from ._io import MAX_RESULT_BYTES, load_json
+from ._io import DIGEST_KEY, MAX_RESULT_BYTES, document_digest, load_json
 from ._observations import Rig
 from ._params import FIXED, FREE, PRIOR
 from ._result import CalibrationResult, StageResult
@@ -128,8 +129,11 @@ def result_to_document(result: CalibrationResult) -> dict[str, Any]:
 
 
 def result_to_json(result: CalibrationResult) -> str:
-    """The result as ``handeye-jax.result/1`` JSON text."""
-    return json.dumps(result_to_document(result), indent=2, allow_nan=False) + "\n"
+    """The result as ``handeye-jax.result/1`` JSON text, with the digest of its content
+    (:data:`~handeye_jax._io.DIGEST_KEY`) by which the NumPy side trusts its frames."""
+    doc = json.loads(json.dumps(result_to_document(result), allow_nan=False))  # as read back
+    doc[DIGEST_KEY] = document_digest(doc)
+    return json.dumps(doc, indent=2, allow_nan=False) + "\n"
 
 
 def save_result(result: CalibrationResult, path: str | Path) -> None:

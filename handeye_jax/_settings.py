@@ -4,11 +4,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from ._losses import LOSS_NAMES
 from ._validate import MAX_GENERATIONS, MAX_POPULATION, MAX_RESTARTS, Reader, describe
-from .optim import DifferentialEvolution
+
+if TYPE_CHECKING:  # JAX: imported on use, so that the command line's --help shows the defaults
+    from .optim import DifferentialEvolution
 
 
 @dataclass(frozen=True)
@@ -54,6 +55,8 @@ class Settings:
 
     def de(self) -> DifferentialEvolution:
         """The DE solver these settings configure."""
+        from .optim import DifferentialEvolution
+
         return DifferentialEvolution(
             population=self.population, generations=self.generations,
             crossover=self.crossover, mutation=self.mutation, tol=self.tol,
@@ -114,6 +117,12 @@ def _models():
     return model_registry()
 
 
+def _losses():
+    from ._losses import LOSS_NAMES
+
+    return LOSS_NAMES
+
+
 #: Each setting's check in a result file: the schema of ``settings``, one entry per field.
 SETTINGS_SCHEMA: dict[str, Callable[[Reader, Any, str], Any]] = {
     "model": _choice(_models, "model"),
@@ -126,7 +135,7 @@ SETTINGS_SCHEMA: dict[str, Callable[[Reader, Any, str], Any]] = {
     "mutation": _number(),
     "polish": _boolean,
     "restarts": _integer(0, MAX_RESTARTS),
-    "loss": _choice(lambda: LOSS_NAMES, "loss"),
+    "loss": _choice(_losses, "loss"),
     "loss_scale_mm": _number(positive=True),
 }
 #: Settings older results recorded and the fit no longer has (checked, then ignored).

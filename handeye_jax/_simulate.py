@@ -28,6 +28,16 @@ import cv2
 import numpy as np
 
 from ._atomic import reason, write_folder_atomic
+from ._constants import (
+    CAPTURE_RISE_MM,
+    DERIVED_FILES,
+    DERIVED_FOLDER,
+    HELDOUT_ABOVE_MM,
+    HELDOUT_RISES_MM,
+    MORE_CAPTURE_FILES,
+)
+from ._constants import MAX_TWIN_CAPTURES as MAX_CAPTURES
+from ._constants import TWIN_SEED_RANGE as SEED_RANGE
 from ._dataset import Camera, Capture, Dataset
 from ._dataset_io import dataset_to_toml
 from ._detect import BlobCountError, DetectSettings, depth_at, find_blobs, order_blobs
@@ -43,24 +53,6 @@ HELDOUT_HEADER = ("u", "v", "depth", "hand_angle", "tablet_x", "tablet_y")
 #: (mm, deg), their true position (base frame, mm), and how far above the display they stand.
 HELDOUT_CAPTURE_HEADER = (*HELDOUT_HEADER, "capture_x", "capture_y", "capture_z",
                           "capture_angle", "true_x", "true_y", "true_z", "above_mm")  # fmt: skip
-#: A multi-capture twin's captures rise this far above the first one, mm (each but the
-#: first jittered by ±5 mm): 3 captures spread over 85 to 95 mm.
-CAPTURE_RISE_MM = 90.0
-#: Held-out targets of a multi-capture twin are seen from captures this far above the first
-#: (0: the first capture itself; others at new positions and hand angles), mm, and stand
-#: this far above the display (0: drawn on it; else the top of an object), mm.
-HELDOUT_RISES_MM = (0.0, 60.0)
-HELDOUT_ABOVE_MM = (0.0, 50.0)
-#: The files :func:`write_twin` writes.
-TWIN_FILES = ("dataset.toml", "truth.json", "heldout.csv", "capture.png", "depth.png")
-#: What the README's loop makes from a twin beside its files (``detect --overlay``, ``detect``
-#: in place, ``calibrate --out``, ``report``): stale once the twin is replaced.
-DERIVED_FILES = ("overlay.png", "dataset.toml.*.bak", "dataset.toml.bak", "result.json")
-DERIVED_FOLDER = "result_report"
-#: A multi-capture twin's pictures beyond the first: an old twin's are stale once replaced.
-MORE_CAPTURE_FILES = ("capture_*.png", "depth_*.png")
-#: Seeds numpy's generators take: 0 to 2^63 - 1.
-SEED_RANGE = (0, 2**63 - 1)
 
 
 @dataclass(frozen=True)
@@ -240,10 +232,6 @@ def simulate(
         heldout_tablet_px=held_px, heldout_hand_angle_deg=held_angle,
         heldout_image_px=held_image_px, heldout_depth_mm=held_depth,
     )  # fmt: skip
-
-
-#: The most pictures a twin takes.
-MAX_CAPTURES = 8
 
 
 def draw_capture_poses(

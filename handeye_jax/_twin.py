@@ -22,6 +22,7 @@ import numpy as np
 from jaxtyping import Float
 
 from . import geometry as geo
+from ._constants import CHANGES, MAX_DOT_PX
 from ._dataset_io import check_tablet_px
 from ._io import load_json
 from ._observations import Rig
@@ -60,8 +61,6 @@ HAND_ANGLE_CONVENTIONS = ((90.0, -1), (90.0, 1), (0.0, 1), (0.0, -1))  # (zero d
 MARGIN_PX = 24.0
 #: Largest lens blur σ in a truth file, image px: the PSF patch of each dot is 10 σ wide.
 MAX_LENS_BLUR_PX = 20.0
-#: Largest landmark dot, tablet px: larger dots merge with their neighbours.
-MAX_DOT_PX = 50.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -294,18 +293,6 @@ def _capture_above(truth: TwinTruth, jitter_x_mm: float, jitter_y_mm: float, dep
     return replace(truth, capture_position_mm=(float(xy[0]), float(xy[1]), float(z)))
 
 
-#: The parts :func:`change_truth` can change, and what each change draws (mm, deg). Each move
-#: is a length drawn uniformly from its range in a uniform direction of the x-y plane; each
-#: turn is an angle drawn uniformly from its range, either way.
-CHANGES: dict[str, dict[str, tuple[float, float]]] = {
-    # Another pen, or the same pen clamped anew: the tip (xp, yp) moves 3-15 mm.
-    "pen": {"tip_move_mm": (3.0, 15.0)},
-    # The tablet moved on the table: (xt, yt) moves 10-40 mm, it turns 2-8 deg about its
-    # normal (γt), its tilts αt and βt are drawn afresh from RANGES.
-    "tablet": {"move_mm": (10.0, 40.0), "turn_deg": (2.0, 8.0)},
-    # The camera remounted: (xc, yc) moves 2-8 mm, each of αc, βc, γc turns 1-3 deg.
-    "camera": {"move_mm": (2.0, 8.0), "turn_deg": (1.0, 3.0)},
-}
 #: A changed parameter stays this fraction of its search range (HTMModel's, Table 5) inside
 #: the range: a calibration of the changed rig can still find it, off the range's bounds.
 CHANGE_MARGIN = 0.1

@@ -11,6 +11,7 @@ second or more that importing JAX takes.
 from __future__ import annotations
 
 import argparse
+import importlib
 import os
 import sys
 from collections.abc import Sequence
@@ -22,6 +23,8 @@ from ._errors import InputError
 from ._validate import MAX_GENERATIONS, MAX_POPULATION, MAX_RESTARTS, parse_float, parse_int
 
 PROG = "handeye-jax"
+#: The models ``--model`` offers: ``models.model_registry()`` (JAX) names the same (tested).
+MODELS = ("dh", "htm")
 
 
 class _HelpFormatter(argparse.HelpFormatter):
@@ -169,12 +172,17 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_predict(args: argparse.Namespace) -> int:
-    from ._compute_frames import load_frames
     from ._predict import points_csv_text, read_capture_columns, read_points_csv
-    from ._predictor import Predictor
+    from ._predictor import Predictor, stored_frames
 
     out = _output_path(args.out, "--out", [args.result, args.points])
-    predictor = Predictor.from_frames(load_frames(args.result))  # NumPy from here on
+    frames = stored_frames(args.result)  # NumPy only: no JAX for a file as it was written
+    if frames is None:  # older or edited: validated, its frames checked against its parameters
+        _start_jax()
+        from ._compute_frames import load_frames
+
+        frames = load_frames(args.result)
+    predictor = Predictor.from_frames(frames)
     header, rows, values = read_points_csv(args.points)
     position, angle = read_capture_columns(args.points, header, rows)
     hand_xy = predictor.hand_command(values[:, :2], values[:, 2], values[:, 3], stage=args.stage,
@@ -237,11 +245,11 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from ._calibrate import Settings
+    # Nothing here imports JAX, OpenCV, matplotlib or tomlkit: the commands do, when they run.
     from ._cli_dataset import add_dataset_commands
     from ._cli_export import add_export_command
     from ._cli_twin import add_twin_commands
-    from .models import model_registry
+    from ._settings import Settings
 
     d = Settings()
     parser = _Parser(
@@ -259,7 +267,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cal.add_argument("dataset", help="dataset file (handeye-jax.dataset TOML; mm, deg, px)")
     cal.add_argument(
-        "--model", choices=sorted(model_registry()), default=None,
+        "--model", choices=MODELS, default=None,
         help=f"the transform chain: htm, six-DoF transforms (eqs. 1-8); dh, the "
         f"Denavit-Hartenberg variant (eqs. 12-16) (default: {d.model}, or --prior's)",
     )  # fmt: skip
@@ -313,7 +321,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="write the result (JSON) here (default: print the summary only)",
     )  # fmt: skip
     cal.add_argument("--quiet", action="store_true", help="no progress bars on stderr")
-    cal.set_defaults(func=_cmd_calibrate)
+    cal.set_defaults(func=_cmd_calibrate, imports=("._calibrate", "._dataset_io", "._result_io"))
     add_twin_commands(sub)  # simulate, detect, evaluate
     add_export_command(sub)
     add_dataset_commands(sub)  # convert, plan
@@ -337,7 +345,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--stage", type=_whole_number, choices=(1, 2), default=2,
         help="2: eq. (25) with the affine correction (default); 1: eq. (8), model only",
     )  # fmt: skip
-    pre.set_defaults(func=_cmd_predict)
+    pre.set_defaults(func=_cmd_predict, jax=False)  # only for files it must check (see there)
 
     tab = sub.add_parser(
         "tablet",
@@ -397,7 +405,20 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _enable_compilation_cache() -> None:
+def _start_jax(*modules: str, announce: bool = False) -> None:
+    """Before JAX's first computation: XLA's flags and the persistent compilation cache (and
+    ``announce`` each program compiled for it); the command's ``modules`` (names relative to
+    this package) imported."""
+    with _interrupt.deferred():  # the imports take a second or more: Ctrl-C waits for them
+        from ._xla import vectorise_small_loops
+
+        vectorise_small_loops()
+        _enable_compilation_cache(announce)
+        for name in modules:
+            importlib.import_module(name, __package__)
+
+
+def _enable_compilation_cache(announce: bool = False) -> None:
     """Keep XLA's compiled programs between runs, so only the first run pays for compiling.
 
     The command line owns its process, so it may set this global JAX option; the library does
@@ -415,9 +436,20 @@ def _enable_compilation_cache() -> None:
         return  # an unwritable cache only costs time
     import jax
 
+    from ._xla import store_programs
+
     jax.config.update("jax_compilation_cache_dir", where)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    # Beside XLA's compiled code, the programs themselves: a warm run neither traces nor lowers.
+    store_programs(os.path.join(where, "programs"), _announce if announce else None)
+
+
+def _announce(name: str) -> None:
+    from tqdm import tqdm  # above a progress bar, if one is drawn
+
+    short = name.rsplit(".", 1)[-1].lstrip("_")
+    tqdm.write(f"compiling {short} for this machine (once: later runs load it)", file=sys.stderr)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -432,15 +464,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _run_command(argv: Sequence[str] | None) -> int:
     try:
-        with _interrupt.deferred():  # imports JAX, NumPy, OpenCV: a second or more
-            parser = build_parser()
+        parser = build_parser()
         args = parser.parse_args(argv)
         if getattr(args, "serves", False):  # a server: Ctrl-C is how it ends, after its saves
             _interrupt.stop_recording()
-        from ._xla import vectorise_small_loops
-
-        vectorise_small_loops()
-        _enable_compilation_cache()
+        if getattr(args, "jax", True):
+            announce = getattr(args, "quiet", True) is False  # calibrate, unless --quiet
+            _start_jax(*getattr(args, "imports", ()), announce=announce)
         code = args.func(args)
         _interrupt.check()  # a Ctrl-C that a callback swallowed, and nothing written since
         return code

@@ -135,3 +135,16 @@ def test_multicapture_runs_recovers_noise_free_twins_and_plots(tmp_path):
         assert re.search(rf"^\| {re.escape(group)}[^|]* \|( \d+\.\d{{3}} \|){{7}}$", out, re.M)
     png = fig.read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+
+
+def test_startup_times_every_command_and_the_parts_of_a_calibration():
+    out = run_in_process("startup.py", "--quick")
+    for row in ("calibrate cold", "calibrate warm", "predict", "handeye-jax --help",
+                "calibrate --help", "export --help", "detect --help"):  # fmt: skip
+        assert re.search(rf"^\| {row} \| \d+\.\d\d \[\d+\.\d\d, \d+\.\d\d\] \| [\d.]+ \|$",
+                         out, re.M), row  # fmt: skip
+    # the instrumented runs: each stage with its tracing, lowering and compilation, cold and warm
+    for kind in ("cold", "warm"):
+        for part in ("import", "stage1_de", "stage1_polish", "stage2_polish", "whole process"):
+            assert re.search(rf"^\| {kind} \| {part} \| \d+\.\d\d \| ", out, re.M), (kind, part)
+    assert re.search(r"NumPy Predictor, in this process: \d+\.\d+ µs per point", out)

@@ -13,7 +13,8 @@ import pytest
 from handeye_jax import load_result
 from handeye_jax.cli import main
 
-PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
+ROOT = Path(__file__).resolve().parents[1]
+PAPER = ROOT / "data" / "paper2023.toml"
 FAST = ["--population", "200", "--generations", "400", "--quiet"]
 
 
@@ -286,6 +287,7 @@ def test_compilation_cache_goes_where_asked_and_can_be_turned_off(tmp_path):
     p = subprocess.run(base, capture_output=True, text=True, env=env)
     assert p.returncode == 0, p.stderr[-2000:]
     assert cache.is_dir() and any(cache.iterdir())
+    assert any((cache / "programs").glob("*.program"))  # jax.export's programs, beside XLA's
     home = tmp_path / "home"
     env = dict(os.environ, HANDEYE_JAX_CACHE_DIR="off", HOME=str(home), XDG_CACHE_HOME="")
     p = subprocess.run(base, capture_output=True, text=True, env=env)
@@ -449,3 +451,36 @@ def test_every_option_has_help_that_states_its_default(name):
 
 def test_the_subcommands_are_the_ones_checked_above():
     assert sorted(_subcommands()) == sorted(SUBCOMMANDS)
+
+
+def test_help_of_every_subcommand_imports_nothing_heavy():
+    """``--help`` stays quick: no JAX, matplotlib, OpenCV or tomlkit (issue 19, section 3)."""
+    code = """
+import contextlib, io, json, sys
+from handeye_jax.cli import main
+heavy, shown = {}, {}
+for name in sys.argv[1:]:
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.suppress(SystemExit):
+        main([name, "--help"] if name else ["--help"])
+    shown[name] = out.getvalue()
+    heavy[name] = sorted({m.split(".")[0] for m in sys.modules} & {"jax", "jaxlib",
+                         "matplotlib", "cv2", "tomlkit", "equinox", "optimistix"})
+print(json.dumps({"heavy": heavy, "shown": shown}))
+"""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    p = subprocess.run([sys.executable, "-c", code, "", *SUBCOMMANDS], capture_output=True,
+                       text=True, timeout=120, env=env)  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    doc = json.loads(p.stdout)
+    assert doc["heavy"] == {name: [] for name in ["", *SUBCOMMANDS]}
+    for name in SUBCOMMANDS:
+        assert doc["shown"][name].startswith(f"usage: handeye-jax {name} ")
+        assert "--help" in doc["shown"][name] and len(doc["shown"][name]) > 200
+
+
+def test_the_models_the_command_line_offers_are_the_registry():
+    from handeye_jax.cli import MODELS
+    from handeye_jax.models import model_registry
+
+    assert sorted(MODELS) == sorted(model_registry())

@@ -236,7 +236,7 @@ def test_detect_discards_the_overlay_when_the_dataset_write_fails(
     def refuse(ds, path):
         raise InputError(path, "", "cannot write: No space left on device")
 
-    monkeypatch.setattr("handeye_jax._cli_twin.save_dataset", refuse)
+    monkeypatch.setattr("handeye_jax._dataset_io.save_dataset", refuse)  # detect imports it on use
     (tmp_path / "ov.png").write_text("SENTINEL")
     before = _snapshot(tmp_path)
     argv = _detect(twin_dir, twin_dir / "dataset.toml", "--out", str(tmp_path / "new.toml"),

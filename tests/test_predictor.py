@@ -341,6 +341,54 @@ def test_cli_predict_uses_the_frames_and_reads_older_results(tmp_path, result_fi
         load_frames(edited)
 
 
+def test_cli_predict_runs_without_jax_on_a_result_as_written(tmp_path, result_file):
+    """The CLI's predict reads a result file as calibrate wrote it with NumPy alone (JAX,
+    OpenCV, matplotlib and jaxtyping not even importable), and gives the JAX path's numbers."""
+    csv = tmp_path / "points.csv"
+    csv.write_text("u,v,depth,hand_angle\n" + "".join(
+        f"{u},{v},{d},{a}\n" for (u, v), d, a in zip(*PAPER_POINTS, strict=True)))  # fmt: skip
+    code = """
+        from handeye_jax.cli import main
+        code = main(sys.argv[1:])
+        heavy = sorted(m for m in sys.modules if m.split(".")[0] in BLOCKED)
+        print(json.dumps({"code": code, "heavy": heavy}), file=sys.stderr)
+        """
+    for stage in (1, 2):
+        p = run_without_jax(code, "predict", str(result_file), str(csv), "--stage", str(stage))
+        assert p.returncode == 0, p.stderr
+        assert json.loads(p.stderr.splitlines()[-1]) == {"code": 0, "heavy": []}
+        rows = [line.split(",")[-2:] for line in p.stdout.strip().splitlines()[1:]]
+        checked = Predictor.from_frames(load_frames(result_file))  # JAX's check of the frames
+        want = checked.hand_command(*PAPER_POINTS, stage=stage)
+        np.testing.assert_allclose(np.array(rows, dtype=float), want, rtol=0, atol=1e-6)  # µm
+
+
+def test_only_a_file_as_written_skips_the_check_of_its_frames(tmp_path, result_file):
+    """``stored_frames`` trusts the frames while the content digest matches (indentation does
+    not matter); any edit, of the frames or of anything else, sends the file to the check."""
+    from handeye_jax._predictor import stored_frames
+
+    doc = json.loads(result_file.read_text())
+    assert re.fullmatch(r"[0-9a-f]{64}", doc["content_sha256"])
+    assert stored_frames(result_file) is not None
+    variants = {"reindented": (lambda d: None, True),
+                "frames": (lambda d: d["frames"]["pen_tip"]["t_hand_pen"]["mm"].__setitem__(
+                    0, d["frames"]["pen_tip"]["t_hand_pen"]["mm"][0] + 1e-6), False),
+                "params": (lambda d: d["stage1"]["params"].__setitem__("xc", 0.0), False),
+                "other": (lambda d: d.__setitem__("dataset", "renamed"), False),
+                "digest": (lambda d: d.__setitem__("content_sha256", "0" * 64), False),
+                "no digest": (lambda d: d.pop("content_sha256"), False)}  # fmt: skip
+    for name, (edit, trusted) in variants.items():
+        d = json.loads(result_file.read_text())
+        edit(d)
+        path = tmp_path / f"{name}.json"
+        path.write_text(json.dumps(d, indent=4))
+        assert (stored_frames(path) is not None) is trusted, name
+    # a file the writer did not write: no shortcut, the full reader reports it
+    (tmp_path / "broken.json").write_text("{not json")
+    assert stored_frames(tmp_path / "broken.json") is None
+
+
 def test_predictor_benchmark_runs_in_process(capsys, monkeypatch):
     monkeypatch.setattr(sys, "argv", ["predictor.py", "--quick"])
     runpy.run_path(str(ROOT / "benchmarks" / "predictor.py"), run_name="__main__")

@@ -21,7 +21,6 @@ from dataclasses import dataclass
 import equinox as eqx
 import jax
 import numpy as np
-import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float
 
 from .. import _xla
@@ -68,6 +67,9 @@ class LevenbergMarquardt(AbstractSolver):
 
 
 def _lm(fn: Problem, x0, lower, upper, rtol: float, atol: float, max_steps: int):
+    # Imported while tracing only: a run that loads the stored program needs none of it.
+    import optimistix as optx
+
     solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
     # optimistix evaluates and differentiates the residuals several times while it traces;
     # as a nested jit they are traced once and the rest is reused.

@@ -1,0 +1,128 @@
+"""Serialized programs (issue 19, section 3): a later process loads a stored program instead of
+tracing it, gets the same numbers bit for bit, and a stale or damaged file is rebuilt."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from handeye_jax import _xla
+from handeye_jax.optim import Bounds, DifferentialEvolution, LevenbergMarquardt, minimise
+
+TRACES = {"n": 0}
+
+
+def _rosenbrock(x):
+    TRACES["n"] += 1  # Python runs only while JAX traces
+    r = jnp.stack([10.0 * (x[1] - x[0] ** 2), 1.0 - x[0], 0.5 * (x[2] - 0.3)])
+    return r
+
+
+class Problem(eqx.Module):
+    """A least-squares problem (sum of squared residuals) with a known minimum, (1, 1, 0.3)."""
+
+    def __call__(self, x):
+        return jnp.sum(_rosenbrock(x) ** 2)
+
+    def residuals(self, x):
+        return _rosenbrock(x)
+
+
+BOUNDS = Bounds(np.array([-2.0, -2.0, -2.0]), np.array([2.0, 3.0, 2.0]))
+DE = DifferentialEvolution(population=24, generations=40, early_stop=False)
+LM = LevenbergMarquardt(rtol=1e-12, atol=0.0, max_steps=200)
+
+
+def _solve():
+    with jax.enable_x64(True):
+        de = minimise(Problem(), DE, BOUNDS, key=jax.random.PRNGKey(3))
+        lm = minimise(Problem(), LM, BOUNDS, x0=np.asarray(de.x))
+        return np.asarray(de.population), np.asarray(de.x), np.asarray(lm.x), float(lm.value)
+
+
+@pytest.fixture
+def store(tmp_path):
+    folder = tmp_path / "programs"
+    yield folder
+    _xla.store_programs(None)
+
+
+def _same(a, b):
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x, y)
+
+
+def test_a_stored_program_is_loaded_without_tracing_and_gives_the_same_numbers(store):
+    plain = _solve()  # no store: JAX's usual jit
+    np.testing.assert_allclose(plain[2], [1.0, 1.0, 0.3], atol=1e-6)
+    _xla.store_programs(store)
+    built = _solve()
+    files = sorted(store.glob("*.program"))
+    assert len(files) >= 3  # the DE's start and loop, and the LM
+    _xla.store_programs(store)  # as a new process would: nothing in memory, files on disk
+    before = TRACES["n"]
+    loaded = _solve()
+    assert TRACES["n"] == before  # the problem was not traced again
+    _same(plain, built)
+    _same(plain, loaded)
+
+
+@pytest.mark.parametrize("damage", ["truncated", "garbage", "another program", "empty"])
+def test_a_damaged_or_stale_program_is_rebuilt_with_the_same_numbers(store, damage):
+    _xla.store_programs(store)
+    want = _solve()
+    files = sorted(store.glob("*.program"))
+    contents = {f: f.read_bytes() for f in files}
+    damaged = {}
+    for i, f in enumerate(files):
+        data = contents[f]
+        damaged[f] = {
+            "truncated": data[: len(data) // 2],
+            "garbage": data[:200] + bytes(range(256)) * 4,
+            "another program": contents[files[(i + 1) % len(files)]],  # e.g. another JAX's
+            "empty": b"",
+        }[damage]  # fmt: skip
+        f.write_bytes(damaged[f])
+    _xla.store_programs(store)
+    before = TRACES["n"]
+    _same(_solve(), want)
+    assert TRACES["n"] > before  # rebuilt: traced again
+    for f in files:  # and stored again, whole
+        data = f.read_bytes()
+        assert data != damaged[f] and data.startswith(_xla.FORMAT) and len(data) > 1000
+    _xla.store_programs(store)
+    before = TRACES["n"]
+    _same(_solve(), want)
+    assert TRACES["n"] == before  # the rebuilt files load
+
+
+def test_an_argument_without_an_exact_description_is_not_stored(store):
+    _xla.store_programs(store)
+
+    class Local(eqx.Module):  # a class of a function's own: its name says nothing elsewhere
+        def __call__(self, x):
+            return jnp.sum(_rosenbrock(x) ** 2)
+
+        residuals = staticmethod(_rosenbrock)
+
+    with jax.enable_x64(True):
+        lm = minimise(Local(), LM, BOUNDS, x0=np.array([0.5, 0.5, 0.0]))
+    np.testing.assert_allclose(np.asarray(lm.x), [1.0, 1.0, 0.3], atol=1e-6)
+    assert not list(store.glob("*.program"))
+
+
+def _doubled_on_the_host(x):
+    out = jax.ShapeDtypeStruct(x.shape, x.dtype)
+    return jax.pure_callback(lambda v: np.asarray(v) * 2.0, out, x)
+
+
+def test_a_program_that_calls_back_into_python_is_not_stored(store):
+    """A callback is a pointer into this process: stored, it would call nothing later."""
+    _xla.store_programs(store)
+    doubled = _xla.fast_compile(_doubled_on_the_host)
+    with jax.enable_x64(True):
+        np.testing.assert_array_equal(doubled(jnp.arange(3.0)), [0.0, 2.0, 4.0])
+    assert not list(store.glob("*.program"))
