@@ -121,7 +121,7 @@ def load_frames(path: str | Path) -> Frames:
     (a hand-edited file) is an :class:`InputError`: the NumPy predictor reads the section, the
     JAX path the parameters, and they must not give different hand commands.
     """
-    from ._result_io import load_result  # _result_io imports this module
+    from ._result_io import load_result  # here, not at the top: the result reader imports this module
 
     result = load_result(path)
     frames = result.frames()
