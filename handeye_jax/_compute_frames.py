@@ -121,7 +121,8 @@ def load_frames(path: str | Path) -> Frames:
     (a hand-edited file) is an :class:`InputError`: the NumPy predictor reads the section, the
     JAX path the parameters, and they must not give different hand commands.
     """
-    from ._result_io import load_result  # here, not at the top: the result reader imports this module
+    # Imported here, not at the top: the result reader imports this module.
+    from ._result_io import load_result
 
     result = load_result(path)
     frames = result.frames()
