@@ -30,6 +30,16 @@ def sincos_deg(angle_deg):
     return sin, cos
 
 
+def _camera_point(image_px, depth_mm, camera_px, R_hand_camera):
+    """Back-projected camera-frame ``(x, y, z = depth)`` of image points (eq. 4), mm, and the
+    mount's rotation, as float64 arrays: what the x-y and z chains both start from."""
+    fx, fy, cx, cy = camera_px
+    d = np.asarray(depth_mm, dtype=np.float64)
+    uv = np.asarray(image_px, dtype=np.float64)
+    return (d * (uv[:, 0] - cx) / fx, d * (uv[:, 1] - cy) / fy, d,
+            np.asarray(R_hand_camera, dtype=np.float64))  # fmt: skip
+
+
 def image_to_base_xy(
     image_px, depth_mm, camera_px, R_hand_camera, t_hand_camera_mm, capture_mm, capture_phi_deg
 ):
@@ -44,12 +54,7 @@ def image_to_base_xy(
         capture_mm: hand position at the capture, mm, (3,) or (n, 3); only x and y are read.
         capture_phi_deg: the hand's turn φ at the capture, deg, scalar or (n,).
     """
-    fx, fy, cx, cy = camera_px
-    d = np.asarray(depth_mm, dtype=np.float64)
-    uv = np.asarray(image_px, dtype=np.float64)
-    p0 = d * (uv[:, 0] - cx) / fx
-    p1 = d * (uv[:, 1] - cy) / fy
-    R = np.asarray(R_hand_camera, dtype=np.float64)
+    p0, p1, d, R = _camera_point(image_px, depth_mm, camera_px, R_hand_camera)
     t = np.asarray(t_hand_camera_mm, dtype=np.float64)
     hx = R[0, 0] * p0 + R[0, 1] * p1 + R[0, 2] * d + t[0]
     hy = R[1, 0] * p0 + R[1, 1] * p1 + R[1, 2] * d + t[1]
@@ -67,12 +72,7 @@ def image_to_base_z(image_px, depth_mm, camera_px, R_hand_camera, capture_mm):
         image_px, depth_mm, camera_px, R_hand_camera: as for :func:`image_to_base_xy`.
         capture_mm: hand position at the capture, mm, (3,) or (n, 3); only z is read.
     """
-    fx, fy, cx, cy = camera_px
-    d = np.asarray(depth_mm, dtype=np.float64)
-    uv = np.asarray(image_px, dtype=np.float64)
-    p0 = d * (uv[:, 0] - cx) / fx
-    p1 = d * (uv[:, 1] - cy) / fy
-    R = np.asarray(R_hand_camera, dtype=np.float64)
+    p0, p1, d, R = _camera_point(image_px, depth_mm, camera_px, R_hand_camera)
     hz = R[2, 0] * p0 + R[2, 1] * p1 + R[2, 2] * d
     return np.asarray(capture_mm, dtype=np.float64)[..., 2] - hz
 
