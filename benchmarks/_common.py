@@ -12,7 +12,7 @@ import numpy as np
 from handeye_jax import HTMModel, vectorise_small_loops
 from handeye_jax.optim import _de as de
 
-# As the command line does, before JAX's first computation (handeye_jax._xla says why).
+# As the command line does, before JAX's first computation (handeye_jax._jax._xla says why).
 vectorise_small_loops()
 
 PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"

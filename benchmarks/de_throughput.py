@@ -12,7 +12,7 @@ same jitted, vmapped JAX objective, with the same N and D, in one run:
   population; its objective is the jitted JAX one, called on the (D, N) array scipy passes;
 * evosax: ``DifferentialEvolution`` with elitism off and F = 0.5 (min = max, no dither).
 
-All objectives are compiled with the XLA options our DE uses (``handeye_jax._xla``), so
+All objectives are compiled with the XLA options our DE uses (``handeye_jax._jax._xla``), so
 every DE gets the same fast objective; the objective with JAX's default options is reported too.
 
 Times are medians per generation after compilation. The slow ones run only a few generations
@@ -43,7 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from handeye_jax import HTMModel, Stage1Objective, load_dataset
-from handeye_jax._xla import loop_compiler_options
+from handeye_jax._jax._xla import loop_compiler_options
 from handeye_jax.optim import _de as de
 from handeye_jax.optim import differential_evolution
 

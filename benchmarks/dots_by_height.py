@@ -6,7 +6,7 @@
 For each twin seed, the rig truth of ``handeye-jax simulate --seed S --dot-px D`` is drawn,
 its capture pose raised by each rise (mm; the hand's x, y and angle unchanged), and the
 picture rendered with the preset's imaging noise. The detector's blobs
-(:func:`handeye_jax._detect.find_blobs`, ``detect``'s defaults) are compared with the true
+(:func:`handeye_jax.vision._detect.find_blobs`, ``detect``'s defaults) are compared with the true
 image points: a landmark is *found* when a blob lies within 1 px of it; blobs farther from
 every landmark are *false*. The recommended acquisition takes pictures 40 and 80 mm above the
 first: the paper's one-pixel dots shrink below the picture's noise there.
@@ -20,9 +20,9 @@ import dataclasses
 import numpy as np
 
 from handeye_jax import draw_truth
-from handeye_jax._detect import find_blobs
-from handeye_jax._render import render_capture
-from handeye_jax._simulate import PRESETS
+from handeye_jax.twin._render import render_capture
+from handeye_jax.twin._simulate import PRESETS
+from handeye_jax.vision._detect import find_blobs
 
 
 def found(seed: int, rise_mm: float, dot_px: float, preset: str) -> tuple[int, int, np.ndarray]:

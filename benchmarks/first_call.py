@@ -25,8 +25,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 IMPORT = (  # what calibrate imports (the command line itself imports them on use)
-    "import time; t = time.perf_counter(); import handeye_jax.cli, handeye_jax._calibrate, "
-    "handeye_jax._dataset_io, handeye_jax._result_io; print(time.perf_counter() - t)"
+    "import time; t = time.perf_counter(); import handeye_jax.cli, "
+    "handeye_jax.calibration._calibrate, handeye_jax.data._dataset_io, "
+    "handeye_jax.calibration._result_io; print(time.perf_counter() - t)"
 )
 
 

@@ -3,7 +3,7 @@
     python benchmarks/miss_rate.py [--seeds 1 50] [--quick]
 
 For each seed, the twin of ``handeye-jax simulate twin --seed S --preset paper`` is made in
-process (:func:`handeye_jax._simulate.simulate`; its landmarks detected in the rendered
+process (:func:`handeye_jax.twin._simulate.simulate`; its landmarks detected in the rendered
 picture, as the command does) and calibrated, one after the other, with:
 
 * main's defaults: ``restarts=0`` and no diagnostics. That is main's search exactly (main's
@@ -45,9 +45,7 @@ from handeye_jax import (
     diagnose,
     vectorise_small_loops,
 )
-from handeye_jax._dataset_io import dataset_to_toml
-from handeye_jax._simulate import PRESETS, simulate
-from handeye_jax._twin import draw_truth
+from handeye_jax.data._dataset_io import dataset_to_toml
 from handeye_jax.optim import (
     Bounds,
     LevenbergMarquardt,
@@ -56,6 +54,8 @@ from handeye_jax.optim import (
     minimise,
     minimise_starts,
 )
+from handeye_jax.twin._simulate import PRESETS, simulate
+from handeye_jax.twin._truth import draw_truth
 
 CACHE = Path(__file__).resolve().parent / "miss_rate_reference.json"
 REFERENCE = ("DE N=5000 G=3000 tol=1e-6 + LM; LM from 256 Latin-hypercube starts, best 8 "

@@ -5,7 +5,7 @@
 Each trial views the paper's 3x3 snake through a random camera-like homography (turned by
 -30 to 30 deg, scale 0.4 to 1.2, perspective terms within +-1.5e-4, blob noise 0.3 px), removes
 one to four random landmarks and shuffles the rest, then asks
-:func:`handeye_jax._detect.match_blobs` which landmarks they are. A reading is *right* when
+:func:`handeye_jax.vision._detect.match_blobs` which landmarks they are. A reading is *right* when
 the landmarks and the blob of each are the true ones, *refused* when it raises (ambiguous or no
 match), *wrong* otherwise. ``wrong`` must be 0: a refusal costs the operator a
 ``--landmarks``, a wrong reading a calibration.
@@ -19,8 +19,8 @@ import time
 import cv2
 import numpy as np
 
-from handeye_jax._detect import match_blobs
-from handeye_jax._synthetic import snake_grid_px
+from handeye_jax.twin._synthetic import snake_grid_px
+from handeye_jax.vision._detect import match_blobs
 
 
 def main() -> None:

@@ -74,7 +74,7 @@ from handeye_jax import (
     simulate,
     vectorise_small_loops,
 )
-from handeye_jax._calibrate import POLISH, PULL_FLAG
+from handeye_jax.calibration._calibrate import POLISH, PULL_FLAG
 from handeye_jax.optim import Bounds, minimise
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -54,7 +54,7 @@ import json, os, sys, time
 t0 = time.perf_counter()
 import handeye_jax.cli as cli
 import jax, jax.monitoring
-import handeye_jax._calibrate as cal
+import handeye_jax.calibration._calibrate as cal
 t_import = time.perf_counter() - t0
 events = []  # (end time, kind, seconds)
 jax.monitoring.register_event_duration_secs_listener(

@@ -23,10 +23,10 @@ import jax
 import numpy as np
 
 from handeye_jax import Settings, calibrate, load_dataset, vectorise_small_loops
-from handeye_jax._detect import detect_landmarks, fill_dataset
-from handeye_jax._evaluate import evaluate_twin
-from handeye_jax._simulate import PRESETS, simulate, write_twin
-from handeye_jax._twin import draw_truth
+from handeye_jax.twin._evaluate import evaluate_twin
+from handeye_jax.twin._simulate import PRESETS, simulate, write_twin
+from handeye_jax.twin._truth import draw_truth
+from handeye_jax.vision._detect import detect_landmarks, fill_dataset
 
 RESULTS = Path(__file__).resolve().parent / "RESULTS.md"
 HEADING = "## Synthetic twin: held-out touching error"

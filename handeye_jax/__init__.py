@@ -28,106 +28,106 @@ except PackageNotFoundError:  # a source tree that was never installed
 
 _SUBMODULES = ("geometry", "models", "optim", "tablet")
 _EXPORTS = {
-    "AbstractBlock": "_objective",
+    "AbstractBlock": "problem._objective",
     "AbstractCorrection": "models",
-    "AbstractLoss": "_losses",
+    "AbstractLoss": "problem._losses",
     "AbstractModel": "models",
-    "AbstractObjective": "_objective",
+    "AbstractObjective": "problem._objective",
     "AffinePair": "models",
-    "analyse_jacobian": "_identifiability",
-    "calibrate": "_calibrate",
-    "CalibrationResult": "_result",
-    "Camera": "_dataset",
-    "change_truth": "_twin",
-    "Capture": "_dataset",
-    "capture_scope": "_scope",
-    "CauchyLoss": "_losses",
-    "chain_points": "_objective",
-    "ChainPoints": "_objective",
-    "compute_frames": "_compute_frames",
-    "convert_to_v2": "_dataset_io",
-    "Dataset": "_dataset",
-    "dataset_to_toml": "_dataset_io",
-    "detect_landmarks": "_detect",
-    "Detection": "_detect",
-    "DetectSettings": "_detect",
+    "analyse_jacobian": "problem._linearise",
+    "calibrate": "calibration._calibrate",
+    "CalibrationResult": "calibration._result",
+    "Camera": "data._dataset",
+    "change_truth": "twin._truth",
+    "Capture": "data._dataset",
+    "capture_scope": "diagnostics._scope",
+    "CauchyLoss": "problem._losses",
+    "chain_points": "problem._objective",
+    "ChainPoints": "problem._objective",
+    "compute_frames": "calibration._result_frames",
+    "convert_to_v2": "data._dataset_io",
+    "Dataset": "data._dataset",
+    "dataset_to_toml": "data._dataset_io",
+    "detect_landmarks": "vision._detect",
+    "Detection": "vision._detect",
+    "DetectSettings": "vision._detect",
     "DHModel": "models",
-    "diagnose": "_calibrate",
-    "draw_truth": "_twin",
-    "errors_of": "_objective",
-    "evaluate": "_evaluate",
-    "evaluate_points": "_evaluate",
-    "evaluate_twin": "_evaluate",
-    "export_text": "_export",
-    "fill_capture": "_detect",
-    "fill_dataset": "_detect",
-    "fit": "_calibrate",
-    "fit_correction": "_calibrate",
-    "fit_stage": "_calibrate",
-    "fitness": "_objective",
-    "float64": "_x64",
-    "format_evaluation": "_evaluate",
-    "format_summary": "_summary",
-    "Frames": "_frames",
-    "GaussianBlock": "_objective",
-    "GaussianObjective": "_objective",
-    "full_plan": "_calibrate",
-    "get_loss": "_losses",
+    "diagnose": "calibration._calibrate",
+    "draw_truth": "twin._truth",
+    "errors_of": "problem._objective",
+    "evaluate": "twin._evaluate",
+    "evaluate_points": "twin._evaluate",
+    "evaluate_twin": "twin._evaluate",
+    "export_text": "robot._export",
+    "fill_capture": "vision._detect",
+    "fill_dataset": "vision._detect",
+    "fit": "calibration._calibrate",
+    "fit_correction": "calibration._calibrate",
+    "fit_stage": "calibration._calibrate",
+    "fitness": "problem._objective",
+    "float64": "_jax._x64",
+    "format_evaluation": "twin._evaluate",
+    "format_summary": "report._summary",
+    "Frames": "robot._frames",
+    "GaussianBlock": "problem._objective",
+    "GaussianObjective": "problem._objective",
+    "full_plan": "calibration._calibrate",
+    "get_loss": "problem._losses",
     "get_model": "models",
-    "Heldout": "_evaluate",
-    "hand_command": "_predict",
-    "HeightOffsets": "_objective",
+    "Heldout": "twin._evaluate",
+    "hand_command": "data._points",
+    "HeightOffsets": "problem._objective",
     "HTMModel": "models",
-    "HuberLoss": "_losses",
-    "InputError": "_errors",
-    "jacobian_diagnostics": "_identifiability",
-    "L1Loss": "_losses",
-    "LengthBlock": "_objective",
-    "load_dataset": "_dataset_io",
-    "load_frames": "_compute_frames",
-    "load_heldout": "_evaluate",
-    "load_result": "_result_io",
-    "load_truth": "_twin",
-    "LossObjective": "_objective",
-    "NoisePreset": "_simulate",
-    "Observations": "_observations",
-    "ParameterSpace": "_params",
-    "Plan": "_calibrate",
-    "PointErrors": "_evaluate",
-    "Predictor": "_predictor",
-    "PRESETS": "_simulate",
-    "Prior": "_params",
-    "plan_captures": "_plan",
-    "PriorObjective": "_objective",
-    "put": "_params",
-    "recalibrate": "_calibrate",
-    "recalibration_plan": "_calibrate",
-    "render": "_report",
-    "resolve_names": "_params",
-    "Rig": "_observations",
-    "save_dataset": "_dataset_io",
-    "save_result": "_result_io",
-    "Settings": "_settings",
-    "simulate": "_simulate",
-    "simulate_captures": "_simulate",
-    "snake_grid_px": "_synthetic",
-    "SquaresBlock": "_objective",
-    "Stage1Objective": "_objective",
-    "Stage2Objective": "_objective",
-    "StageErrors": "_objective",
-    "StageFit": "_calibrate",
-    "StageResult": "_result",
-    "synthesize_captures": "_synthetic",
-    "store_programs": "_xla",
-    "synthesize_dataset": "_synthetic",
-    "TouchingError": "_evaluate",
-    "Twin": "_simulate",
-    "TwinTruth": "_twin",
-    "update_dataset": "_dataset_io",
-    "vectorise_small_loops": "_xla",
-    "WeightedLengthBlock": "_objective",
-    "write_report": "_report",
-    "write_twin": "_simulate",
+    "HuberLoss": "problem._losses",
+    "InputError": "_core._errors",
+    "jacobian_diagnostics": "problem._linearise",
+    "L1Loss": "problem._losses",
+    "LengthBlock": "problem._objective",
+    "load_dataset": "data._dataset_io",
+    "load_frames": "calibration._result_frames",
+    "load_heldout": "twin._evaluate",
+    "load_result": "calibration._result_io",
+    "load_truth": "twin._truth",
+    "LossObjective": "problem._objective",
+    "NoisePreset": "twin._simulate",
+    "Observations": "data._observations",
+    "ParameterSpace": "problem._params",
+    "Plan": "calibration._calibrate",
+    "PointErrors": "twin._evaluate",
+    "Predictor": "robot._predictor",
+    "PRESETS": "twin._simulate",
+    "Prior": "problem._params",
+    "plan_captures": "vision._captures",
+    "PriorObjective": "problem._objective",
+    "put": "problem._params",
+    "recalibrate": "calibration._calibrate",
+    "recalibration_plan": "calibration._calibrate",
+    "render": "report._figures",
+    "resolve_names": "problem._params",
+    "Rig": "data._observations",
+    "save_dataset": "data._dataset_io",
+    "save_result": "calibration._result_io",
+    "Settings": "calibration._settings",
+    "simulate": "twin._simulate",
+    "simulate_captures": "twin._simulate",
+    "snake_grid_px": "twin._synthetic",
+    "SquaresBlock": "problem._objective",
+    "Stage1Objective": "problem._objective",
+    "Stage2Objective": "problem._objective",
+    "StageErrors": "problem._objective",
+    "StageFit": "calibration._calibrate",
+    "StageResult": "calibration._result",
+    "synthesize_captures": "twin._synthetic",
+    "store_programs": "_jax._xla",
+    "synthesize_dataset": "twin._synthetic",
+    "TouchingError": "twin._evaluate",
+    "Twin": "twin._simulate",
+    "TwinTruth": "twin._truth",
+    "update_dataset": "data._dataset_io",
+    "vectorise_small_loops": "_jax._xla",
+    "WeightedLengthBlock": "problem._objective",
+    "write_report": "report._figures",
+    "write_twin": "twin._simulate",
 }
 # What a robot PC may lack; Predictor and Frames need none of it.
 _JAX_STACK = ("jax", "jaxlib", "equinox", "optimistix", "jaxtyping", "lineax", "jaxlie")
@@ -158,7 +158,10 @@ def __dir__() -> list[str]:
 
 if TYPE_CHECKING:
     from . import geometry, models, optim, tablet
-    from ._calibrate import (
+    from ._core._errors import InputError
+    from ._jax._x64 import float64
+    from ._jax._xla import store_programs, vectorise_small_loops
+    from .calibration._calibrate import (
         Plan,
         StageFit,
         calibrate,
@@ -170,32 +173,25 @@ if TYPE_CHECKING:
         recalibrate,
         recalibration_plan,
     )
-    from ._compute_frames import compute_frames, load_frames
-    from ._dataset import Camera, Capture, Dataset
-    from ._dataset_io import (
+    from .calibration._result import CalibrationResult, StageResult
+    from .calibration._result_frames import compute_frames, load_frames
+    from .calibration._result_io import load_result, save_result
+    from .calibration._settings import Settings
+    from .data._dataset import Camera, Capture, Dataset
+    from .data._dataset_io import (
         convert_to_v2,
         dataset_to_toml,
         load_dataset,
         save_dataset,
         update_dataset,
     )
-    from ._detect import Detection, DetectSettings, detect_landmarks, fill_capture, fill_dataset
-    from ._errors import InputError
-    from ._evaluate import (
-        Heldout,
-        PointErrors,
-        TouchingError,
-        evaluate,
-        evaluate_points,
-        evaluate_twin,
-        format_evaluation,
-        load_heldout,
-    )
-    from ._export import export_text
-    from ._frames import Frames
-    from ._identifiability import analyse_jacobian, jacobian_diagnostics
-    from ._losses import AbstractLoss, CauchyLoss, HuberLoss, L1Loss, get_loss
-    from ._objective import (
+    from .data._observations import Observations, Rig
+    from .data._points import hand_command
+    from .diagnostics._scope import capture_scope
+    from .models import AbstractCorrection, AbstractModel, AffinePair, DHModel, HTMModel, get_model
+    from .problem._linearise import analyse_jacobian, jacobian_diagnostics
+    from .problem._losses import AbstractLoss, CauchyLoss, HuberLoss, L1Loss, get_loss
+    from .problem._objective import (
         AbstractBlock,
         AbstractObjective,
         ChainPoints,
@@ -214,23 +210,33 @@ if TYPE_CHECKING:
         errors_of,
         fitness,
     )
-    from ._observations import Observations, Rig
-    from ._params import ParameterSpace, Prior, put, resolve_names
-    from ._plan import plan_captures
-    from ._predict import hand_command
-    from ._predictor import Predictor
-    from ._report import render, write_report
-    from ._result import CalibrationResult, StageResult
-    from ._result_io import load_result, save_result
-    from ._scope import capture_scope
-    from ._settings import Settings
-    from ._simulate import PRESETS, NoisePreset, Twin, simulate, simulate_captures, write_twin
-    from ._summary import format_summary
-    from ._synthetic import snake_grid_px, synthesize_captures, synthesize_dataset
-    from ._twin import TwinTruth, change_truth, draw_truth, load_truth
-    from ._x64 import float64
-    from ._xla import store_programs, vectorise_small_loops
-    from .models import AbstractCorrection, AbstractModel, AffinePair, DHModel, HTMModel, get_model
+    from .problem._params import ParameterSpace, Prior, put, resolve_names
+    from .report._figures import render, write_report
+    from .report._summary import format_summary
+    from .robot._export import export_text
+    from .robot._frames import Frames
+    from .robot._predictor import Predictor
+    from .twin._evaluate import (
+        Heldout,
+        PointErrors,
+        TouchingError,
+        evaluate,
+        evaluate_points,
+        evaluate_twin,
+        format_evaluation,
+        load_heldout,
+    )
+    from .twin._simulate import PRESETS, NoisePreset, Twin, simulate, simulate_captures, write_twin
+    from .twin._synthetic import snake_grid_px, synthesize_captures, synthesize_dataset
+    from .twin._truth import TwinTruth, change_truth, draw_truth, load_truth
+    from .vision._captures import plan_captures
+    from .vision._detect import (
+        Detection,
+        DetectSettings,
+        detect_landmarks,
+        fill_capture,
+        fill_dataset,
+    )
 
 __all__ = [
     "AbstractBlock",

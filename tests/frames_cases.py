@@ -2,7 +2,7 @@
 
 A case is a model's parameters drawn in its default search ranges, a stage-2 correction in its
 ranges, a rig (intrinsics, capture position, hand-angle convention) and centres: everything a
-result holds. The reference is the JAX path, :func:`handeye_jax._predict.hand_command`, jitted.
+result holds. The reference is the JAX path, :func:`handeye_jax.data._points.hand_command`, jitted.
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from handeye_jax import AffinePair, CalibrationResult, Rig, Settings, StageResult, get_model
-from handeye_jax._compute_frames import compute_frames
-from handeye_jax._predict import hand_command
+from handeye_jax.calibration._result_frames import compute_frames
+from handeye_jax.data._points import hand_command
 
 ROOT = Path(__file__).resolve().parents[1]
 N_POINTS = 6  # one shape, so the jitted reference compiles once per model and stage

@@ -164,7 +164,7 @@ def test_a_fit_that_is_not_finite_stops_with_one_line_and_writes_nothing(
     import importlib
 
     cal = importlib.import_module(
-        "handeye_jax._calibrate"
+        "handeye_jax.calibration._calibrate"
     )  # the package exports a function of that name
     fit = cal._stage_result  # the real fit, then its F made NaN: what absurd data would give
     monkeypatch.setattr(cal, "_stage_result", lambda *a: dataclasses.replace(fit(*a), F=np.nan))
@@ -296,9 +296,9 @@ def test_compilation_cache_goes_where_asked_and_can_be_turned_off(tmp_path):
 
 
 def test_detect_in_place_keeps_the_users_comments(tmp_path, capsys):
-    from handeye_jax._dataset_io import load_dataset
-    from handeye_jax._simulate import PRESETS, simulate, write_twin
-    from handeye_jax._twin import draw_truth
+    from handeye_jax.data._dataset_io import load_dataset
+    from handeye_jax.twin._simulate import PRESETS, simulate, write_twin
+    from handeye_jax.twin._truth import draw_truth
 
     write_twin(simulate(draw_truth(4), PRESETS["paper"], 4, n_heldout=1), tmp_path)
     detected = load_dataset(tmp_path / "dataset.toml")
@@ -388,9 +388,9 @@ def test_a_ctrl_c_that_a_callback_swallowed_still_stops_before_the_write(
 ):
     import signal
 
-    import handeye_jax._summary
+    import handeye_jax.report._summary
 
-    summary = handeye_jax._summary.format_summary
+    summary = handeye_jax.report._summary.format_summary
 
     def swallowing(result):  # the last step before the write
         try:
@@ -399,7 +399,7 @@ def test_a_ctrl_c_that_a_callback_swallowed_still_stops_before_the_write(
             pass  # as JAX's _xla_gc_callback swallows it
         return summary(result)
 
-    monkeypatch.setattr(handeye_jax._summary, "format_summary", swallowing)
+    monkeypatch.setattr(handeye_jax.report._summary, "format_summary", swallowing)
     out = tmp_path / "result.json"
     out.write_text("precious\n")
     assert main(["calibrate", str(PAPER), *FAST, "--no-diagnostics", "--out", str(out)]) == 130

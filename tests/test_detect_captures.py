@@ -12,11 +12,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import handeye_jax as hj
-from handeye_jax._detect import match_blobs
-from handeye_jax._render import DepthSensing, Imaging, render_capture, render_depth
-from handeye_jax._simulate import PRESETS, encode_png, simulate
-from handeye_jax._synthetic import snake_grid_px
 from handeye_jax.cli import main
+from handeye_jax.twin._render import DepthSensing, Imaging, render_capture, render_depth
+from handeye_jax.twin._simulate import PRESETS, encode_png, simulate
+from handeye_jax.twin._synthetic import snake_grid_px
+from handeye_jax.vision._detect import match_blobs
 
 SEED = 7
 RISE_MM = 60.0  # the second capture: 60 mm above and 15 mm beside the first

@@ -11,14 +11,15 @@ from pathlib import Path
 
 import pytest
 
-from handeye_jax import _atomic
-from handeye_jax._errors import InputError
-from handeye_jax._simulate import PRESETS, simulate, write_twin
-from handeye_jax._twin import draw_truth
+from handeye_jax._core import _atomic
+from handeye_jax._core._errors import InputError
 from handeye_jax.cli import main
+from handeye_jax.twin._simulate import PRESETS, simulate, write_twin
+from handeye_jax.twin._truth import draw_truth
 from tests.test_cli import FAST, PAPER
 
-CALIBRATE = importlib.import_module("handeye_jax._calibrate")  # the package exports the function
+# the package exports the function
+CALIBRATE = importlib.import_module("handeye_jax.calibration._calibrate")
 UNWRITABLE = ["/sys", "/proc", "FILE"]  # folders no one can write in; FILE: a regular file
 
 
@@ -236,7 +237,8 @@ def test_detect_discards_the_overlay_when_the_dataset_write_fails(
     def refuse(ds, path):
         raise InputError(path, "", "cannot write: No space left on device")
 
-    monkeypatch.setattr("handeye_jax._dataset_io.save_dataset", refuse)  # detect imports it on use
+    # detect imports it on use
+    monkeypatch.setattr("handeye_jax.data._dataset_io.save_dataset", refuse)
     (tmp_path / "ov.png").write_text("SENTINEL")
     before = _snapshot(tmp_path)
     argv = _detect(twin_dir, twin_dir / "dataset.toml", "--out", str(tmp_path / "new.toml"),

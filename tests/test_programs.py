@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from handeye_jax import _xla
+from handeye_jax._jax import _xla
 from handeye_jax.optim import Bounds, DifferentialEvolution, LevenbergMarquardt, minimise
 
 TRACES = {"n": 0}

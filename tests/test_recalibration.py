@@ -45,10 +45,10 @@ from handeye_jax import (
     snake_grid_px,
     synthesize_dataset,
 )
-from handeye_jax._objective import stage1_errors
-from handeye_jax._twin import CHANGE_MARGIN, CHANGES, RANGES
 from handeye_jax.cli import main
 from handeye_jax.models import AffinePair
+from handeye_jax.problem._objective import stage1_errors
+from handeye_jax.twin._truth import CHANGE_MARGIN, CHANGES, RANGES
 
 #: One small budget for every fit here, so that they share compiled programs.
 BUDGET = dict(population=100, generations=300, restarts=8)
@@ -291,7 +291,7 @@ def test_every_parameter_free_and_no_prior_is_the_papers_objective(seed):
     template = HTMModel.from_vector(jnp.asarray(rng.uniform(lo, hi)))  # its values do not matter
     space = ParameterSpace.all_free(template)
     assert space.free == HTMModel.param_names and space.prior is None
-    from handeye_jax._calibrate import with_prior
+    from handeye_jax.calibration._calibrate import with_prior
 
     objective = with_prior(Stage1Objective(space.template, _OBS, space.free), space, 9)
     F, f1, f2 = fitness(stage1_errors(chain_points(HTMModel.from_vector(jnp.asarray(theta)), _OBS)))

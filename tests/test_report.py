@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from handeye_jax import load_result
-from handeye_jax._report import FIGURES, FORMATS
 from handeye_jax.cli import main
+from handeye_jax.report._figures import FIGURES, FORMATS
 from tests.test_cli import FAST, PAPER
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -112,7 +112,7 @@ def test_no_diagnostics_leaves_them_out(tmp_path, capsys):
 
 @pytest.fixture(scope="module")
 def figures(result_file):
-    from handeye_jax._report import render
+    from handeye_jax.report._figures import render
 
     figs = render(load_result(result_file))
     for fig in figs.values():
@@ -128,7 +128,7 @@ def _inside(inner, outer, tol_px=1.0):
 def test_both_stages_draw_errors_at_one_scale_and_say_which_way_they_point(figures, result_file):
     from matplotlib.quiver import Quiver
 
-    from handeye_jax._report import chain_data
+    from handeye_jax.report._figures import chain_data
 
     scales = []
     for stage, data in zip((1, 2), chain_data(load_result(result_file)), strict=True):
@@ -162,7 +162,7 @@ def test_the_length_key_lies_inside_its_panel(figures):
 
 
 def test_no_legend_covers_a_bar(result_file, tmp_path):
-    from handeye_jax._report import fig_loo, fig_residuals
+    from handeye_jax.report._figures import fig_loo, fig_residuals
 
     # Every landmark's error about the same: no free corner for a legend inside the panels.
     doc = json.loads(result_file.read_text())
@@ -194,7 +194,7 @@ def _label_boxes(ax):
 
 @pytest.mark.parametrize("decades", [0.3, 0.6, 0.8, 1.3, 1.9, 3.0, 9.0])
 def test_log_axis_labels_never_overlap(result_file, tmp_path, decades):
-    from handeye_jax._report import fig_convergence
+    from handeye_jax.report._figures import fig_convergence
 
     doc = json.loads(result_file.read_text())
     for stage in ("stage1", "stage2"):
@@ -216,7 +216,7 @@ def test_log_axis_labels_never_overlap(result_file, tmp_path, decades):
 @pytest.mark.parametrize("corner", ["top left", "top right", "bottom left", "bottom right",
                                     "right edge", "top edge"])  # fmt: skip
 def test_overlay_labels_stay_inside_the_picture(corner):
-    from handeye_jax._detect import overlay_image
+    from handeye_jax.vision._detect import overlay_image
 
     h, w = 120, 160
     u, v = {"top left": (3, 3), "top right": (w - 4, 3), "bottom left": (3, h - 4),

@@ -10,10 +10,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from handeye_jax import CalibrationResult, Settings, StageResult, load_result, save_result
-from handeye_jax._errors import InputError
-from handeye_jax._report import FIGURES, FORMATS, fig_convergence
-from handeye_jax._settings import SETTINGS_SCHEMA
+from handeye_jax._core._errors import InputError
+from handeye_jax.calibration._settings import SETTINGS_SCHEMA
 from handeye_jax.cli import main
+from handeye_jax.report._figures import FIGURES, FORMATS, fig_convergence
 from tests.test_cli import PAPER
 
 TINY = ["--population", "16", "--generations", "10", "--quiet"]

@@ -17,7 +17,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .. import geometry as geo
-from .._observations import Rig
+from ..data._observations import Rig
 
 
 class AbstractParametric(eqx.Module):

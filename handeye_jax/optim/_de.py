@@ -38,9 +38,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray, UInt
 
-from .. import _xla
-from .._progress import progress_bar
-from .._x64 import in_float64
+from .._core._progress import progress_bar
+from .._jax import _xla
+from .._jax._x64 import in_float64
 from . import _rng
 from ._solvers import AbstractSolver, DESolution
 

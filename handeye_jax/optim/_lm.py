@@ -23,7 +23,7 @@ import jax
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from .. import _xla
+from .._jax import _xla
 from . import _box
 from ._solvers import AbstractSolver, Bounds, LMSolution, Problem
 

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._dataset import Dataset
-from .._dataset_io import backup_path, update_dataset
+from ..data._dataset import Dataset
+from ..data._dataset_io import backup_path, update_dataset
 from ._posts import CalibrationPost, PostError
 
 

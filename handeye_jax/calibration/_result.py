@@ -1,0 +1,230 @@
+"""The calibration result: the fitted model and correction, the data, and how they were found.
+
+A result is self-contained: with the rig it was fitted on (intrinsics, capture pose, hand-angle
+convention) it predicts hand commands without the dataset. Its file format,
+``handeye-jax.result/1`` (JSON), is read and written by :func:`~handeye_jax.load_result` and
+:func:`~handeye_jax.save_result`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._core._errors import InputError
+from .._jax._x64 import in_float64
+from ..data._dataset import Dataset
+from ..data._observations import Rig
+from ..data._points import hand_command
+from ..models import AbstractCorrection, AbstractModel
+from ..problem._linearise import analyse_jacobian, error_jacobian
+from ..problem._objective import Stage1Objective, Stage2Objective, chain_points
+from ..problem._params import FIXED, Prior
+from ..robot._frames import Frames
+from ._result_frames import compute_frames
+from ._settings import Settings
+
+
+@dataclass(frozen=True)
+class StageResult:
+    """One stage's optimum, in numbers.
+
+    Attributes:
+        F, f1, f2: the data's fitness and its two terms, mm (the paper's F, whatever loss or
+            prior the fit used).
+        params: every parameter's value, name → value (mm, deg or 1, as the model's
+            ``param_units`` say), free or not.
+        residuals_mm: per landmark, the error vectors and lengths of both terms, mm.
+        de: DE summary (generations, evaluations, converged, F found by DE, names searched).
+        polish: LM summary (accepted, F before and after, steps, ``found_by``: which search
+            found the optimum; restarts).
+        convergence: best and median F after each DE generation, mm.
+        status: each parameter's role: ``"free"``, ``"prior"`` (free, with a prior) or
+            ``"fixed"`` (held at the template's value).
+        fixed_source: where each fixed parameter's value came from (a result file).
+        prior: the prior (its source, mean, precision, data scale) and each of its parameters'
+            pull, or ``None``.
+        prior_F: the prior block's value at the optimum, mm (the MAP objective is ``F`` plus
+            it), or ``None``.
+    """
+
+    F: float
+    f1: float
+    f2: float
+    params: dict[str, float]
+    residuals_mm: list[dict[str, Any]]
+    de: dict[str, Any]
+    polish: dict[str, Any]
+    convergence: dict[str, list[float]] = field(default_factory=dict)
+    status: dict[str, str] = field(default_factory=dict)
+    fixed_source: dict[str, str] = field(default_factory=dict)
+    prior: dict[str, Any] | None = None
+    prior_F: float | None = None
+
+    def __post_init__(self):
+        if not self.status:  # every parameter free: the paper's fit, and every older result
+            object.__setattr__(self, "status", dict.fromkeys(self.params, "free"))
+
+    def free(self) -> tuple[str, ...]:
+        """The parameters the fit moved (free or with a prior), in ``params`` order."""
+        return tuple(n for n in self.params if self.status.get(n, "free") != FIXED)
+
+
+@dataclass(frozen=True, eq=False)
+class CalibrationResult:
+    """Everything a calibration produced, and what is needed to use it.
+
+    Attributes:
+        model: the fitted stage-1 model (a JAX pytree).
+        correction: the fitted stage-2 correction (a JAX pytree).
+        rig: the rig it was fitted on (intrinsics, capture pose, hand-angle convention).
+        centres_mm: the correction's centres of rotation (rows: A1, A2), mm, base frame.
+        centre_index: the landmark whose mapped points are the centres.
+        stage1, stage2: each stage's numbers and which parameters were free, fixed or prior.
+        settings: how it was calibrated.
+        data: the dataset it was fitted on (``None`` for results that did not record it).
+        dataset_name: the dataset's name.
+        timings_s: seconds of each step.
+        sign_twin: the sign twin found and the F of its mirror.
+        warnings: what the user should know, one line each.
+        diagnostics: the ``diagnostics`` object (:func:`~handeye_jax.diagnose`), or empty.
+        recalibration: the previous result it started from, what was refitted, and how the
+            others entered (``"prior"`` or ``"fixed"``), or ``None``.
+        fits: the stages' fits in memory (objectives, final DE populations), for the
+            diagnostics of a result just computed; not written to the file.
+        heights: when the touches recorded the hand's heights, what they determine
+            (:func:`~handeye_jax._objective.height_summary`: ``pen_minus_camera_mm``, the
+            ``z_p − z_c`` a height command needs, and how well); else ``None``.
+    """
+
+    model: AbstractModel
+    correction: AbstractCorrection
+    rig: Rig
+    centres_mm: np.ndarray
+    centre_index: int
+    stage1: StageResult
+    stage2: StageResult
+    settings: Settings
+    data: Dataset | None = None
+    dataset_name: str = ""
+    timings_s: dict[str, float] = field(default_factory=dict)
+    sign_twin: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    diagnostics: dict[str, Any] = field(default_factory=dict)
+    recalibration: dict[str, Any] | None = None
+    fits: tuple[Any, Any] | None = field(default=None, repr=False)
+    heights: dict[str, float] | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "centres_mm", np.asarray(self.centres_mm, dtype=float))
+
+    @property
+    def model_name(self) -> str:
+        """The stage-1 model's name (``"htm"``, ``"dh"``…)."""
+        return type(self.model).name
+
+    @property
+    def seed(self) -> int:
+        return self.settings.seed
+
+    # -- use -----------------------------------------------------------------------------
+    @in_float64
+    def predict(
+        self,
+        image_px: Float[Array, "n 2"],
+        depth_mm: Float[Array, " n"],
+        hand_angle_deg: Float[Array, " n"],
+        stage: int = 2,
+        capture_position_mm: Float[Array, "n 3"] | None = None,
+        capture_hand_angle_deg: Float[Array, " n"] | None = None,
+        axes: str = "xy",
+    ) -> np.ndarray:
+        """Hand commands ``(x, y)`` in mm for image points, eq. (25) (stage 2) or (8) (stage 1).
+
+        Args:
+            image_px, depth_mm: each target in its picture, px, and its depth, mm: any point
+                seen at any depth, on the tablet or not.
+            hand_angle_deg: the hand angle θh to touch each with, deg.
+            stage: 2 (with the affine correction, a planar map) or 1.
+            capture_position_mm: the hand position each picture was taken from, mm, ``(3,)``
+                or ``(n, 3)``; default: the calibration's first capture.
+            capture_hand_angle_deg: the hand angle θc then, deg, scalar or ``(n,)``; default:
+                the first capture's. ``R_base_hand = Ry(-180)·Rz(zero + sign·θc)``.
+            axes: ``"xy"``, or ``"xyz"`` for ``(x, y, z)`` when the touches recorded the
+                hand's heights (:attr:`heights`).
+        """
+        if stage not in (1, 2):
+            raise ValueError(f"stage must be 1 or 2 (got {stage})")
+        if axes not in ("xy", "xyz"):
+            raise ValueError(f"axes must be 'xy' or 'xyz' (got {axes!r})")
+        if axes == "xyz" and not self.heights:
+            raise ValueError("axes must be 'xy': the touches recorded no hand height, so the "
+                             "calibration does not determine z_pen − z_camera")  # fmt: skip
+        f = lambda a: None if a is None else jnp.asarray(a, dtype=float)  # noqa: E731
+        out = hand_command(
+            self.model,
+            self.rig,
+            jnp.asarray(image_px, dtype=float),
+            jnp.asarray(depth_mm, dtype=float),
+            jnp.asarray(hand_angle_deg, dtype=float),
+            correction=self.correction if stage == 2 else None,
+            centres_mm=jnp.asarray(self.centres_mm, dtype=float),
+            capture_position_mm=f(capture_position_mm),
+            capture_hand_angle_deg=f(capture_hand_angle_deg),
+            pen_minus_camera_mm=f(self.heights["pen_minus_camera_mm"]) if axes == "xyz"
+            else None,
+        )  # fmt: skip
+        return np.asarray(out)
+
+    def frames(self) -> Frames:
+        """The fitted frames as plain numbers (NumPy), from the parameters and the rig."""
+        z = None if not self.heights else self.heights["pen_minus_camera_mm"]
+        return compute_frames(self.model, self.rig, self.correction, self.centres_mm,
+                              pen_minus_camera_z_mm=z)  # fmt: skip
+
+    @in_float64
+    def posterior(self, stage: str = "stage1", source: str | None = None) -> Prior:
+        """The fit's Gaussian posterior of a stage's free parameters (Gauss–Newton at the
+        optimum, its prior included): what a recalibration takes as its prior.
+
+        Taken from the diagnostics' ``precision`` when present, else computed from the
+        result's data.
+        """
+        s: StageResult = getattr(self, stage)
+        free = s.free()
+        diag = self.diagnostics.get(stage, {}) if self.diagnostics else {}
+        P, sigma = diag.get("precision"), diag.get("sigma_mm")
+        if (
+            P is None
+            or np.shape(P) != (len(free), len(free))
+            or list(diag.get("free", free)) != list(free)
+        ):
+            P, sigma = self._posterior_precision(stage, free)
+        return Prior(free, [s.params[n] for n in free], np.asarray(P, dtype=float),
+                     source or f"previous result ({self.dataset_name})",
+                     max(s.F, 1e-6) / 4.0, sigma if sigma else None)  # fmt: skip
+
+    def _posterior_precision(self, stage: str, free: tuple[str, ...]) -> np.ndarray:
+        if self.data is None:
+            raise InputError(None, "data", "the result does not carry its data, so its "
+                             "posterior cannot be computed; calibrate again")  # fmt: skip
+        obs = self.data.observations()
+        s: StageResult = getattr(self, stage)
+        if stage == "stage1":
+            objective = Stage1Objective(self.model, obs, free)
+        else:
+            points = chain_points(self.model, obs)
+            objective = Stage2Objective(self.correction, points, self.centre_index, free)
+        x = jnp.asarray([s.params[n] for n in free])
+        e, J = (np.asarray(a) for a in error_jacobian(objective, x))
+        P_prior = None
+        if s.prior:
+            P_prior = np.zeros((len(free), len(free)))
+            idx = [free.index(n) for n in s.prior["names"]]
+            P_prior[np.ix_(idx, idx)] = np.asarray(s.prior["precision"])
+        out = analyse_jacobian(e, J, free, ["1"] * len(free), None, P_prior)
+        return np.asarray(out["precision"]), out["sigma_mm"]

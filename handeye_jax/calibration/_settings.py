@@ -1,0 +1,152 @@
+"""How to calibrate: :class:`Settings`, and the one table that checks them in a result file."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING, Any
+
+from .._core._validate import MAX_GENERATIONS, MAX_POPULATION, MAX_RESTARTS, Reader, describe
+
+if TYPE_CHECKING:  # JAX: imported on use, so that the command line's --help shows the defaults
+    from ..optim import DifferentialEvolution
+
+
+@dataclass(frozen=True)
+class Settings:
+    """How to calibrate.
+
+    Attributes:
+        model: stage-1 model name, ``"htm"`` or ``"dh"``.
+        seed: PRNG seed; the same seed gives the same result bit for bit.
+        population: DE population N (both stages).
+        generations: most DE generations G (both stages).
+        early_stop: stop DE when the population's fitness spread is below ``tol``.
+        tol: relative spread for the early stop, ``std(F) <= tol·|mean(F)|``.
+        crossover: DE's CR. mutation: DE's F (differential weight).
+        polish: run Levenberg–Marquardt from the best DE member of each stage, and from the
+            ``restarts``; the lowest F any of them reaches is the stage's result.
+        restarts: LM starts in each stage besides the best DE member: the best member of each
+            other distinct optimum in the final DE population, the rest points of a Latin
+            hypercube of the search box; 0 runs none. The DE alone can settle in a basin that
+            is not the lowest (6 of 50 ``paper`` twins with these DE settings,
+            ``benchmarks/miss_rate.py``).
+        loss: ``"l1"`` (the paper's mean error length), ``"huber"`` or ``"cauchy"``
+            (:mod:`handeye_jax._losses`); a robust loss limits the pull of outlier landmarks.
+        loss_scale_mm: the robust loss's scale, mm; landmarks with an error above
+            ``OUTLIER_FACTOR`` (3) times it are flagged as outliers, whatever the loss.
+
+    The paper's settings are ``population=10000, generations=10000, early_stop=False``; the
+    defaults reach the same optimum on the paper's data in seconds.
+    """
+
+    model: str = "htm"
+    seed: int = 1
+    population: int = 500
+    generations: int = 3000
+    early_stop: bool = True
+    tol: float = 1e-3
+    crossover: float = 0.9
+    mutation: float = 0.5
+    polish: bool = True
+    restarts: int = 32
+    loss: str = "l1"
+    loss_scale_mm: float = 1.0
+
+    def de(self) -> DifferentialEvolution:
+        """The DE solver these settings configure."""
+        from ..optim import DifferentialEvolution
+
+        return DifferentialEvolution(
+            population=self.population, generations=self.generations,
+            crossover=self.crossover, mutation=self.mutation, tol=self.tol,
+            early_stop=self.early_stop,
+        )  # fmt: skip
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> Settings:
+        """Settings from a result file's ``settings`` (keys it does not know are ignored:
+        older results recorded ``diagnostics``)."""
+        known = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in values.items() if k in known})
+
+    def to_dict(self) -> dict[str, Any]:
+        """The settings as JSON-ready values."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+#: Seeds the DE takes (64-bit integers).
+SEED_RANGE = (-(2**63), 2**63 - 1)
+
+
+def _integer(low: int, high: int) -> Callable[[Reader, Any, str], int]:
+    def check(r: Reader, x: Any, where: str) -> int:
+        if isinstance(x, bool) or not isinstance(x, int):
+            r.fail(where, f"must be an integer (got {describe(x)})")
+        if not low <= x <= high:
+            got = x if len(str(x)) <= 24 else f"an integer of {len(str(abs(x)))} digits"
+            r.fail(where, f"must be {low} to {high} (got {got})")
+        return x
+
+    return check
+
+
+def _boolean(r: Reader, x: Any, where: str) -> bool:
+    if not isinstance(x, bool):
+        r.fail(where, f"must be true or false (got {describe(x)})")
+    return x
+
+
+def _number(positive: bool = False) -> Callable[[Reader, Any, str], float]:
+    return lambda r, x, where: r.number(x, where, positive=positive)
+
+
+def _choice(known: Callable[[], Any], what: str) -> Callable[[Reader, Any, str], str]:
+    def check(r: Reader, x: Any, where: str) -> str:
+        names = sorted(known())
+        if not isinstance(x, str) or x not in names:
+            r.fail(where, f"unknown {what} {describe(x)}; known: {', '.join(names)}")
+        return x
+
+    return check
+
+
+def _models():
+    from ..models import model_registry
+
+    return model_registry()
+
+
+def _losses():
+    from ..problem._losses import LOSS_NAMES
+
+    return LOSS_NAMES
+
+
+#: Each setting's check in a result file: the schema of ``settings``, one entry per field.
+SETTINGS_SCHEMA: dict[str, Callable[[Reader, Any, str], Any]] = {
+    "model": _choice(_models, "model"),
+    "seed": _integer(*SEED_RANGE),
+    "population": _integer(4, MAX_POPULATION),
+    "generations": _integer(1, MAX_GENERATIONS),
+    "early_stop": _boolean,
+    "tol": _number(),
+    "crossover": _number(),
+    "mutation": _number(),
+    "polish": _boolean,
+    "restarts": _integer(0, MAX_RESTARTS),
+    "loss": _choice(_losses, "loss"),
+    "loss_scale_mm": _number(positive=True),
+}
+#: Settings older results recorded and the fit no longer has (checked, then ignored).
+LEGACY_SETTINGS = {"diagnostics": _boolean}
+
+
+def read_settings(r: Reader, doc: Any, where: str = "settings") -> Settings:
+    """Settings from a result file's ``settings`` table, each checked; missing ones default."""
+    if not isinstance(doc, dict):
+        r.fail(where, f"must be an object (got {describe(doc)})")
+    for key, check in {**SETTINGS_SCHEMA, **LEGACY_SETTINGS}.items():
+        if key in doc:
+            check(r, doc[key], f"{where}.{key}")
+    return Settings.from_dict(doc)

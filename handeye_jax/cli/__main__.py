@@ -1,0 +1,5 @@
+"""``python -m handeye_jax.cli``."""
+
+from ._main import run
+
+run()

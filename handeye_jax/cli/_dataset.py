@@ -1,0 +1,144 @@
+"""``handeye-jax convert`` and ``plan``: a version-1 dataset written as version 2, and the
+recommended pictures added to a dataset (thin over the API)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from .._core._atomic import check_output, same_file
+from .._core._constants import RECOMMENDED_CAPTURES as RECOMMENDED
+from .._core._errors import InputError
+from .._core._validate import MAX_DEG, MAX_MM, parse_numbers
+
+
+def _cmd_convert(args: argparse.Namespace) -> int:
+    from ..data._dataset_io import FORMAT_V2, backup_path, convert_path, convert_to_v2, load_dataset
+
+    old = Path(args.dataset)
+    ds = load_dataset(old)
+    if ds.version == 2:  # nothing to do is not a failure: scripts may convert unconditionally
+        print(f"{old} is already {FORMAT_V2}; nothing written")
+        return 0
+    out = Path(args.out) if args.out is not None else convert_path(old)
+    in_place = out.exists() and same_file(out, old)
+    if in_place and not args.force:
+        raise InputError(out, "--out", "is the dataset itself; give --force to convert it in "
+                         "place (the old file is kept as a .bak beside it)")  # fmt: skip
+    check_output(out, "--out", [] if in_place else [old])
+    kept = None
+    if out.exists():
+        if not args.force:
+            raise InputError(out, "--out", "exists; give --force to replace it (the old file "
+                             "is kept as a .bak beside it) or choose another --out")  # fmt: skip
+        kept = backup_path(out)
+    convert_to_v2(old, out, overwrite=args.force, backup=kept)
+    print(
+        f"{old} converted to {FORMAT_V2}: {out} ({ds.n_landmarks} landmarks, 1 capture, "
+        f"{ds.n_touches} touches)" + (f"; previous {out.name} kept as {kept}" if kept else "")
+    )
+    return 0
+
+
+def _numbers(limit: float, unit: str):
+    def parse(text: str) -> list[float]:
+        try:
+            return parse_numbers(text, limit, unit)
+        except ValueError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+
+    return parse
+
+
+def _cmd_plan(args: argparse.Namespace) -> int:
+    from ..data._dataset_io import backup_path, load_dataset, save_dataset, update_dataset
+    from ..vision._captures import plan_captures
+
+    path = Path(args.dataset)
+    out = None if args.out is None else check_output(args.out, "--out", [path])
+    if out is None:
+        check_output(path, "--dataset")
+        check_output(backup_path(path), "--dataset")
+    ds = load_dataset(path)
+    if ds.version == 1:
+        raise InputError(path, "format", "is version 1: one capture; convert it first "
+                         "(handeye-jax convert) to plan more pictures")  # fmt: skip
+    if len(args.rise_mm) != len(args.turn_deg):
+        raise InputError(None, "--turn-deg", f"needs one turn per --rise-mm (got "
+                         f"{len(args.turn_deg)} turns, {len(args.rise_mm)} rises)")  # fmt: skip
+    new, indices = plan_captures(ds, args.rise_mm, args.turn_deg)
+    if out is not None:
+        save_dataset(new, out)
+        done = f"dataset written to {out}"
+    elif (kept := update_dataset(path, new, keep_backup=True)) is not None:
+        done = f"{path} updated (previous file kept as {kept})"
+    else:
+        done = f"{path} already holds them"
+    target = out or path
+    print(f"{done}; the pictures to take, each with every landmark in view, then detect each:")
+    for k in [0, *indices]:
+        c = new.captures[k]
+        x, y, z = (f"{v:g}" for v in c.hand_position_mm)
+        seen = f"{len(c.landmarks)} of {new.n_landmarks} landmarks"
+        print(f"  capture {k}: hand at ({x}, {y}, {z}) mm, hand angle {c.hand_angle_deg:g} deg "
+              f"({seen}): handeye-jax detect CAP{k}.png DEP{k}.png --dataset {target} "
+              f"--capture {k}")  # fmt: skip
+    return 0
+
+
+def add_dataset_commands(sub: argparse._SubParsersAction) -> None:
+    """Add ``convert`` and ``plan`` to the command line's subcommands ``sub``."""
+    add_convert_command(sub)
+    rises = ",".join(f"{r:g}" for r, _ in RECOMMENDED)
+    turns = ",".join(f"{t:g}" for _, t in RECOMMENDED)
+    p = sub.add_parser(
+        "plan",
+        help="add the recommended pictures (captures) to a version-2 dataset",
+        description="Add an empty capture for each further picture the toolkit recommends: "
+        "higher than the dataset's first capture by each --rise-mm, with the hand turned by "
+        "each --turn-deg, so that the tablet page lists their poses and 'detect --capture K' "
+        "fills each. A pose the dataset already has is not added twice. Prints the poses and "
+        "the detect command of each picture.",
+    )
+    p.add_argument("dataset", help="the version-2 dataset (TOML)")
+    p.add_argument(
+        "--rise-mm", type=_numbers(MAX_MM, "mm"), default=rises,
+        metavar="MM,MM", help=f"how much higher than the first capture each picture is, mm "
+        f"(default: {rises})",
+    )  # fmt: skip
+    p.add_argument(
+        "--turn-deg", type=_numbers(MAX_DEG, "deg"), default=turns,
+        metavar="DEG,DEG", help=f"each picture's hand angle minus the first capture's, deg; "
+        f"write --turn-deg=-30,30 when the first is negative (default: {turns})",
+    )  # fmt: skip
+    p.add_argument(
+        "--out", metavar="NEW.toml",
+        help="write here (default: update DATASET in place, the old one kept as "
+        "DATASET.<UTC time>.bak)",
+    )  # fmt: skip
+    p.set_defaults(func=_cmd_plan, imports=("..data._dataset_io", "..vision._captures"))
+
+
+def add_convert_command(sub: argparse._SubParsersAction) -> None:
+    """Add ``convert`` to the command line's subcommands ``sub``."""
+    p = sub.add_parser(
+        "convert",
+        help="write a version-1 dataset as handeye-jax.dataset/2",
+        description="Read a handeye-jax.dataset/1 file (the paper's single capture) and write "
+        "the same data as handeye-jax.dataset/2: one [[captures]] at the hand angle where "
+        "phi = 0, one [[touches]] per landmark. The values are identical (it calibrates to "
+        "the same result); comments are not carried over. A file that is already version 2 "
+        "is left alone (exit 0).",
+    )
+    p.add_argument("dataset", help="the version-1 dataset (TOML)")
+    p.add_argument(
+        "--out", metavar="NEW.toml",
+        help="where to write (default: NAME.v2.toml beside NAME.toml); may be the dataset "
+        "itself with --force",
+    )  # fmt: skip
+    p.add_argument(
+        "--force", action="store_true",
+        help="replace an existing --out (also the dataset itself); the replaced file is kept "
+        "as OUT.<UTC time>.bak",
+    )  # fmt: skip
+    p.set_defaults(func=_cmd_convert, imports=("..data._dataset_io",))

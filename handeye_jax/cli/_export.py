@@ -1,0 +1,83 @@
+"""``handeye-jax export``: a calibration for URDF, ROS 2, OpenCV, a NumPy module, JSON or YAML."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from .._core._atomic import check_output, write_output
+from ..robot import _export as export  # constants only: the formats import their libraries on use
+
+PROG = "handeye-jax"
+
+
+def _name(text: str) -> str:
+    if not export.NAME_PATTERN.fullmatch(text):
+        raise argparse.ArgumentTypeError(
+            f"not a valid link or frame name: {text!r} (letters, digits and _, not first a digit)"
+        )
+    return text
+
+
+def add_export_command(sub) -> None:
+    """Add ``export`` to the command line's subcommands ``sub``."""
+    p = sub.add_parser(
+        "export",
+        help="write a calibration as JSON, YAML, URDF, a ROS 2 launch file, OpenCV or Python",
+        description="Write the fitted frames for other tools: json / yaml (named frames with "
+        "units, axes and the components the data did not determine, as null), urdf (a xacro "
+        "snippet: fixed joints from the flange to the camera's optical frame and the pen tip; "
+        "metres, radians), ros2 (static_transform_publisher nodes and commands; metres, "
+        "quaternion x y z w), opencv (R_cam2gripper, t_cam2gripper as cv2.calibrateHandEye "
+        "gives them, mm, with cv2.FileStorage), python (a NumPy-only predictor module). "
+        "Formats that cannot say 'unknown' write 0 there, say so in the file, and warn.",
+    )
+    p.add_argument("result", help="result file from 'calibrate --out'")
+    p.add_argument(
+        "--format", required=True, choices=export.FORMATS, dest="fmt",
+        metavar="{" + ",".join(export.FORMATS) + "}",
+        help="json/yaml: named frames with units and what the data did not determine; urdf: a "
+        "xacro snippet; ros2: static_transform_publisher and a launch snippet; opencv: "
+        "cv2.calibrateHandEye's R_cam2gripper, t_cam2gripper; python: a numpy-only predictor",
+    )  # fmt: skip
+    p.add_argument("--out", metavar="FILE", help="write here (default: standard output)")
+    p.add_argument(
+        "--parent-link", type=_name, default=export.DEFAULT_PARENT_LINK, metavar="LINK",
+        help=f"the flange link (urdf, ros2; default {export.DEFAULT_PARENT_LINK})",
+    )  # fmt: skip
+    p.add_argument(
+        "--camera-frame", type=_name, default=export.DEFAULT_CAMERA_FRAME, metavar="NAME",
+        help=f"the camera's optical frame (urdf, ros2; default {export.DEFAULT_CAMERA_FRAME})",
+    )  # fmt: skip
+    p.add_argument(
+        "--pen-frame", type=_name, default=export.DEFAULT_PEN_FRAME, metavar="NAME",
+        help=f"the pen tip frame (urdf, ros2; default {export.DEFAULT_PEN_FRAME})",
+    )  # fmt: skip
+    p.set_defaults(func=_cmd_export, imports=("..calibration._result_frames", "..robot._export"))
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    out = None if args.out is None else check_output(args.out, "--out", [args.result])
+    names = (args.parent_link, args.camera_frame, args.pen_frame)
+    if len(set(names)) != 3:
+        print(f"{PROG}: error: --parent-link, --camera-frame and --pen-frame must differ "
+              f"(got {', '.join(names)})", file=sys.stderr)  # fmt: skip
+        return 2
+    from ..calibration._result_frames import load_frames  # JAX: not imported for --help
+
+    frames = load_frames(args.result)
+    text = export.export_text(
+        frames, args.fmt, parent_link=args.parent_link, camera_frame=args.camera_frame,
+        pen_frame=args.pen_frame, source=str(args.result),
+    )  # fmt: skip
+    export.check_parses(text, args.fmt)
+    zeros = export.zero_filled(frames, args.fmt)
+    if zeros:
+        print(f"{PROG}: warning: {', '.join(zeros)} not determined by the data: written as 0 "
+              f"in the {args.fmt} file, which says so", file=sys.stderr)  # fmt: skip
+    if out is None:
+        sys.stdout.write(text)
+    else:
+        write_output(out, text, "--out")
+        print(f"{args.fmt} export written to {out}")
+    return 0

@@ -1,0 +1,502 @@
+"""The synthetic twin: every input the real rig produces, from a rig whose truth is known.
+
+:func:`simulate` takes a :class:`~handeye_jax._twin.TwinTruth` and a :class:`NoisePreset` and
+makes what the rig would: the picture of the tablet and its depth image
+(:mod:`~handeye_jax._render`), the landmarks found in them (:mod:`~handeye_jax._detect`), the
+touches (operator error, the tablet's report of it, the controller's hand positions), and
+held-out targets for :mod:`~handeye_jax._evaluate`. :func:`write_twin` writes them to a folder:
+
+``dataset.toml``  the core format, ``image_px`` and ``depth`` from the detector (or exact)
+``capture.png``   the colour picture, 8-bit BGR
+``depth.png``     the depth image, 16-bit, mm (0 = no measurement)
+``truth.json``    the rig truth (:func:`~handeye_jax._twin.load_truth` reads it back)
+``heldout.csv``   held-out targets: ``u,v,depth,hand_angle`` as measured (px, px, mm, deg)
+                  and where they are drawn, ``tablet_x,tablet_y`` (tablet px)
+
+It writes into a new or empty folder only: with ``force=True`` it replaces an old twin's
+files and removes what the README's loop made from them (:data:`DERIVED_FILES`), so nothing
+stale is left beside the new twin.
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .._core._atomic import reason, write_folder_atomic
+from .._core._constants import (
+    CAPTURE_RISE_MM,
+    DERIVED_FILES,
+    DERIVED_FOLDER,
+    HELDOUT_ABOVE_MM,
+    HELDOUT_RISES_MM,
+    MORE_CAPTURE_FILES,
+)
+from .._core._constants import MAX_TWIN_CAPTURES as MAX_CAPTURES
+from .._core._constants import TWIN_SEED_RANGE as SEED_RANGE
+from .._core._errors import InputError
+from .._core._validate import MAX_HELDOUT
+from ..data._dataset import Camera, Capture, Dataset
+from ..data._dataset_io import dataset_to_toml
+from ..report._figures import FIGURES, FORMATS
+from ..vision._detect import BlobCountError, DetectSettings, depth_at, find_blobs, order_blobs
+from ._render import DepthSensing, Imaging, render_capture, render_depth
+from ._synthetic import synthesize_dataset
+from ._truth import TwinTruth
+
+HELDOUT_HEADER = ("u", "v", "depth", "hand_angle", "tablet_x", "tablet_y")
+#: A multi-capture twin's held-out targets also carry the capture pose they were seen from
+#: (mm, deg), their true position (base frame, mm), and how far above the display they stand.
+HELDOUT_CAPTURE_HEADER = (*HELDOUT_HEADER, "capture_x", "capture_y", "capture_z",
+                          "capture_angle", "true_x", "true_y", "true_z", "above_mm")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class NoisePreset:
+    """How far the twin's measurements stray from the truth.
+
+    Attributes:
+        name: the preset's name.
+        imaging: the picture's blur, noise, vignetting and gamma.
+        depth: the depth image's noise, quantisation and holes.
+        touch_sigma_mm: σ of the operator's touch error in each tablet axis, mm.
+        hand_round_mm: the controller reports hand positions rounded to this, mm (0 = exact).
+        target_sigma_px: σ of the image position of a held-out target as the user measures
+            it, per axis, image px (about the detector's own error).
+    """
+
+    name: str
+    imaging: Imaging
+    depth: DepthSensing
+    touch_sigma_mm: float
+    hand_round_mm: float
+    target_sigma_px: float
+
+
+PRESETS: dict[str, NoisePreset] = {
+    "none": NoisePreset(
+        "none", Imaging(), DepthSensing(),
+        touch_sigma_mm=0.0, hand_round_mm=0.0, target_sigma_px=0.0,
+    ),
+    # Table 2's spread: touch errors of a few tablet px (σ ≈ 2.4 px ≈ 0.45 mm), hand positions
+    # in whole mm; a fair 8-bit sRGB camera and a RealSense-like depth image.
+    "paper": NoisePreset(
+        "paper",
+        Imaging(blur_px=0.0, noise_levels=1.5, vignetting=0.15, gamma=2.2),
+        DepthSensing(noise_mm=0.5, step_mm=1.0, holes=0.02),
+        touch_sigma_mm=0.45, hand_round_mm=1.0, target_sigma_px=0.15,
+    ),
+    # Defocus, a noisy sensor, coarse depth with many holes, a careless operator. One-pixel
+    # dots drown in this picture's noise: simulate it with larger dots (dot_px >= 2).
+    "harsh": NoisePreset(
+        "harsh",
+        Imaging(blur_px=0.4, noise_levels=3.0, vignetting=0.35, gamma=2.2),
+        DepthSensing(noise_mm=1.5, step_mm=2.0, holes=0.10),
+        touch_sigma_mm=1.0, hand_round_mm=1.0, target_sigma_px=0.3,
+    ),
+}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Twin:
+    """Everything the twin made.
+
+    Attributes:
+        truth: the rig truth.
+        preset: the noise preset.
+        dataset: the calibration dataset, as the rig would record it.
+        capture: the colour picture, ``uint8`` BGR ``(h, w, 3)``.
+        depth: the depth image, ``uint16`` mm ``(h, w)``.
+        landmarks_image_px, landmarks_depth_mm: the landmarks' true image points and depths.
+        heldout_tablet_px: held-out targets on the display, tablet px, ``(k, 2)``.
+        heldout_hand_angle_deg: the hand angle to touch each with, deg, ``(k,)``.
+        heldout_image_px, heldout_depth_mm: each target as the user measures it (image px,
+            mm): its true image point plus ``target_sigma_px`` noise, and the depth image's
+            median around it.
+        more_captures, more_depths: the pictures and depth images of captures 2, 3, … of a
+            multi-capture twin.
+        heldout_capture_position_mm, heldout_capture_angle_deg: the capture pose each
+            held-out target was seen from (mm ``(k, 3)``, deg ``(k,)``), multi-capture only.
+        heldout_true_mm: each target's true position, base frame, mm, ``(k, 3)``.
+        heldout_above_mm: how far above the display each target stands, mm, ``(k,)``.
+    """
+
+    truth: TwinTruth
+    preset: NoisePreset
+    dataset: Dataset
+    capture: np.ndarray
+    depth: np.ndarray
+    landmarks_image_px: np.ndarray
+    landmarks_depth_mm: np.ndarray
+    heldout_tablet_px: np.ndarray
+    heldout_hand_angle_deg: np.ndarray
+    heldout_image_px: np.ndarray
+    heldout_depth_mm: np.ndarray
+    more_captures: tuple[np.ndarray, ...] = ()
+    more_depths: tuple[np.ndarray, ...] = ()
+    heldout_capture_position_mm: np.ndarray | None = None
+    heldout_capture_angle_deg: np.ndarray | None = None
+    heldout_true_mm: np.ndarray | None = None
+    heldout_above_mm: np.ndarray | None = None
+
+    @property
+    def n_captures(self) -> int:
+        return 1 + len(self.more_captures)
+
+
+def simulate(
+    truth: TwinTruth,
+    preset: NoisePreset,
+    seed: int,
+    *,
+    exact: bool = False,
+    n_heldout: int = 20,
+    detect_settings: DetectSettings | None = None,
+    captures: int = 1,
+) -> Twin:
+    """Run the twin once.
+
+    With ``captures > 1`` (:func:`simulate_captures`) the acquisition holds several pictures,
+    from capture poses at other heights, positions and hand angles, and the touches record
+    the hand's height.
+
+    Args:
+        truth: the rig truth.
+        preset: the noise preset.
+        seed: seeds every random draw here (noise, touches, held-out targets).
+        exact: take ``image_px`` and depth from the truth instead of detecting them.
+        n_heldout: how many held-out targets (1 to 10,000), uniform over the landmarks' area
+            on the display with hand angles uniform in [0, 180) deg.
+        detect_settings: how to detect the landmarks.
+        captures: how many pictures (1 to 8).
+
+    Raises:
+        BlobCountError: the detector does not find one blob per landmark in the picture.
+        ValueError: ``seed`` is negative or ``n_heldout`` out of range.
+    """
+    check_seed(seed)
+    if not 1 <= n_heldout <= MAX_HELDOUT:
+        raise ValueError(f"n_heldout must be 1 to {MAX_HELDOUT:,} (got {n_heldout})")
+    if not 1 <= captures <= MAX_CAPTURES:
+        raise ValueError(f"captures must be 1 to {MAX_CAPTURES} (got {captures})")
+    detect_settings = detect_settings or DetectSettings()
+    if captures > 1:
+        return simulate_captures(truth, preset, seed, captures, exact=exact,
+                                 n_heldout=n_heldout, detect_settings=detect_settings)  # fmt: skip
+    rng_image, rng_depth, rng_touch, rng_held = np.random.default_rng(seed).spawn(4)
+    capture = render_capture(truth, preset.imaging, rng_image)
+    depth = render_depth(truth, preset.depth, rng_depth)
+    rig, model, mm = truth.rig(), truth.htm(), truth.mm_per_tablet_px
+
+    # Where the pen really touched: the operator's error, in tablet px (exact, not rounded).
+    n = len(truth.landmarks_tablet_px)
+    touch_px = rng_touch.normal(0.0, preset.touch_sigma_mm, (n, 2)) / mm
+    exact_ds = synthesize_dataset(
+        model, rig, truth.landmarks_tablet_px, truth.landmarks_hand_angle_deg,
+        ppi=truth.ppi, scale=truth.scale, touch_error_px=touch_px,
+        tablet_height_mm=truth.tablet_height_mm, camera_z_mm=truth.camera_z_mm,
+        name=f"twin-seed{seed}-{preset.name}",
+    )  # fmt: skip
+    hand_xy = exact_ds.hand_xy_mm
+    if preset.hand_round_mm:
+        hand_xy = np.round(hand_xy / preset.hand_round_mm) * preset.hand_round_mm
+    if exact:
+        image_px, depth_mm = exact_ds.image_px, exact_ds.depth_mm
+    else:
+        blobs = find_blobs(capture, detect_settings)
+        if len(blobs.image_px) != n:
+            hint = "; try exact=True (simulate --exact) or larger dots (--dot-px)"
+            raise BlobCountError("capture.png (simulated)", blobs, n, hint)
+        image_px = blobs.image_px[order_blobs(blobs.image_px, truth.landmarks_tablet_px)]
+        depth_mm = depth_at(depth, image_px, detect_settings.depth_window_px)
+    dataset = exact_ds.replace(
+        image_px=image_px, depth_mm=depth_mm, hand_xy_mm=hand_xy,
+        touch_error_px=np.round(touch_px),  # the tablet reports whole px
+    )  # fmt: skip
+
+    lo, hi = truth.landmark_area_px()
+    held_px = rng_held.uniform(lo, hi, (n_heldout, 2))
+    held_angle = rng_held.uniform(0.0, 180.0, n_heldout)
+    held_true_px, _ = truth.project(held_px)
+    held_image_px = held_true_px + rng_held.normal(0.0, 1.0, held_true_px.shape) * (
+        preset.target_sigma_px
+    )
+    held_depth = depth_at(depth, held_image_px, detect_settings.depth_window_px)
+    return Twin(
+        truth=truth, preset=preset, dataset=dataset, capture=capture, depth=depth,
+        landmarks_image_px=exact_ds.image_px, landmarks_depth_mm=exact_ds.depth_mm,
+        heldout_tablet_px=held_px, heldout_hand_angle_deg=held_angle,
+        heldout_image_px=held_image_px, heldout_depth_mm=held_depth,
+    )  # fmt: skip
+
+
+def draw_capture_poses(
+    truth: TwinTruth, k: int, rng: np.random.Generator, rise_mm: float = CAPTURE_RISE_MM
+) -> list[tuple[np.ndarray, float]]:
+    """``k`` capture poses ``(hand position mm, hand angle deg)`` that see every landmark.
+
+    The first is the truth's own. The others rise evenly to ``rise_mm`` above it (±5 mm),
+    move up to 15 mm sideways, and turn the hand by 8 to 25 deg either way.
+    """
+    first = np.asarray(truth.capture_position_mm, dtype=float)
+    angle0 = truth.capture_angle_deg
+    poses = [(first, angle0)]
+    for rise in np.linspace(0.0, rise_mm, k)[1:]:
+        for _ in range(1000):
+            position = first + [*rng.uniform(-15.0, 15.0, 2), rise + rng.uniform(-5.0, 5.0)]
+            angle = angle0 + rng.choice([-1.0, 1.0]) * rng.uniform(8.0, 25.0)
+            if truth.at_capture(position, angle).sees(truth.landmarks_tablet_px):
+                break
+        else:
+            raise ValueError("could not draw a capture pose that sees every landmark")
+        poses.append((position, float(angle)))
+    return poses
+
+
+def _pictures(
+    truth_c: TwinTruth,
+    preset: NoisePreset,
+    rng: np.random.Generator,
+    exact: bool,
+    settings: DetectSettings,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One capture's picture, depth image, and the landmarks' image points and depths in
+    them (detected, or the truth's with ``exact``)."""
+    picture = render_capture(truth_c, preset.imaging, rng)
+    depth = render_depth(truth_c, preset.depth, rng)
+    if exact:
+        image_px, depth_mm = truth_c.project(truth_c.landmarks_tablet_px)
+        return picture, depth, image_px, depth_mm
+    n = len(truth_c.landmarks_tablet_px)
+    blobs = find_blobs(picture, settings)
+    if len(blobs.image_px) != n:
+        hint = "; try exact=True (simulate --exact) or larger dots (--dot-px)"
+        raise BlobCountError("capture.png (simulated)", blobs, n, hint)
+    image_px = blobs.image_px[order_blobs(blobs.image_px, truth_c.landmarks_tablet_px)]
+    return picture, depth, image_px, depth_at(depth, image_px, settings.depth_window_px)
+
+
+def simulate_captures(
+    truth: TwinTruth,
+    preset: NoisePreset,
+    seed: int,
+    captures: int = 3,
+    *,
+    exact: bool = False,
+    n_heldout: int = 20,
+    detect_settings: DetectSettings | None = None,
+) -> Twin:
+    """A multi-capture twin (see :func:`simulate`): ``captures`` pictures from the poses of
+    :func:`draw_capture_poses`, the touches with the hand's height (rounded as the hand's
+    x-y), and ``n_heldout`` held-out targets for each capture rise of
+    :data:`HELDOUT_RISES_MM` and each height of :data:`HELDOUT_ABOVE_MM` above the display.
+
+    A held-out target above the display is the top of an object standing there, parallel to
+    the display; the depth image of such a target is rendered with the object's top as the
+    surface. With ``exact`` the held-out targets' image points and depths are the truth's too.
+    """
+    settings = detect_settings or DetectSettings()
+    rng_pose, rng_image, rng_touch, rng_held = np.random.default_rng(seed).spawn(4)
+    poses = draw_capture_poses(truth, captures, rng_pose)
+    shots = [_pictures(truth.at_capture(p, a), preset, rng_image, exact, settings)
+             for p, a in poses]  # fmt: skip
+    mm = truth.mm_per_tablet_px
+    n = len(truth.landmarks_tablet_px)
+    touch_px = rng_touch.normal(0.0, preset.touch_sigma_mm, (n, 2)) / mm
+    touched = truth.surface_points(truth.landmarks_tablet_px + touch_px)
+    hand = truth.true_command(touched, truth.landmarks_hand_angle_deg)
+    if preset.hand_round_mm:
+        hand = np.round(hand / preset.hand_round_mm) * preset.hand_round_mm
+    caps = [Capture(p, a, np.arange(n), image_px, depth_mm)
+            for (p, a), (_, _, image_px, depth_mm) in zip(poses, shots, strict=True)]  # fmt: skip
+    c = truth.camera_px
+    dataset = Dataset(
+        name=f"twin-seed{seed}-{preset.name}-{captures}captures",
+        camera=Camera(c["fx"], c["fy"], c["cx"], c["cy"]), tablet_ppi=truth.ppi,
+        tablet_scale=truth.scale, hand_angle_zero_deg=truth.hand_angle_zero_deg,
+        hand_angle_sign=truth.hand_angle_sign, search={}, tablet_px=truth.landmarks_tablet_px,
+        captures=caps, hand_xy_mm=hand[:, :2], hand_z_mm=hand[:, 2],
+        hand_angle_deg=truth.landmarks_hand_angle_deg, touch_error_px=np.round(touch_px),
+        version=2,
+    )  # fmt: skip
+    held = heldout_targets(truth, preset, rng_held, n_heldout, exact, settings)
+    first_px, first_depth = truth.project(truth.landmarks_tablet_px)
+    return Twin(
+        truth=truth, preset=preset, dataset=dataset, capture=shots[0][0], depth=shots[0][1],
+        landmarks_image_px=first_px, landmarks_depth_mm=first_depth,
+        more_captures=tuple(s[0] for s in shots[1:]), more_depths=tuple(s[1] for s in shots[1:]),
+        **held,
+    )  # fmt: skip
+
+
+def heldout_targets(
+    truth: TwinTruth,
+    preset: NoisePreset,
+    rng: np.random.Generator,
+    n_each: int,
+    exact: bool = False,
+    settings: DetectSettings | None = None,
+    rises_mm: tuple[float, ...] = HELDOUT_RISES_MM,
+    above_mm: tuple[float, ...] = HELDOUT_ABOVE_MM,
+) -> dict[str, np.ndarray]:
+    """Held-out targets for each capture rise (mm above the truth's capture; 0 is that
+    capture, any other a new position and hand angle) and each height above the display (mm),
+    ``n_each`` of each, uniform over the landmarks' area where the picture sees them; as
+    :class:`Twin`'s ``heldout_*`` fields."""
+    settings = settings or DetectSettings()
+    lo, hi = truth.landmark_area_px()
+    first = np.asarray(truth.capture_position_mm, dtype=float)
+    out: dict[str, list] = {k: [] for k in ("tablet_px", "angle", "image_px", "depth", "position",
+                                            "cap_angle", "true", "above")}  # fmt: skip
+    for rise in rises_mm:
+        position, angle = first, truth.capture_angle_deg
+        if rise:
+            position = first + [*rng.uniform(-15.0, 15.0, 2), rise]
+            angle = angle + rng.choice([-1.0, 1.0]) * rng.uniform(10.0, 30.0)
+        for above in above_mm:
+            seen = replace(truth.at_capture(position, angle),
+                           tablet_height_mm=truth.tablet_height_mm + above)  # fmt: skip
+            depth_image = None if exact else render_depth(seen, preset.depth, rng)
+            tab = np.empty((0, 2))
+            for _ in range(1000):  # targets the picture sees
+                cand = rng.uniform(lo, hi, (n_each, 2))
+                tab = np.vstack([tab, [p for p in cand if seen.sees(p[None])]])[:n_each]
+                if len(tab) == n_each:
+                    break
+            else:
+                raise ValueError("the picture sees too little of the landmarks' area")
+            true_px, true_depth = seen.project(tab)
+            image_px = true_px + rng.normal(0.0, 1.0, true_px.shape) * preset.target_sigma_px
+            depth = true_depth if exact else depth_at(depth_image, image_px,
+                                                      settings.depth_window_px)  # fmt: skip
+            if exact:
+                image_px = true_px
+            k = len(tab)
+            out["tablet_px"].append(tab)
+            out["angle"].append(rng.uniform(0.0, 180.0, k))
+            out["image_px"].append(image_px)
+            out["depth"].append(depth)
+            out["position"].append(np.tile(position, (k, 1)))
+            out["cap_angle"].append(np.full(k, float(angle)))
+            out["true"].append(truth.surface_points(tab, above))
+            out["above"].append(np.full(k, float(above)))
+    cat = {k: np.concatenate(v) for k, v in out.items()}
+    return dict(
+        heldout_tablet_px=cat["tablet_px"], heldout_hand_angle_deg=cat["angle"],
+        heldout_image_px=cat["image_px"], heldout_depth_mm=cat["depth"],
+        heldout_capture_position_mm=cat["position"], heldout_capture_angle_deg=cat["cap_angle"],
+        heldout_true_mm=cat["true"], heldout_above_mm=cat["above"],
+    )  # fmt: skip
+
+
+def check_seed(seed: int) -> int:
+    """``seed`` if numpy's generators take it (0 to 2^63 - 1); ``ValueError`` if not."""
+    lo, hi = SEED_RANGE
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or not lo <= seed <= hi:
+        raise ValueError(f"seed must be a whole number from 0 to 2^63 - 1 (got {seed!r})")
+    return int(seed)
+
+
+def heldout_csv_text(twin: Twin) -> str:
+    """The held-out targets as ``u,v,depth,hand_angle,tablet_x,tablet_y`` (px, px, mm, deg, px);
+    a multi-capture twin's also with :data:`HELDOUT_CAPTURE_HEADER`'s capture pose (mm, deg),
+    true position (mm) and height above the display (mm)."""
+    out = io.StringIO()
+    columns = [twin.heldout_image_px, twin.heldout_depth_mm, twin.heldout_hand_angle_deg,
+               twin.heldout_tablet_px]  # fmt: skip
+    header = HELDOUT_HEADER
+    if twin.heldout_true_mm is not None:
+        header = HELDOUT_CAPTURE_HEADER
+        columns += [twin.heldout_capture_position_mm, twin.heldout_capture_angle_deg,
+                    twin.heldout_true_mm, twin.heldout_above_mm]  # fmt: skip
+    out.write(",".join(header) + "\n")
+    rows = np.column_stack(columns)
+    for row in rows:
+        out.write(",".join(repr(float(v)) for v in row) + "\n")
+    return out.getvalue()
+
+
+def encode_png(image: np.ndarray) -> bytes:
+    """PNG bytes of a ``uint8`` or ``uint16`` image (OpenCV keeps 16 bits)."""
+    ok, buf = cv2.imencode(".png", image)
+    if not ok:
+        raise ValueError("OpenCV could not encode the image as PNG")
+    return buf.tobytes()
+
+
+def check_twin_folder(out_dir: str | Path, force: bool = False, field: str = "") -> list[Path]:
+    """Refuse to write a twin into a folder that holds anything, unless ``force``.
+
+    Returns the stale files :func:`write_twin` with ``force`` removes once the new twin is in
+    place: :data:`DERIVED_FILES` and the figures of ``result_report/``. Raises
+    :class:`~handeye_jax._errors.InputError` naming ``out_dir`` and ``field``.
+    """
+    folder = Path(out_dir)
+    try:
+        held = sorted(p.name for p in folder.iterdir()) if folder.is_dir() else []
+    except OSError as e:
+        raise InputError(folder, field, f"cannot list the folder: {reason(e)}") from None
+    if held and not force:
+        shown = ", ".join(held[:4]) + (f" and {len(held) - 4} more" if len(held) > 4 else "")
+        raise InputError(
+            folder, field,
+            f"not empty (holds {shown}); a twin is written into a new or empty folder: choose "
+            f"another, or pass --force to replace the old twin's files and remove "
+            f"{', '.join(DERIVED_FILES)} and {DERIVED_FOLDER}/ made from it",
+        )  # fmt: skip
+    stale = [p for pattern in (*DERIVED_FILES, *MORE_CAPTURE_FILES)
+             for p in sorted(folder.glob(pattern))]  # fmt: skip
+    figures = folder / DERIVED_FOLDER
+    stale += [figures / f"{name}.{ext}" for name in FIGURES for ext in FORMATS]
+    return [p for p in stale if p.is_file() or p.is_symlink()]
+
+
+def _remove(paths: list[Path], field: str) -> None:
+    for path in paths:
+        try:
+            path.unlink()
+        except FileNotFoundError:
+            pass
+        except OSError as e:
+            why = f"cannot remove this stale file (the new twin is written): {reason(e)}"
+            raise InputError(path, field, why) from None
+    for folder in {p.parent for p in paths if p.parent.name == DERIVED_FOLDER}:
+        try:
+            folder.rmdir()
+        except OSError:  # it holds files of the user's: they stay
+            pass
+
+
+def write_twin(
+    twin: Twin, out_dir: str | Path, *, force: bool = False, field: str = ""
+) -> list[Path]:
+    """Write the twin's files into ``out_dir`` (created if missing); returns their paths.
+
+    ``out_dir`` must be new or empty unless ``force``: then the old twin's files are
+    replaced and, once the new ones are in place, what was made from them
+    (:func:`check_twin_folder`) is removed; other files are left as they are.
+
+    Every file is encoded before the first is written, and all are put in place together:
+    on failure (an :class:`~handeye_jax._errors.InputError` naming the file and ``field``)
+    the folder is as it was.
+    """
+    stale = check_twin_folder(out_dir, force, field)
+    files = {
+        "dataset.toml": dataset_to_toml(twin.dataset).encode("utf-8"),
+        "truth.json": twin.truth.to_json().encode("utf-8"),
+        "heldout.csv": heldout_csv_text(twin).encode("utf-8"),
+        "capture.png": encode_png(twin.capture),
+        "depth.png": encode_png(twin.depth),
+    }
+    # Captures 2, 3, … of a multi-capture twin (the dataset's captures in order).
+    for i, (picture, depth) in enumerate(zip(twin.more_captures, twin.more_depths,
+                                             strict=True), start=1):  # fmt: skip
+        files[f"capture_{i}.png"] = encode_png(picture)
+        files[f"depth_{i}.png"] = encode_png(depth)
+    paths = write_folder_atomic(out_dir, files, field)
+    _remove([p for p in stale if p.name not in files], field)
+    return paths
