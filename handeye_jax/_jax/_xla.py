@@ -221,7 +221,7 @@ _TRACED_LIBRARIES = ("jax", "jaxlib", "equinox", "optimistix", "lineax", "numpy"
 def _source_digest() -> str:
     """SHA-256 of this package's source and its libraries' versions: any change of the code
     makes new programs."""
-    root = Path(__file__).resolve().parent
+    root = Path(__file__).resolve().parents[1]  # the whole package, not this folder
     h = hashlib.sha256()
     for name in _TRACED_LIBRARIES:
         try:
@@ -382,7 +382,7 @@ def _result_classes(treedef) -> list[type] | None:
 
 def _class_at(path: str) -> type | None:
     module, _, qualname = path.partition(":")
-    if not module.startswith(f"{__package__}."):  # only this package's own result types
+    if not module.startswith(f"{__name__.split('.')[0]}."):  # this package's own result types
         return None
     obj: Any = importlib.import_module(module)
     for part in qualname.split("."):
