@@ -19,10 +19,9 @@ import dataclasses
 
 import numpy as np
 
-from handeye_jax import draw_truth
+from handeye_jax import PRESETS, draw_truth
 from handeye_jax.twin._render import render_capture
-from handeye_jax.twin._simulate import PRESETS
-from handeye_jax.vision._detect import find_blobs
+from handeye_jax.vision import find_blobs
 
 
 def found(seed: int, rise_mm: float, dot_px: float, preset: str) -> tuple[int, int, np.ndarray]:

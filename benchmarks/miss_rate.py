@@ -38,14 +38,17 @@ import jax.numpy as jnp
 import numpy as np
 
 from handeye_jax import (
+    PRESETS,
     HTMModel,
     Settings,
     Stage1Objective,
     calibrate,
+    dataset_to_toml,
     diagnose,
+    draw_truth,
+    simulate,
     vectorise_small_loops,
 )
-from handeye_jax.data._dataset_io import dataset_to_toml
 from handeye_jax.optim import (
     Bounds,
     LevenbergMarquardt,
@@ -54,8 +57,6 @@ from handeye_jax.optim import (
     minimise,
     minimise_starts,
 )
-from handeye_jax.twin._simulate import PRESETS, simulate
-from handeye_jax.twin._truth import draw_truth
 
 CACHE = Path(__file__).resolve().parent / "miss_rate_reference.json"
 REFERENCE = ("DE N=5000 G=3000 tol=1e-6 + LM; LM from 256 Latin-hypercube starts, best 8 "

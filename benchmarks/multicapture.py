@@ -32,12 +32,20 @@ from pathlib import Path
 
 import numpy as np
 
-from handeye_jax import Settings, calibrate, get_model, vectorise_small_loops
-from handeye_jax.data._observations import Rig
-from handeye_jax.twin._evaluate import Heldout, evaluate_points
+from handeye_jax import (
+    Heldout,
+    Rig,
+    Settings,
+    calibrate,
+    draw_truth,
+    evaluate_points,
+    get_model,
+    snake_grid_px,
+    synthesize_captures,
+    vectorise_small_loops,
+)
 from handeye_jax.twin._simulate import PRESETS, heldout_targets, simulate
-from handeye_jax.twin._synthetic import seen_from, snake_grid_px, synthesize_captures, true_command
-from handeye_jax.twin._truth import draw_truth
+from handeye_jax.twin._synthetic import seen_from, true_command
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from twin_study import write_section  # noqa: E402

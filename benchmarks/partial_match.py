@@ -19,7 +19,7 @@ import time
 import cv2
 import numpy as np
 
-from handeye_jax.twin._synthetic import snake_grid_px
+from handeye_jax import snake_grid_px
 from handeye_jax.vision._detect import match_blobs
 
 

@@ -20,9 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from handeye_jax import AffinePair, HTMModel, Predictor, Rig
-from handeye_jax.calibration._result_frames import compute_frames
-from handeye_jax.data._points import hand_command
+from handeye_jax import AffinePair, HTMModel, Predictor, Rig, compute_frames, hand_command
 
 TARGET_US = 20.0
 PARAMS = {"xc": -2.05, "yc": 34.09, "alpha_c": 0.49, "beta_c": 0.48, "gamma_c": -0.73,

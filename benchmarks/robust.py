@@ -17,9 +17,15 @@ import sys
 
 import numpy as np
 
-from handeye_jax import Settings, calibrate, diagnose, vectorise_small_loops
-from handeye_jax.twin._simulate import PRESETS, simulate
-from handeye_jax.twin._truth import draw_truth
+from handeye_jax import (
+    PRESETS,
+    Settings,
+    calibrate,
+    diagnose,
+    draw_truth,
+    simulate,
+    vectorise_small_loops,
+)
 
 CASES = [("l1", 1.0), ("huber", 1.0), ("huber", 0.5), ("cauchy", 1.0), ("cauchy", 0.5)]
 M = 6  # the landmark touched off

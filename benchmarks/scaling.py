@@ -36,9 +36,15 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from handeye_jax import HTMModel, Rig, Stage1Objective, load_dataset
+from handeye_jax import (
+    HTMModel,
+    Rig,
+    Stage1Objective,
+    load_dataset,
+    snake_grid_px,
+    synthesize_dataset,
+)
 from handeye_jax import geometry as geo
-from handeye_jax.twin._synthetic import snake_grid_px, synthesize_dataset
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import PAPER, de_generation_ms  # noqa: E402

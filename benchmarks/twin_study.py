@@ -22,11 +22,19 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from handeye_jax import Settings, calibrate, load_dataset, vectorise_small_loops
-from handeye_jax.twin._evaluate import evaluate_twin
-from handeye_jax.twin._simulate import PRESETS, simulate, write_twin
-from handeye_jax.twin._truth import draw_truth
-from handeye_jax.vision._detect import detect_landmarks, fill_dataset
+from handeye_jax import (
+    PRESETS,
+    Settings,
+    calibrate,
+    detect_landmarks,
+    draw_truth,
+    evaluate_twin,
+    fill_dataset,
+    load_dataset,
+    simulate,
+    vectorise_small_loops,
+    write_twin,
+)
 
 RESULTS = Path(__file__).resolve().parent / "RESULTS.md"
 HEADING = "## Synthetic twin: held-out touching error"

@@ -18,116 +18,114 @@ whatever your setting; wrap your own calls of the low-level functions in
 from __future__ import annotations
 
 import importlib
-from importlib.metadata import PackageNotFoundError, version
 from typing import TYPE_CHECKING
 
-try:
-    __version__ = version("handeye-jax")
-except PackageNotFoundError:  # a source tree that was never installed
-    __version__ = "0+unknown"
+from ._core import package_version
+
+__version__ = package_version()
 
 _SUBMODULES = ("geometry", "models", "optim", "tablet")
 _EXPORTS = {
-    "AbstractBlock": "problem._objective",
+    "AbstractBlock": "problem",
     "AbstractCorrection": "models",
-    "AbstractLoss": "problem._losses",
+    "AbstractLoss": "problem",
     "AbstractModel": "models",
-    "AbstractObjective": "problem._objective",
+    "AbstractObjective": "problem",
     "AffinePair": "models",
-    "analyse_jacobian": "problem._linearise",
-    "calibrate": "calibration._calibrate",
-    "CalibrationResult": "calibration._result",
-    "Camera": "data._dataset",
-    "change_truth": "twin._truth",
-    "Capture": "data._dataset",
-    "capture_scope": "diagnostics._scope",
-    "CauchyLoss": "problem._losses",
-    "chain_points": "problem._objective",
-    "ChainPoints": "problem._objective",
-    "compute_frames": "calibration._result_frames",
-    "convert_to_v2": "data._dataset_io",
-    "Dataset": "data._dataset",
-    "dataset_to_toml": "data._dataset_io",
-    "detect_landmarks": "vision._detect",
-    "Detection": "vision._detect",
-    "DetectSettings": "vision._detect",
+    "analyse_jacobian": "problem",
+    "calibrate": "calibration",
+    "CalibrationResult": "calibration",
+    "Camera": "data",
+    "change_truth": "twin",
+    "Capture": "data",
+    "capture_scope": "diagnostics",
+    "CauchyLoss": "problem",
+    "chain_points": "problem",
+    "ChainPoints": "problem",
+    "compute_frames": "calibration",
+    "convert_to_v2": "data",
+    "Dataset": "data",
+    "dataset_to_toml": "data",
+    "detect_landmarks": "vision",
+    "Detection": "vision",
+    "DetectSettings": "vision",
     "DHModel": "models",
-    "diagnose": "calibration._calibrate",
-    "draw_truth": "twin._truth",
-    "errors_of": "problem._objective",
-    "evaluate": "twin._evaluate",
-    "evaluate_points": "twin._evaluate",
-    "evaluate_twin": "twin._evaluate",
-    "export_text": "robot._export",
-    "fill_capture": "vision._detect",
-    "fill_dataset": "vision._detect",
-    "fit": "calibration._calibrate",
-    "fit_correction": "calibration._calibrate",
-    "fit_stage": "calibration._calibrate",
-    "fitness": "problem._objective",
-    "float64": "_jax._x64",
-    "format_evaluation": "twin._evaluate",
-    "format_summary": "report._summary",
-    "Frames": "robot._frames",
-    "GaussianBlock": "problem._objective",
-    "GaussianObjective": "problem._objective",
-    "full_plan": "calibration._calibrate",
-    "get_loss": "problem._losses",
+    "diagnose": "calibration",
+    "draw_truth": "twin",
+    "errors_of": "problem",
+    "evaluate": "twin",
+    "evaluate_points": "twin",
+    "evaluate_twin": "twin",
+    "export_text": "robot",
+    "fill_capture": "vision",
+    "fill_dataset": "vision",
+    "fit": "calibration",
+    "fit_correction": "calibration",
+    "fit_stage": "calibration",
+    "fitness": "problem",
+    "float64": "_jax",
+    "format_evaluation": "twin",
+    "format_summary": "report",
+    "Frames": "robot",
+    "GaussianBlock": "problem",
+    "GaussianObjective": "problem",
+    "full_plan": "calibration",
+    "get_loss": "problem",
     "get_model": "models",
-    "Heldout": "twin._evaluate",
-    "hand_command": "data._points",
-    "HeightOffsets": "problem._objective",
+    "Heldout": "twin",
+    "hand_command": "models",
+    "HeightOffsets": "problem",
     "HTMModel": "models",
-    "HuberLoss": "problem._losses",
-    "InputError": "_core._errors",
-    "jacobian_diagnostics": "problem._linearise",
-    "L1Loss": "problem._losses",
-    "LengthBlock": "problem._objective",
-    "load_dataset": "data._dataset_io",
-    "load_frames": "calibration._result_frames",
-    "load_heldout": "twin._evaluate",
-    "load_result": "calibration._result_io",
-    "load_truth": "twin._truth",
-    "LossObjective": "problem._objective",
-    "NoisePreset": "twin._simulate",
-    "Observations": "data._observations",
-    "ParameterSpace": "problem._params",
-    "Plan": "calibration._calibrate",
-    "PointErrors": "twin._evaluate",
-    "Predictor": "robot._predictor",
-    "PRESETS": "twin._simulate",
-    "Prior": "problem._params",
-    "plan_captures": "vision._captures",
-    "PriorObjective": "problem._objective",
-    "put": "problem._params",
-    "recalibrate": "calibration._calibrate",
-    "recalibration_plan": "calibration._calibrate",
-    "render": "report._figures",
-    "resolve_names": "problem._params",
-    "Rig": "data._observations",
-    "save_dataset": "data._dataset_io",
-    "save_result": "calibration._result_io",
-    "Settings": "calibration._settings",
-    "simulate": "twin._simulate",
-    "simulate_captures": "twin._simulate",
-    "snake_grid_px": "twin._synthetic",
-    "SquaresBlock": "problem._objective",
-    "Stage1Objective": "problem._objective",
-    "Stage2Objective": "problem._objective",
-    "StageErrors": "problem._objective",
-    "StageFit": "calibration._calibrate",
-    "StageResult": "calibration._result",
-    "synthesize_captures": "twin._synthetic",
-    "store_programs": "_jax._xla",
-    "synthesize_dataset": "twin._synthetic",
-    "TouchingError": "twin._evaluate",
-    "Twin": "twin._simulate",
-    "TwinTruth": "twin._truth",
-    "update_dataset": "data._dataset_io",
-    "vectorise_small_loops": "_jax._xla",
-    "WeightedLengthBlock": "problem._objective",
-    "write_report": "report._figures",
-    "write_twin": "twin._simulate",
+    "HuberLoss": "problem",
+    "InputError": "_core",
+    "jacobian_diagnostics": "problem",
+    "L1Loss": "problem",
+    "LengthBlock": "problem",
+    "load_dataset": "data",
+    "load_frames": "calibration",
+    "load_heldout": "twin",
+    "load_result": "calibration",
+    "load_truth": "twin",
+    "LossObjective": "problem",
+    "NoisePreset": "twin",
+    "Observations": "data",
+    "ParameterSpace": "problem",
+    "Plan": "calibration",
+    "PointErrors": "twin",
+    "Predictor": "robot",
+    "PRESETS": "twin",
+    "Prior": "problem",
+    "plan_captures": "vision",
+    "PriorObjective": "problem",
+    "put": "problem",
+    "recalibrate": "calibration",
+    "recalibration_plan": "calibration",
+    "render": "report",
+    "resolve_names": "problem",
+    "Rig": "models",
+    "save_dataset": "data",
+    "save_result": "calibration",
+    "Settings": "calibration",
+    "simulate": "twin",
+    "simulate_captures": "twin",
+    "snake_grid_px": "data",
+    "SquaresBlock": "problem",
+    "Stage1Objective": "problem",
+    "Stage2Objective": "problem",
+    "StageErrors": "problem",
+    "StageFit": "calibration",
+    "StageResult": "calibration",
+    "synthesize_captures": "twin",
+    "store_programs": "_jax",
+    "synthesize_dataset": "twin",
+    "TouchingError": "twin",
+    "Twin": "twin",
+    "TwinTruth": "twin",
+    "update_dataset": "data",
+    "vectorise_small_loops": "_jax",
+    "WeightedLengthBlock": "problem",
+    "write_report": "report",
+    "write_twin": "twin",
 }
 # What a robot PC may lack; Predictor and Frames need none of it.
 _JAX_STACK = ("jax", "jaxlib", "equinox", "optimistix", "jaxtyping", "lineax", "jaxlie")
@@ -139,7 +137,7 @@ def __getattr__(name: str):
     if name not in _EXPORTS:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
     try:
-        module = importlib.import_module(f"{__name__}.{_EXPORTS[name]}")
+        value = getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
     except ImportError as e:
         if (e.name or "").split(".")[0] not in _JAX_STACK:
             raise
@@ -147,7 +145,6 @@ def __getattr__(name: str):
             f"handeye_jax.{name} needs JAX, which cannot be imported here ({e}); Predictor "
             "and Frames work without it"
         ) from e
-    value = getattr(module, name)
     globals()[name] = value
     return value
 
@@ -174,8 +171,8 @@ if TYPE_CHECKING:
         recalibration_plan,
     )
     from .calibration._result import CalibrationResult, StageResult
-    from .calibration._result_frames import compute_frames, load_frames
-    from .calibration._result_io import load_result, save_result
+    from .calibration._result_frames import compute_frames
+    from .calibration._result_io import load_frames, load_result, save_result
     from .calibration._settings import Settings
     from .data._dataset import Camera, Capture, Dataset
     from .data._dataset_io import (
@@ -185,10 +182,19 @@ if TYPE_CHECKING:
         save_dataset,
         update_dataset,
     )
-    from .data._observations import Observations, Rig
-    from .data._points import hand_command
+    from .data._layouts import snake_grid_px
+    from .data._observations import Observations
     from .diagnostics._scope import capture_scope
-    from .models import AbstractCorrection, AbstractModel, AffinePair, DHModel, HTMModel, get_model
+    from .models import (
+        AbstractCorrection,
+        AbstractModel,
+        AffinePair,
+        DHModel,
+        HTMModel,
+        Rig,
+        get_model,
+        hand_command,
+    )
     from .problem._linearise import analyse_jacobian, jacobian_diagnostics
     from .problem._losses import AbstractLoss, CauchyLoss, HuberLoss, L1Loss, get_loss
     from .problem._objective import (
@@ -227,7 +233,7 @@ if TYPE_CHECKING:
         load_heldout,
     )
     from .twin._simulate import PRESETS, NoisePreset, Twin, simulate, simulate_captures, write_twin
-    from .twin._synthetic import snake_grid_px, synthesize_captures, synthesize_dataset
+    from .twin._synthetic import synthesize_captures, synthesize_dataset
     from .twin._truth import TwinTruth, change_truth, draw_truth, load_truth
     from .vision._captures import plan_captures
     from .vision._detect import (

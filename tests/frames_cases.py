@@ -18,9 +18,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from handeye_jax import AffinePair, CalibrationResult, Rig, Settings, StageResult, get_model
-from handeye_jax.calibration._result_frames import compute_frames
-from handeye_jax.data._points import hand_command
+from handeye_jax import (
+    AffinePair,
+    CalibrationResult,
+    Rig,
+    Settings,
+    StageResult,
+    compute_frames,
+    get_model,
+    hand_command,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 N_POINTS = 6  # one shape, so the jitted reference compiles once per model and stage

@@ -296,9 +296,7 @@ def test_compilation_cache_goes_where_asked_and_can_be_turned_off(tmp_path):
 
 
 def test_detect_in_place_keeps_the_users_comments(tmp_path, capsys):
-    from handeye_jax.data._dataset_io import load_dataset
-    from handeye_jax.twin._simulate import PRESETS, simulate, write_twin
-    from handeye_jax.twin._truth import draw_truth
+    from handeye_jax import PRESETS, draw_truth, load_dataset, simulate, write_twin
 
     write_twin(simulate(draw_truth(4), PRESETS["paper"], 4, n_heldout=1), tmp_path)
     detected = load_dataset(tmp_path / "dataset.toml")

@@ -18,10 +18,9 @@ import tomli_w
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
+from handeye_jax import Camera, Dataset, InputError, ParameterSpace
 from handeye_jax._core import _atomic as atomic_mod
-from handeye_jax._core._errors import InputError
 from handeye_jax.calibration._calibrate import check_determined
-from handeye_jax.data._dataset import Camera, Dataset
 from handeye_jax.data._dataset_io import (
     FORMAT_V1,
     dataset_to_toml,
@@ -31,7 +30,6 @@ from handeye_jax.data._dataset_io import (
     update_dataset,
 )
 from handeye_jax.models import AffinePair, model_registry
-from handeye_jax.problem._params import ParameterSpace
 
 PAPER = Path(__file__).resolve().parent.parent / "data" / "paper2023.toml"
 

@@ -6,20 +6,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from handeye_jax import load_dataset, save_dataset
-from handeye_jax._core._errors import InputError
+from handeye_jax import InputError, draw_truth, load_dataset, save_dataset, snake_grid_px
 from handeye_jax.cli import main
+from handeye_jax.twin import PRESETS, encode_png, simulate, write_twin
 from handeye_jax.twin._render import true_depth_mm
-from handeye_jax.twin._simulate import PRESETS, encode_png, simulate, write_twin
-from handeye_jax.twin._synthetic import snake_grid_px
-from handeye_jax.twin._truth import draw_truth
-from handeye_jax.vision._detect import (
-    DetectSettings,
-    depth_at,
-    detect_landmarks,
-    find_blobs,
-    order_blobs,
-)
+from handeye_jax.vision import DetectSettings, depth_at, detect_landmarks, find_blobs, order_blobs
 
 SEEDS = (11, 12, 13)
 

@@ -12,10 +12,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import handeye_jax as hj
+from handeye_jax import snake_grid_px
 from handeye_jax.cli import main
+from handeye_jax.twin import PRESETS, encode_png, simulate
 from handeye_jax.twin._render import DepthSensing, Imaging, render_capture, render_depth
-from handeye_jax.twin._simulate import PRESETS, encode_png, simulate
-from handeye_jax.twin._synthetic import snake_grid_px
 from handeye_jax.vision._detect import match_blobs
 
 SEED = 7

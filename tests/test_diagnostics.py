@@ -11,27 +11,36 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from handeye_jax import (
+    PRESETS,
     AbstractObjective,
     DHModel,
     HTMModel,
+    InputError,
     LengthBlock,
     LossObjective,
+    Rig,
     Settings,
     Stage1Objective,
     Stage2Objective,
     StageErrors,
+    analyse_jacobian,
     calibrate,
     chain_points,
     diagnose,
+    draw_truth,
     errors_of,
     fitness,
+    format_summary,
+    get_loss,
+    jacobian_diagnostics,
     load_dataset,
     load_result,
     save_result,
+    simulate,
+    snake_grid_px,
+    synthesize_dataset,
 )
-from handeye_jax._core._errors import InputError
 from handeye_jax.calibration._calibrate import RESTART_LANDMARKS, fit_correction
-from handeye_jax.data._observations import Rig
 from handeye_jax.diagnostics._diagnostics import OUTLIER_FACTOR, population_modes
 from handeye_jax.diagnostics._refits import CONVENTIONS, EXACT_LOO_LANDMARKS, refits
 from handeye_jax.models import AffinePair
@@ -42,12 +51,6 @@ from handeye_jax.optim import (
     minimise_batch,
     residuals_and_jacobian,
 )
-from handeye_jax.problem._linearise import analyse_jacobian, jacobian_diagnostics
-from handeye_jax.problem._losses import get_loss
-from handeye_jax.report._summary import format_summary
-from handeye_jax.twin._simulate import PRESETS, simulate
-from handeye_jax.twin._synthetic import snake_grid_px, synthesize_dataset
-from handeye_jax.twin._truth import draw_truth
 from tests.test_cli import PAPER
 from tests.test_synthetic import TRUTH
 
@@ -487,7 +490,7 @@ def test_diagnostics_survive_the_result_file_and_old_files_load(paper_result, tm
 
 
 def test_summary_prints_diagnostics(paper_result):
-    from handeye_jax.report._summary import format_summary
+    from handeye_jax import format_summary
 
     text = format_summary(paper_result)
     assert "xc" in text and " ± " in text

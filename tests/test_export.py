@@ -22,12 +22,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from handeye_jax import Frames, Predictor, save_result
+from handeye_jax import Frames, Predictor, draw_truth, save_result
 from handeye_jax.calibration._result_frames import UNDETERMINED, compute_frames
 from handeye_jax.cli import main
-from handeye_jax.robot._export import FORMATS, export_text, zero_filled
-from handeye_jax.robot._frames import Affine
-from handeye_jax.twin._truth import draw_truth
+from handeye_jax.robot import FORMATS, Affine, export_text, zero_filled
 
 NAMES = {"parent": "flange_link", "camera": "cam_optical", "pen": "pen_tcp"}
 SUFFIX = {"json": ".json", "yaml": ".yaml", "urdf": ".urdf.xacro", "ros2": ".launch.py",

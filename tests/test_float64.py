@@ -11,7 +11,7 @@ def test_import_does_not_flip_x64_and_api_is_float64_anyway():
         """
         import jax, jax.numpy as jnp, numpy as np
         import handeye_jax as hj
-        from handeye_jax.twin._synthetic import snake_grid_px, synthesize_dataset
+        from handeye_jax import snake_grid_px, synthesize_dataset
         assert not jax.config.jax_enable_x64, "import flipped jax_enable_x64"
         assert jnp.ones(1).dtype == jnp.float32
         with hj.float64():

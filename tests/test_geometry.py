@@ -6,8 +6,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from handeye_jax import Rig
 from handeye_jax import geometry as geo
-from handeye_jax.data._observations import Rig
 from handeye_jax.models import AffinePair, model_registry
 from handeye_jax.models._affine import affine_about
 

@@ -12,20 +12,12 @@ import cv2
 import numpy as np
 import pytest
 
-from handeye_jax import load_dataset, load_result
-from handeye_jax._core._errors import InputError
-from handeye_jax._core._io import (
-    MAX_DATASET_BYTES,
-    MAX_IMAGE_BYTES,
-    MAX_RESULT_BYTES,
-    MAX_TEXT_BYTES,
-)
+from handeye_jax import InputError, load_dataset, load_heldout, load_result, load_truth
+from handeye_jax._core import MAX_DATASET_BYTES, MAX_IMAGE_BYTES, MAX_RESULT_BYTES, MAX_TEXT_BYTES
 from handeye_jax.cli import main
-from handeye_jax.data._points import read_points_csv
+from handeye_jax.data import read_points_csv
 from handeye_jax.tablet import load_targets, load_trials
-from handeye_jax.twin._evaluate import load_heldout
-from handeye_jax.twin._truth import load_truth
-from handeye_jax.vision._detect import read_image
+from handeye_jax.vision import read_image
 
 PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
 
@@ -181,7 +173,7 @@ def test_an_image_whose_header_is_too_large_is_refused_before_decoding(tmp_path,
 
 def test_the_largest_documented_dataset_loads_in_seconds(tmp_path, capsys):
     # 10,000 landmarks (the limit) load; 10,001 are refused by name, both within seconds.
-    from handeye_jax._core._validate import MAX_LANDMARKS
+    from handeye_jax._core import MAX_LANDMARKS
 
     text = PAPER.read_text()
     head, first = text.split("[[landmarks]]")[:2]
@@ -215,7 +207,7 @@ def test_json_loaders_name_a_repeated_key(tmp_path):
 
 def test_sizes_inside_a_file_are_bounded_too(tmp_path):
     # Rows of a points CSV: reading stops one row past the limit.
-    from handeye_jax._core._validate import MAX_POINTS
+    from handeye_jax._core import MAX_POINTS
 
     pts = tmp_path / "many.csv"
     pts.write_text("u,v,depth,hand_angle\n" + "338,244,169.2,90\n" * (MAX_POINTS + 1))

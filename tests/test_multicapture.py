@@ -12,6 +12,7 @@ from handeye_jax import (
     HTMModel,
     InputError,
     Predictor,
+    Rig,
     Settings,
     Stage1Objective,
     calibrate,
@@ -23,8 +24,7 @@ from handeye_jax import (
     synthesize_captures,
     synthesize_dataset,
 )
-from handeye_jax.data._observations import Rig
-from handeye_jax.data._points import read_capture_columns, read_points_csv
+from handeye_jax.data import read_capture_columns, read_points_csv
 from handeye_jax.twin._synthetic import seen_from, true_command
 
 TRUTH = {
@@ -213,8 +213,7 @@ def test_exports_carry_the_height(fitted):
     """The JSON frames document and the standalone Python module give the same (x, y, z)."""
     import json
 
-    from handeye_jax import Frames
-    from handeye_jax.robot._export import export_text
+    from handeye_jax import Frames, export_text
 
     model, rig, _, r = fitted
     frames = r.frames()
@@ -236,8 +235,7 @@ def exact_twin(request, tmp_path_factory):
     """A noise-free three-capture twin written to a folder, and its calibration."""
     from dataclasses import replace
 
-    from handeye_jax.twin._simulate import PRESETS, simulate, write_twin
-    from handeye_jax.twin._truth import draw_truth
+    from handeye_jax import PRESETS, draw_truth, simulate, write_twin
 
     truth = replace(draw_truth(request.param, dot_px=2.0), pen_z_mm=95.0)
     twin = simulate(truth, PRESETS["none"], request.param, exact=True, n_heldout=5, captures=3)
@@ -264,7 +262,7 @@ def test_exact_twin_is_recovered_from_any_capture_pose(exact_twin):
     under the twin's hand-angle convention: F < 1e-6 mm, and x-y and z commands to 1e-6 mm
     for targets on and 50 mm above the display, seen from the first capture and from a new
     pose 60 mm higher at another hand angle."""
-    from handeye_jax.twin._evaluate import evaluate_twin, format_evaluation
+    from handeye_jax import evaluate_twin, format_evaluation
 
     twin, folder, r = exact_twin
     assert r.stage1.F < 1e-6 and r.stage2.F < 1e-6, (r.stage1.F, r.stage2.F)

@@ -12,18 +12,19 @@ from jaxtyping import Array, Float
 
 from handeye_jax import (
     LossObjective,
+    Rig,
     Settings,
     Stage1Objective,
     Stage2Objective,
     calibrate,
     chain_points,
+    get_loss,
+    snake_grid_px,
+    synthesize_dataset,
 )
 from handeye_jax import geometry as geo
-from handeye_jax.data._observations import Rig
 from handeye_jax.models import AbstractModel, AffinePair, model_registry
-from handeye_jax.problem._losses import get_loss
-from handeye_jax.problem._objective import spread_landmarks
-from handeye_jax.twin._synthetic import snake_grid_px, synthesize_dataset
+from handeye_jax.problem import spread_landmarks
 
 RIG = Rig(617.7, 617.7, 316.5, 242.3, [320.0, -70.0, 290.0], 90.0, -1.0)
 

@@ -11,11 +11,9 @@ from pathlib import Path
 
 import pytest
 
+from handeye_jax import PRESETS, InputError, draw_truth, simulate, write_twin
 from handeye_jax._core import _atomic
-from handeye_jax._core._errors import InputError
 from handeye_jax.cli import main
-from handeye_jax.twin._simulate import PRESETS, simulate, write_twin
-from handeye_jax.twin._truth import draw_truth
 from tests.test_cli import FAST, PAPER
 
 # the package exports the function

@@ -25,8 +25,16 @@ from frames_cases import (
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from handeye_jax import Frames, InputError, Predictor, get_model, load_result, save_result
-from handeye_jax.calibration._result_frames import UNDETERMINED, load_frames
+from handeye_jax import (
+    Frames,
+    InputError,
+    Predictor,
+    get_model,
+    load_frames,
+    load_result,
+    save_result,
+)
+from handeye_jax.calibration._result_frames import UNDETERMINED
 from handeye_jax.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -366,7 +374,7 @@ def test_cli_predict_runs_without_jax_on_a_result_as_written(tmp_path, result_fi
 def test_only_a_file_as_written_skips_the_check_of_its_frames(tmp_path, result_file):
     """``stored_frames`` trusts the frames while the content digest matches (indentation does
     not matter); any edit, of the frames or of anything else, sends the file to the check."""
-    from handeye_jax.robot._predictor import stored_frames
+    from handeye_jax.robot import stored_frames
 
     doc = json.loads(result_file.read_text())
     assert re.fullmatch(r"[0-9a-f]{64}", doc["content_sha256"])

@@ -4,7 +4,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from handeye_jax._core._progress import progress_bar
+from handeye_jax._core import progress_bar
 from handeye_jax.optim import differential_evolution
 
 

@@ -47,7 +47,7 @@ from handeye_jax import (
 )
 from handeye_jax.cli import main
 from handeye_jax.models import AffinePair
-from handeye_jax.problem._objective import stage1_errors
+from handeye_jax.problem import stage1_errors
 from handeye_jax.twin._truth import CHANGE_MARGIN, CHANGES, RANGES
 
 #: One small budget for every fit here, so that they share compiled programs.

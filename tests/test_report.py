@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from handeye_jax import load_result
+from handeye_jax._core import REPORT_FIGURES as FIGURES
+from handeye_jax._core import REPORT_FORMATS as FORMATS
 from handeye_jax.cli import main
-from handeye_jax.report._figures import FIGURES, FORMATS
 from tests.test_cli import FAST, PAPER
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -112,7 +113,7 @@ def test_no_diagnostics_leaves_them_out(tmp_path, capsys):
 
 @pytest.fixture(scope="module")
 def figures(result_file):
-    from handeye_jax.report._figures import render
+    from handeye_jax import render
 
     figs = render(load_result(result_file))
     for fig in figs.values():
@@ -216,7 +217,7 @@ def test_log_axis_labels_never_overlap(result_file, tmp_path, decades):
 @pytest.mark.parametrize("corner", ["top left", "top right", "bottom left", "bottom right",
                                     "right edge", "top edge"])  # fmt: skip
 def test_overlay_labels_stay_inside_the_picture(corner):
-    from handeye_jax.vision._detect import overlay_image
+    from handeye_jax.vision import overlay_image
 
     h, w = 120, 160
     u, v = {"top left": (3, 3), "top right": (w - 4, 3), "bottom left": (3, h - 4),

@@ -9,11 +9,19 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from handeye_jax import CalibrationResult, Settings, StageResult, load_result, save_result
-from handeye_jax._core._errors import InputError
+from handeye_jax import (
+    CalibrationResult,
+    InputError,
+    Settings,
+    StageResult,
+    load_result,
+    save_result,
+)
+from handeye_jax._core import REPORT_FIGURES as FIGURES
+from handeye_jax._core import REPORT_FORMATS as FORMATS
 from handeye_jax.calibration._settings import SETTINGS_SCHEMA
 from handeye_jax.cli import main
-from handeye_jax.report._figures import FIGURES, FORMATS, fig_convergence
+from handeye_jax.report._figures import fig_convergence
 from tests.test_cli import PAPER
 
 TINY = ["--population", "16", "--generations", "10", "--quiet"]

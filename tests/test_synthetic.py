@@ -4,9 +4,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from handeye_jax import HTMModel, Settings, calibrate, get_model
-from handeye_jax.data._observations import Rig
-from handeye_jax.twin._synthetic import snake_grid_px, synthesize_dataset
+from handeye_jax import (
+    HTMModel,
+    Rig,
+    Settings,
+    calibrate,
+    get_model,
+    snake_grid_px,
+    synthesize_dataset,
+)
 
 TRUTH = {
     "htm": dict(xc=-3.0, yc=35.0, alpha_c=-1.5, beta_c=2.0, gamma_c=4.0, xt=150.0, yt=40.0,

@@ -29,8 +29,7 @@ import numpy as np
 import pytest
 from test_dataset import commented_paper_text, comments_of
 
-from handeye_jax import load_dataset, save_dataset
-from handeye_jax._core._errors import InputError
+from handeye_jax import InputError, load_dataset, save_dataset
 from handeye_jax.cli import main
 from handeye_jax.tablet import (
     MAX_BODY_BYTES,
@@ -450,7 +449,7 @@ def test_the_trials_summary_gives_max_in_px_and_mm():
 
 @pytest.mark.parametrize("key", ["tablet", "trials"])
 def test_a_trials_file_without_a_table_names_it_missing(tmp_path, key):
-    from handeye_jax._core._errors import InputError
+    from handeye_jax import InputError
     from handeye_jax.tablet._trials import load_trials, new_trials
 
     doc = new_trials(267.0, 2.0)

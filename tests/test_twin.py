@@ -11,13 +11,22 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from handeye_jax import HTMModel, Settings, Stage1Objective, load_dataset, load_result, save_dataset
-from handeye_jax._core._errors import InputError
+from handeye_jax import (
+    PRESETS,
+    Dataset,
+    HTMModel,
+    InputError,
+    Settings,
+    Stage1Objective,
+    load_dataset,
+    load_result,
+    save_dataset,
+    simulate,
+    synthesize_dataset,
+    write_twin,
+)
 from handeye_jax.cli import main
-from handeye_jax.data._dataset import Dataset
 from handeye_jax.twin._evaluate import Heldout, evaluate, landing_tablet_px, load_heldout
-from handeye_jax.twin._simulate import PRESETS, simulate, write_twin
-from handeye_jax.twin._synthetic import synthesize_dataset
 from handeye_jax.twin._truth import RANGES, draw_truth, load_truth
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -121,7 +130,7 @@ class _Perfect:
         self.truth = truth
 
     def predict(self, image_px, depth_mm, hand_angle_deg, stage=2):
-        from handeye_jax.data._points import hand_command
+        from handeye_jax import hand_command
 
         t = self.truth
         args = (jnp.asarray(image_px), jnp.asarray(depth_mm), jnp.asarray(hand_angle_deg))
@@ -142,7 +151,7 @@ def test_evaluate_gives_zero_for_the_truth_on_exact_observations():
 
     class _Off(_Perfect):
         def predict(self, image_px, depth_mm, hand_angle_deg, stage=2):
-            from handeye_jax.data._points import hand_command
+            from handeye_jax import hand_command
 
             return np.asarray(hand_command(wrong, _TRUTH.rig(), jnp.asarray(image_px),
                               jnp.asarray(depth_mm), jnp.asarray(hand_angle_deg)))  # fmt: skip

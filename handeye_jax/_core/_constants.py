@@ -4,6 +4,10 @@ This module imports nothing, so that ``handeye-jax SUBCOMMAND --help`` can show 
 importing JAX, OpenCV or matplotlib (the modules that use them do).
 """
 
+#: The figures ``report`` draws, each in every one of the formats.
+REPORT_FIGURES = ("fig3_landmarks", "chains_stage1", "chains_stage2", "residuals", "convergence",
+                  "loo")  # fmt: skip
+REPORT_FORMATS = ("png", "svg")
 #: The files :func:`~handeye_jax.write_twin` writes.
 TWIN_FILES = ("dataset.toml", "truth.json", "heldout.csv", "capture.png", "depth.png")
 #: What the README's loop makes from a twin beside its files (``detect --overlay``, ``detect``

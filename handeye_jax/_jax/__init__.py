@@ -1,2 +1,13 @@
 """How the package runs JAX: float64 without touching the user's global configuration, XLA's
 options per kind of program, and the programs kept between runs (``jax.export``)."""
+
+from __future__ import annotations
+
+from .._core import lazy_exports
+
+# What the layers above may use, by module; each loads on first use (PEP 562).
+_EXPORTS = {
+    "_x64": ("float64", "in_float64"),
+    "_xla": ("fast_compile", "hot_loop", "store_programs", "vectorise_small_loops"),
+}
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

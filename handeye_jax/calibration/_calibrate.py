@@ -24,15 +24,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._core._errors import InputError
-from .._core._validate import MAX_RESTARTS
-from .._jax import _xla
-from .._jax._x64 import in_float64
-from ..data._dataset import Dataset, check_distinct, check_population
-from ..data._observations import Observations
-from ..diagnostics._diagnostics import MAX_MODES, bound_hits, mode_leaders
-from ..diagnostics._refits import REFIT_LANDMARKS
-from ..diagnostics._scope import capture_scope
+from .._core import MAX_RESTARTS, InputError
+from .._jax import fast_compile, in_float64
+from ..data import Dataset, Observations, check_distinct, check_population
+from ..diagnostics import MAX_MODES, REFIT_LANDMARKS, bound_hits, capture_scope, mode_leaders
 from ..models import AbstractCorrection, AbstractModel, AbstractParametric, AffinePair, get_model
 from ..optim import (
     Bounds,
@@ -41,24 +36,31 @@ from ..optim import (
     minimise,
     minimise_starts,
 )
-from ..problem._linearise import analyse_jacobian, error_jacobian, std_of_precision
-from ..problem._losses import L1Loss, get_loss
-from ..problem._objective import (
+from ..problem import (
+    FIXED,
     AbstractObjective,
     GaussianObjective,
+    L1Loss,
     LossObjective,
+    ParameterSpace,
+    Prior,
     PriorObjective,
     Stage1Objective,
     Stage2Objective,
+    analyse_jacobian,
     chain_points,
+    error_jacobian,
     errors_of,
     fitness,
+    get_loss,
     height_summary,
     norms,
+    put,
+    resolve_names,
     spread_landmarks,
     stage2_errors,
+    std_of_precision,
 )
-from ..problem._params import FIXED, ParameterSpace, Prior, put, resolve_names
 from ._result import CalibrationResult, StageResult
 from ._settings import Settings
 
@@ -78,7 +80,7 @@ PULL_FLAG = 3.0
 RESIDUALS_PER_LANDMARK = 4
 
 
-@_xla.fast_compile
+@fast_compile
 def _report(objective: AbstractObjective, x):
     # Every evaluation of a stage's objective outside the optimisers goes through this one
     # program, so each stage compiles one (not one for F and one for the residuals).
@@ -91,7 +93,7 @@ def _value(objective: AbstractObjective, x) -> float:
     return float(_report(objective, np.asarray(x))[3])
 
 
-@_xla.fast_compile
+@fast_compile
 def _stage_keys(seed):
     # One small program, where PRNGKey, split and unpacking would compile several. Each stage
     # gets the DE's key and, folded from it, the key of its LM restarts.
@@ -99,15 +101,15 @@ def _stage_keys(seed):
     return (key1, jax.random.fold_in(key1, 1)), (key2, jax.random.fold_in(key2, 1))
 
 
-_lhs = _xla.fast_compile(latin_hypercube)
+_lhs = fast_compile(latin_hypercube)
 
 
-@_xla.fast_compile
+@fast_compile
 def _points(model, obs):
     return chain_points(model, obs)
 
 
-@_xla.fast_compile
+@fast_compile
 def _centres(correction, points, centre_index: int):
     return stage2_errors(correction, points, centre_index)[1]
 
@@ -355,7 +357,7 @@ def _prior_report(stage: StageFit) -> dict[str, Any] | None:
     return report
 
 
-@_xla.fast_compile
+@fast_compile
 def _error_jacobian(objective, x):
     return error_jacobian(objective, x)
 
@@ -891,7 +893,7 @@ def diagnose(
             record them; default: none).
         progress: show progress bars (of a stage-2 refit) on stderr.
     """
-    from ..diagnostics._diagnostics import diagnostics_of
+    from ..diagnostics import diagnostics_of
 
     t0 = time.perf_counter()
     settings = result.settings

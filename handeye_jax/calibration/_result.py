@@ -15,16 +15,20 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._core._errors import InputError
-from .._jax._x64 import in_float64
-from ..data._dataset import Dataset
-from ..data._observations import Rig
-from ..data._points import hand_command
-from ..models import AbstractCorrection, AbstractModel
-from ..problem._linearise import analyse_jacobian, error_jacobian
-from ..problem._objective import Stage1Objective, Stage2Objective, chain_points
-from ..problem._params import FIXED, Prior
-from ..robot._frames import Frames
+from .._core import InputError
+from .._jax import in_float64
+from ..data import Dataset
+from ..models import AbstractCorrection, AbstractModel, Rig, hand_command
+from ..problem import (
+    FIXED,
+    Prior,
+    Stage1Objective,
+    Stage2Objective,
+    analyse_jacobian,
+    chain_points,
+    error_jacobian,
+)
+from ..robot import Frames
 from ._result_frames import compute_frames
 from ._settings import Settings
 

@@ -1,5 +1,4 @@
-"""Named frames from a fitted model: :func:`compute_frames`, and :func:`load_frames` that
-reads a result file and checks its ``frames`` section against its parameters.
+"""Named frames from a fitted model: :func:`compute_frames`.
 
 :class:`~handeye_jax.Frames` itself is NumPy only (``handeye_jax._frames``); this module is the
 JAX side that evaluates a model's ``camera_mount()``, ``tablet_pose()`` and ``t_hand_pen()``.
@@ -7,27 +6,20 @@ JAX side that evaluates a model's ``camera_mount()``, ``tablet_pose()`` and ``t_
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
-from pathlib import Path
 
 import jax
 import numpy as np
 from jaxtyping import ArrayLike, Float
 
-from .._core._errors import InputError
-from .._jax._x64 import in_float64
-from ..data._observations import Rig
-from ..models import AbstractCorrection, AbstractModel
-from ..robot._frames import TRANSLATIONS, Affine, Frames
-from ..robot._predictor import read_json
+from .._jax import in_float64
+from ..models import AbstractCorrection, AbstractModel, Rig
+from ..robot import Affine, Frames
 
 #: The components no model determines: the hand points down at the capture and at every touch
 #: and the objective compares x and y only (section 3.5), so a z never enters it. The models
 #: fill them with 0; the frames say "undetermined" instead.
 UNDETERMINED = ("t_hand_camera_mm.z", "t_base_tablet_mm.z", "t_hand_pen_mm.z")
-#: How closely a result's stored frames must agree with those its parameters give.
-AGREEMENT_TOL = 1e-9
 
 
 def capture_hand_angle_deg(rig: Rig) -> float:
@@ -101,44 +93,3 @@ def compute_frames(
         model=getattr(model, "name", ""),
         pen_minus_camera_z_mm=pen_minus_camera_z_mm,
     )  # fmt: skip
-
-
-def _numbers(f: Frames) -> np.ndarray:
-    """Every number of ``f`` as one vector (undetermined components as NaN)."""
-    parts = [f.R_hand_camera, f.R_base_tablet, f.capture_position_mm, f.centres_mm,
-             f.A1.as_tuple(), f.A2.as_tuple(), f.camera_px,
-             (f.hand_angle_zero_deg, f.hand_angle_sign, f.capture_hand_angle_deg,
-              math.nan if f.pen_minus_camera_z_mm is None else f.pen_minus_camera_z_mm),
-             *(getattr(f, t) for t in TRANSLATIONS)]  # fmt: skip
-    return np.concatenate([np.ravel(np.asarray(p, dtype=np.float64)) for p in parts])
-
-
-def load_frames(path: str | Path) -> Frames:
-    """A result file's frames: validated with :func:`~handeye_jax.load_result`, computed from
-    its parameters, and checked against the file's own ``frames`` section when it has one.
-
-    Older results, without the section, load. A section that disagrees with the parameters
-    (a hand-edited file) is an :class:`InputError`: the NumPy predictor reads the section, the
-    JAX path the parameters, and they must not give different hand commands.
-    """
-    # Imported here, not at the top: the result reader imports this module.
-    from ._result_io import load_result
-
-    result = load_result(path)
-    frames = result.frames()
-    doc = read_json(path)
-    if "frames" not in doc:
-        return frames
-    stored = Frames.from_dict(doc["frames"], path, "frames")
-    a, b = _numbers(stored), _numbers(frames)
-    nan_a, nan_b = np.isnan(a), np.isnan(b)
-    if set(stored.undetermined) != set(frames.undetermined) or (nan_a != nan_b).any():
-        raise InputError(path, "frames.undetermined", f"must list {', '.join(UNDETERMINED)} "
-                         "as the parameters leave them")  # fmt: skip
-    scale = np.maximum(1.0, np.abs(b[~nan_b]))
-    err = float((np.abs(a[~nan_a] - b[~nan_b]) / scale).max())
-    if err > AGREEMENT_TOL:
-        raise InputError(path, "frames", f"disagrees with the parameters (stage1.params, "
-                         f"stage2.params, rig, centres_mm) by {err:.3g}: the file was edited; "
-                         "delete the frames section to use the parameters")  # fmt: skip
-    return stored

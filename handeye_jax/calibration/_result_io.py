@@ -22,30 +22,35 @@ The data section is read by the dataset's own reader (:mod:`._dataset_io`): one 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .._core._atomic import write_output
-from .._core._io import DIGEST_KEY, MAX_RESULT_BYTES, document_digest, load_json
-from .._core._validate import (
+from .._core import (
+    DIGEST_KEY,
     MAX_DEG,
     MAX_LANDMARKS,
     MAX_MM,
     MAX_PX,
+    MAX_RESULT_BYTES,
     MM_PER_TABLET_PX,
+    InputError,
     Reader,
     describe,
+    document_digest,
     join_key,
+    load_json,
+    write_output,
 )
-from .._jax._x64 import in_float64
-from ..data._dataset import Camera, Dataset
-from ..data._dataset_io import dataset_from_document, dataset_to_document
-from ..data._observations import Rig
-from ..models import AffinePair, get_model, model_registry
-from ..problem._params import FIXED, FREE, PRIOR
+from .._jax import in_float64
+from ..data import Camera, Dataset, dataset_from_document, dataset_to_document
+from ..models import AffinePair, Rig, get_model, model_registry
+from ..problem import FIXED, FREE, PRIOR
+from ..robot import TRANSLATIONS, Frames, read_json
 from ._result import CalibrationResult, StageResult
+from ._result_frames import UNDETERMINED
 from ._settings import SEED_RANGE, read_settings
 
 FORMAT = "handeye-jax.result/1"
@@ -507,3 +512,47 @@ def _diagnostics(
         for m, e in enumerate(held):
             _residual(r, e, f"{where}.loo.held_out_mm[{m}]", m, HELD_OUT_KEYS)
     return diag
+
+
+# -- the frames of a result file -----------------------------------------------------------
+
+#: How closely a result's stored frames must agree with those its parameters give.
+AGREEMENT_TOL = 1e-9
+
+
+def _numbers(f: Frames) -> np.ndarray:
+    """Every number of ``f`` as one vector (undetermined components as NaN)."""
+    parts = [f.R_hand_camera, f.R_base_tablet, f.capture_position_mm, f.centres_mm,
+             f.A1.as_tuple(), f.A2.as_tuple(), f.camera_px,
+             (f.hand_angle_zero_deg, f.hand_angle_sign, f.capture_hand_angle_deg,
+              math.nan if f.pen_minus_camera_z_mm is None else f.pen_minus_camera_z_mm),
+             *(getattr(f, t) for t in TRANSLATIONS)]  # fmt: skip
+    return np.concatenate([np.ravel(np.asarray(p, dtype=np.float64)) for p in parts])
+
+
+def load_frames(path: str | Path) -> Frames:
+    """A result file's frames: validated with :func:`~handeye_jax.load_result`, computed from
+    its parameters, and checked against the file's own ``frames`` section when it has one.
+
+    Older results, without the section, load. A section that disagrees with the parameters
+    (a hand-edited file) is an :class:`InputError`: the NumPy predictor reads the section, the
+    JAX path the parameters, and they must not give different hand commands.
+    """
+    result = load_result(path)
+    frames = result.frames()
+    doc = read_json(path)
+    if "frames" not in doc:
+        return frames
+    stored = Frames.from_dict(doc["frames"], path, "frames")
+    a, b = _numbers(stored), _numbers(frames)
+    nan_a, nan_b = np.isnan(a), np.isnan(b)
+    if set(stored.undetermined) != set(frames.undetermined) or (nan_a != nan_b).any():
+        raise InputError(path, "frames.undetermined", f"must list {', '.join(UNDETERMINED)} "
+                         "as the parameters leave them")  # fmt: skip
+    scale = np.maximum(1.0, np.abs(b[~nan_b]))
+    err = float((np.abs(a[~nan_a] - b[~nan_b]) / scale).max())
+    if err > AGREEMENT_TOL:
+        raise InputError(path, "frames", f"disagrees with the parameters (stage1.params, "
+                         f"stage2.params, rig, centres_mm) by {err:.3g}: the file was edited; "
+                         "delete the frames section to use the parameters")  # fmt: skip
+    return stored

@@ -6,7 +6,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING, Any
 
-from .._core._validate import MAX_GENERATIONS, MAX_POPULATION, MAX_RESTARTS, Reader, describe
+from .._core import MAX_GENERATIONS, MAX_POPULATION, MAX_RESTARTS, Reader, describe
 
 if TYPE_CHECKING:  # JAX: imported on use, so that the command line's --help shows the defaults
     from ..optim import DifferentialEvolution
@@ -118,7 +118,7 @@ def _models():
 
 
 def _losses():
-    from ..problem._losses import LOSS_NAMES
+    from ..problem import LOSS_NAMES
 
     return LOSS_NAMES
 

@@ -6,14 +6,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .._core._atomic import check_output, same_file
-from .._core._constants import RECOMMENDED_CAPTURES as RECOMMENDED
-from .._core._errors import InputError
-from .._core._validate import MAX_DEG, MAX_MM, parse_numbers
+from .._core import MAX_DEG, MAX_MM, InputError, check_output, parse_numbers, same_file
+from .._core import RECOMMENDED_CAPTURES as RECOMMENDED
 
 
 def _cmd_convert(args: argparse.Namespace) -> int:
-    from ..data._dataset_io import FORMAT_V2, backup_path, convert_path, convert_to_v2, load_dataset
+    from ..data import FORMAT_V2, backup_path, convert_path, convert_to_v2, load_dataset
 
     old = Path(args.dataset)
     ds = load_dataset(old)
@@ -51,8 +49,8 @@ def _numbers(limit: float, unit: str):
 
 
 def _cmd_plan(args: argparse.Namespace) -> int:
-    from ..data._dataset_io import backup_path, load_dataset, save_dataset, update_dataset
-    from ..vision._captures import plan_captures
+    from ..data import backup_path, load_dataset, save_dataset, update_dataset
+    from ..vision import plan_captures
 
     path = Path(args.dataset)
     out = None if args.out is None else check_output(args.out, "--out", [path])

@@ -5,14 +5,25 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .._core._atomic import check_output, write_output
-from ..robot import _export as export  # constants only: the formats import their libraries on use
+from .._core import check_output, write_output
+
+# constants only: the formats import their libraries on use
+from ..robot import (
+    DEFAULT_CAMERA_FRAME,
+    DEFAULT_PARENT_LINK,
+    DEFAULT_PEN_FRAME,
+    FORMATS,
+    NAME_PATTERN,
+    check_parses,
+    export_text,
+    zero_filled,
+)
 
 PROG = "handeye-jax"
 
 
 def _name(text: str) -> str:
-    if not export.NAME_PATTERN.fullmatch(text):
+    if not NAME_PATTERN.fullmatch(text):
         raise argparse.ArgumentTypeError(
             f"not a valid link or frame name: {text!r} (letters, digits and _, not first a digit)"
         )
@@ -34,24 +45,24 @@ def add_export_command(sub) -> None:
     )
     p.add_argument("result", help="result file from 'calibrate --out'")
     p.add_argument(
-        "--format", required=True, choices=export.FORMATS, dest="fmt",
-        metavar="{" + ",".join(export.FORMATS) + "}",
+        "--format", required=True, choices=FORMATS, dest="fmt",
+        metavar="{" + ",".join(FORMATS) + "}",
         help="json/yaml: named frames with units and what the data did not determine; urdf: a "
         "xacro snippet; ros2: static_transform_publisher and a launch snippet; opencv: "
         "cv2.calibrateHandEye's R_cam2gripper, t_cam2gripper; python: a numpy-only predictor",
     )  # fmt: skip
     p.add_argument("--out", metavar="FILE", help="write here (default: standard output)")
     p.add_argument(
-        "--parent-link", type=_name, default=export.DEFAULT_PARENT_LINK, metavar="LINK",
-        help=f"the flange link (urdf, ros2; default {export.DEFAULT_PARENT_LINK})",
+        "--parent-link", type=_name, default=DEFAULT_PARENT_LINK, metavar="LINK",
+        help=f"the flange link (urdf, ros2; default {DEFAULT_PARENT_LINK})",
     )  # fmt: skip
     p.add_argument(
-        "--camera-frame", type=_name, default=export.DEFAULT_CAMERA_FRAME, metavar="NAME",
-        help=f"the camera's optical frame (urdf, ros2; default {export.DEFAULT_CAMERA_FRAME})",
+        "--camera-frame", type=_name, default=DEFAULT_CAMERA_FRAME, metavar="NAME",
+        help=f"the camera's optical frame (urdf, ros2; default {DEFAULT_CAMERA_FRAME})",
     )  # fmt: skip
     p.add_argument(
-        "--pen-frame", type=_name, default=export.DEFAULT_PEN_FRAME, metavar="NAME",
-        help=f"the pen tip frame (urdf, ros2; default {export.DEFAULT_PEN_FRAME})",
+        "--pen-frame", type=_name, default=DEFAULT_PEN_FRAME, metavar="NAME",
+        help=f"the pen tip frame (urdf, ros2; default {DEFAULT_PEN_FRAME})",
     )  # fmt: skip
     p.set_defaults(func=_cmd_export, imports=("..calibration._result_frames", "..robot._export"))
 
@@ -63,15 +74,15 @@ def _cmd_export(args: argparse.Namespace) -> int:
         print(f"{PROG}: error: --parent-link, --camera-frame and --pen-frame must differ "
               f"(got {', '.join(names)})", file=sys.stderr)  # fmt: skip
         return 2
-    from ..calibration._result_frames import load_frames  # JAX: not imported for --help
+    from ..calibration import load_frames  # JAX: not imported for --help
 
     frames = load_frames(args.result)
-    text = export.export_text(
+    text = export_text(
         frames, args.fmt, parent_link=args.parent_link, camera_frame=args.camera_frame,
         pen_frame=args.pen_frame, source=str(args.result),
     )  # fmt: skip
-    export.check_parses(text, args.fmt)
-    zeros = export.zero_filled(frames, args.fmt)
+    check_parses(text, args.fmt)
+    zeros = zero_filled(frames, args.fmt)
     if zeros:
         print(f"{PROG}: warning: {', '.join(zeros)} not determined by the data: written as 0 "
               f"in the {args.fmt} file, which says so", file=sys.stderr)  # fmt: skip

@@ -2,7 +2,7 @@
 
 Every failure caused by input prints one line naming the file and field and exits with
 status 2; nothing is written unless it is complete. Ctrl-C at any moment before the outputs
-are written ends the run with status 130 and every file as it was (``_interrupt.py``).
+are written ends the run with status 130 and every file as it was (``interrupts.py``).
 
 This module imports no JAX at its top, so that the Ctrl-C handling is in place before the
 second or more that importing JAX takes.
@@ -17,10 +17,18 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from .._core import _interrupt
-from .._core._atomic import check_output, write_output
-from .._core._errors import InputError
-from .._core._validate import MAX_GENERATIONS, MAX_POPULATION, MAX_RESTARTS, parse_float, parse_int
+from .._core import (
+    MAX_GENERATIONS,
+    MAX_POPULATION,
+    MAX_RESTARTS,
+    InputError,
+    check_output,
+    interrupts,
+    package_version,
+    parse_float,
+    parse_int,
+    write_output,
+)
 
 PROG = "handeye-jax"
 #: The models ``--model`` offers: ``models.model_registry()`` (JAX) names the same (tested).
@@ -51,12 +59,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("handeye-jax")
-    except PackageNotFoundError:  # run from a source tree that was never installed
-        return "0+unknown"
+    return package_version()
 
 
 def _whole_number(text: str) -> int:
@@ -122,10 +125,16 @@ def _output_path(
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from ..calibration._calibrate import Settings, calibrate, diagnose, recalibrate
-    from ..calibration._result_io import load_result, result_to_json
-    from ..data._dataset_io import load_dataset
-    from ..report._summary import format_summary
+    from ..calibration import (
+        Settings,
+        calibrate,
+        diagnose,
+        load_result,
+        recalibrate,
+        result_to_json,
+    )
+    from ..data import load_dataset
+    from ..report import format_summary
 
     out = _output_path(args.out, "--out", [args.dataset, args.prior])
     if (args.refit or args.fix) and not args.prior:
@@ -153,7 +162,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         result = calibrate(dataset, settings, progress=not args.quiet)
     else:
         from ..models import get_model
-        from ..problem._params import resolve_names
+        from ..problem import resolve_names
 
         refit = tuple(g.strip() for g in args.refit.split(",") if g.strip())
         try:
@@ -172,14 +181,14 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_predict(args: argparse.Namespace) -> int:
-    from ..data._points import points_csv_text, read_capture_columns, read_points_csv
-    from ..robot._predictor import Predictor, stored_frames
+    from ..data import points_csv_text, read_capture_columns, read_points_csv
+    from ..robot import Predictor, stored_frames
 
     out = _output_path(args.out, "--out", [args.result, args.points])
     frames = stored_frames(args.result)  # NumPy only: no JAX for a file as it was written
     if frames is None:  # older or edited: validated, its frames checked against its parameters
         _start_jax()
-        from ..calibration._result_frames import load_frames
+        from ..calibration import load_frames
 
         frames = load_frames(args.result)
     predictor = Predictor.from_frames(frames)
@@ -236,7 +245,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
     mpl_log = logging.getLogger("matplotlib")
     if not mpl_log.handlers:
         mpl_log.addHandler(logging.NullHandler())
-    from ..report._figures import write_report
+    from ..report import write_report
 
     written = write_report(args.result, args.out, args.dataset, field="--out")
     folder = written[0].parent if written else args.out
@@ -246,7 +255,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     # Nothing here imports JAX, OpenCV, matplotlib or tomlkit: the commands do, when they run.
-    from ..calibration._settings import Settings
+    from ..calibration import Settings
     from ._dataset import add_dataset_commands
     from ._export import add_export_command
     from ._twin import add_twin_commands
@@ -410,8 +419,8 @@ def _start_jax(*modules: str, announce: bool = False) -> None:
     """Before JAX's first computation: XLA's flags and the persistent compilation cache (and
     ``announce`` each program compiled for it); the command's ``modules`` (names relative to
     this package) imported."""
-    with _interrupt.deferred():  # the imports take a second or more: Ctrl-C waits for them
-        from .._jax._xla import vectorise_small_loops
+    with interrupts.deferred():  # the imports take a second or more: Ctrl-C waits for them
+        from .._jax import vectorise_small_loops
 
         vectorise_small_loops()
         _enable_compilation_cache(announce)
@@ -437,7 +446,7 @@ def _enable_compilation_cache(announce: bool = False) -> None:
         return  # an unwritable cache only costs time
     import jax
 
-    from .._jax._xla import store_programs
+    from .._jax import store_programs
 
     jax.config.update("jax_compilation_cache_dir", where)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
@@ -455,7 +464,7 @@ def _announce(name: str) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line on ``argv`` (default: ``sys.argv[1:]``); returns the exit status."""
-    with _interrupt.recording_interrupts():
+    with interrupts.recording_interrupts():
         try:
             return _run_command(argv)
         except KeyboardInterrupt:
@@ -468,18 +477,18 @@ def _run_command(argv: Sequence[str] | None) -> int:
         parser = build_parser()
         args = parser.parse_args(argv)
         if getattr(args, "serves", False):  # a server: Ctrl-C is how it ends, after its saves
-            _interrupt.stop_recording()
+            interrupts.stop_recording()
         if getattr(args, "jax", True):
             announce = getattr(args, "quiet", True) is False  # calibrate, unless --quiet
             _start_jax(*getattr(args, "imports", ()), announce=announce)
         code = args.func(args)
-        _interrupt.check()  # a Ctrl-C that a callback swallowed, and nothing written since
+        interrupts.check()  # a Ctrl-C that a callback swallowed, and nothing written since
         return code
     except InputError as e:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
     except Exception as e:  # the user gets one line; developers can ask for the traceback
-        if _interrupt.pending():  # a Ctrl-C that C++ code turned into another error
+        if interrupts.pending():  # a Ctrl-C that C++ code turned into another error
             raise KeyboardInterrupt from None
         if os.environ.get("HANDEYE_JAX_DEBUG"):
             raise

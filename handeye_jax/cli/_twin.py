@@ -10,8 +10,7 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .._core._atomic import StagedFiles, check_folder_output, check_output, same_file, write_output
-from .._core._constants import (
+from .._core import (
     CAPTURE_RISE_MM,
     CHANGES,
     DERIVED_FILES,
@@ -19,14 +18,24 @@ from .._core._constants import (
     HELDOUT_ABOVE_MM,
     HELDOUT_RISES_MM,
     MAX_AREA_PX,
+    MAX_DEG,
     MAX_DOT_PX,
+    MAX_HELDOUT,
+    MAX_MM,
     MIN_AREA_PX,
     TWIN_FILES,
+    InputError,
+    StagedFiles,
+    check_folder_output,
+    check_output,
+    parse_float,
+    parse_int,
+    parse_numbers,
+    same_file,
+    write_output,
 )
-from .._core._constants import MAX_TWIN_CAPTURES as MAX_CAPTURES
-from .._core._constants import TWIN_SEED_RANGE as SEED_RANGE
-from .._core._errors import InputError
-from .._core._validate import MAX_DEG, MAX_HELDOUT, MAX_MM, parse_float, parse_int, parse_numbers
+from .._core import MAX_TWIN_CAPTURES as MAX_CAPTURES
+from .._core import TWIN_SEED_RANGE as SEED_RANGE
 
 if TYPE_CHECKING:  # the commands import OpenCV, JAX and tomlkit when they run, not for --help
     import numpy as np
@@ -90,8 +99,8 @@ def overlay_png(
 ) -> bytes:
     """The picture with each point circled and numbered (its landmark index, default 0, 1, …;
     with its depth in mm, if given), PNG."""
-    from ..twin._simulate import encode_png
-    from ..vision._detect import overlay_image, read_image
+    from ..twin import encode_png
+    from ..vision import overlay_image, read_image
 
     image = read_image(capture)
     if depth_mm is None:
@@ -113,8 +122,15 @@ def write_overlay(
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from ..twin._simulate import PRESETS, check_twin_folder, simulate, write_twin
-    from ..twin._truth import change_truth, draw_truth, load_truth
+    from ..twin import (
+        PRESETS,
+        change_truth,
+        check_twin_folder,
+        draw_truth,
+        load_truth,
+        simulate,
+        write_twin,
+    )
 
     out = Path(args.out_dir)
     if args.change and not args.truth:
@@ -250,8 +266,8 @@ def _listed(ms) -> str:
 
 
 def _cmd_detect(args: argparse.Namespace) -> int:
-    from ..data._dataset_io import backup_path, load_dataset, save_dataset, update_dataset
-    from ..vision._detect import BlobCountError, DetectSettings, detect_landmarks, fill_capture
+    from ..data import backup_path, load_dataset, save_dataset, update_dataset
+    from ..vision import BlobCountError, DetectSettings, detect_landmarks, fill_capture
 
     images = [args.capture_png, args.depth]
     out = _output(args.out, "--out", images)
@@ -314,7 +330,7 @@ def _cmd_detect(args: argparse.Namespace) -> int:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
-    from ..twin._evaluate import evaluate_twin, format_evaluation
+    from ..twin import evaluate_twin, format_evaluation
 
     print(format_evaluation(evaluate_twin(args.result, args.twin_dir)))
     return 0

@@ -18,10 +18,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import geometry as geo
-from .._core._errors import InputError
-from .._core._validate import MAX_MEMBER_LANDMARKS
-from .._jax._x64 import in_float64
-from ._observations import Observations, Rig, centre_landmark
+from .._core import MAX_MEMBER_LANDMARKS, InputError
+from .._jax import in_float64
+from ..models import Rig
+from ._observations import Observations, centre_landmark
 
 
 @dataclass(frozen=True)

@@ -63,19 +63,23 @@ import tomlkit.exceptions
 import tomlkit.items
 
 from .. import geometry as geo
-from .._core._atomic import StagedFiles, write_output
-from .._core._errors import InputError
-from .._core._io import MAX_DATASET_BYTES, parse_toml, read_bytes, read_text
-from .._core._validate import (
+from .._core import (
+    MAX_DATASET_BYTES,
     MAX_DEG,
     MAX_LANDMARKS,
     MAX_MM,
     MAX_PX,
     MAX_RAY_DEG,
     MM_PER_TABLET_PX,
+    InputError,
     Reader,
+    StagedFiles,
     describe,
     join_key,
+    parse_toml,
+    read_bytes,
+    read_text,
+    write_output,
 )
 from ._dataset import Camera, Capture, Dataset, check_distinct
 

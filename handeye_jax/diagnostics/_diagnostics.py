@@ -15,10 +15,7 @@ import numpy as np
 
 from ..models import AbstractParametric
 from ..optim import Bounds
-from ..problem._linearise import analyse_jacobian
-from ..problem._losses import AbstractLoss
-from ..problem._objective import AbstractObjective
-from ..problem._params import ParameterSpace
+from ..problem import AbstractLoss, AbstractObjective, ParameterSpace, analyse_jacobian
 from ._refits import CONVENTIONS, refits
 
 # A parameter closer than this fraction of its range to a bound is reported as on the bound.

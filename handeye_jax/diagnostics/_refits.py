@@ -40,10 +40,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._jax import _xla
+from .._jax import fast_compile
 from ..optim import Bounds, LevenbergMarquardt, minimise_batch
-from ..problem._losses import AbstractLoss
-from ..problem._objective import (
+from ..problem import (
+    AbstractLoss,
     AbstractObjective,
     LossObjective,
     StageErrors,
@@ -158,7 +158,7 @@ def _two_jacobians(objective: LossObjective, x):
 
 # jax.jit rather than eqx.filter_jit: these are called once per LM iteration, and jax.jit's
 # dispatch is the cheaper one (every argument is a pytree of arrays with static metadata).
-@_xla.fast_compile(jit=jax.jit, llvm_opt_level=1)
+@fast_compile(jit=jax.jit, llvm_opt_level=1)
 def _stage1_batch(stage1, loss, zero, sign, weights, X):
     """Per problem: LM residuals and Jacobian, error vectors and Jacobian, error lengths and
     the paper's F1st at ``X``."""
@@ -171,7 +171,7 @@ def _stage1_batch(stage1, loss, zero, sign, weights, X):
     return jax.vmap(one)(zero, sign, weights, X)
 
 
-@_xla.fast_compile(jit=jax.jit, llvm_opt_level=1)
+@fast_compile(jit=jax.jit, llvm_opt_level=1)
 def _stage2_batch(stage1, stage2, loss, X1, weights, X2):
     """Per problem: stage 2 on the points of stage-1 parameters ``X1``; as above."""
 
@@ -183,7 +183,7 @@ def _stage2_batch(stage1, stage2, loss, X1, weights, X2):
     return jax.vmap(one)(X1, weights, X2)
 
 
-@_xla.fast_compile(jit=jax.jit)
+@fast_compile(jit=jax.jit)
 def _stage1_F(stage1, zero, sign, X):
     """The paper's F1st of each problem at ``X``."""
 
@@ -193,7 +193,7 @@ def _stage1_F(stage1, zero, sign, X):
     return jax.vmap(one)(zero, sign, X)
 
 
-@_xla.fast_compile(jit=jax.jit)
+@fast_compile(jit=jax.jit)
 def _loo_derivatives(stage1, stage2, loss, x1, x2):
     """At the full fit: each landmark's loss term's gradient and Hessian, for stage 1 in
     ``x1`` and for stage 2 in ``(x1, x2)`` (its points move with ``x1``), each stage's error

@@ -15,9 +15,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._jax._x64 import in_float64
-from ..data._points import hand_command
-from ..problem._params import FIXED, put
+from .._jax import in_float64
+from ..models import hand_command
+from ..problem import FIXED, put
 
 #: The capture height changes, mm, at which :func:`capture_scope` gives the expected error.
 SCOPE_RISES_MM = (-50.0, 0.0, 50.0)

@@ -6,8 +6,10 @@ from __future__ import annotations
 
 from ._affine import AffinePair
 from ._base import AbstractCorrection, AbstractModel, AbstractParametric
+from ._command import hand_command
 from ._dh import DHModel
 from ._htm import HTMModel
+from ._rig import Rig
 
 
 def _final_subclasses(cls: type) -> list[type]:
@@ -37,6 +39,8 @@ __all__ = [
     "AffinePair",
     "DHModel",
     "HTMModel",
+    "Rig",
     "get_model",
+    "hand_command",
     "model_registry",
 ]

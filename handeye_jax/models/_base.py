@@ -17,7 +17,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .. import geometry as geo
-from ..data._observations import Rig
+from ._rig import Rig
 
 
 class AbstractParametric(eqx.Module):

@@ -38,9 +38,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray, UInt
 
-from .._core._progress import progress_bar
-from .._jax import _xla
-from .._jax._x64 import in_float64
+from .._core import progress_bar
+from .._jax import fast_compile, hot_loop, in_float64
 from . import _rng
 from ._solvers import AbstractSolver, DESolution
 
@@ -171,7 +170,7 @@ def _spread_converged(f: Float[Array, " n"], tol: float, atol: float) -> Bool[Ar
     return jnp.std(f) <= atol + tol * jnp.abs(jnp.mean(f))
 
 
-@_xla.fast_compile
+@fast_compile
 def _init(fn, key, lower, upper, n):
     k_pop, k_seed = jax.random.split(key)
     pop = latin_hypercube(k_pop, n, lower, upper)
@@ -197,7 +196,7 @@ def _chunk_scan(fn, state, lower, upper, max_generations, crossover, mutation, t
 
 
 #: ``CHUNK_GENERATIONS`` generations in one compiled ``lax.scan``.
-_chunk = _xla.hot_loop(_chunk_scan)
+_chunk = hot_loop(_chunk_scan)
 
 
 @in_float64

@@ -23,7 +23,7 @@ import jax
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from .._jax import _xla
+from .._jax import fast_compile
 from . import _box
 from ._solvers import AbstractSolver, Bounds, LMSolution, Problem
 
@@ -90,10 +90,10 @@ def _lm(fn: Problem, x0, lower, upper, rtol: float, atol: float, max_steps: int)
 
 
 #: :func:`_lm` compiled (named so in JAX's compile log).
-_lm_compiled = _xla.fast_compile(_lm)
+_lm_compiled = fast_compile(_lm)
 
 
-@_xla.fast_compile
+@fast_compile
 def _value(fn: Problem, x):
     return fn(x)
 
@@ -178,7 +178,7 @@ def minimise_batch(
 
 
 # Called once per LM iteration, hence LLVM level 1 (see handeye_jax._xla).
-@_xla.fast_compile(llvm_opt_level=1)
+@fast_compile(llvm_opt_level=1)
 def _starts_rj(fn: Problem, X):
     return jax.vmap(lambda x: residuals_and_jacobian(fn.residuals, x))(X)
 

@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ..data._observations import Observations
+from ..data import Observations
 from ..models import AbstractCorrection, AbstractModel, AbstractParametric
 from ._losses import AbstractLoss
 from ._params import put

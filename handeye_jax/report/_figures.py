@@ -27,19 +27,19 @@ from typing import Any
 
 import numpy as np
 
-from .._core._atomic import check_folder_output, write_folder_atomic
-from .._core._errors import InputError
-from .._jax import _xla
-from .._jax._x64 import in_float64
-from ..calibration._result import CalibrationResult
-from ..calibration._result_io import load_result
-from ..data._dataset_io import load_dataset
-from ..data._observations import Observations
+from .._core import (
+    REPORT_FIGURES,
+    REPORT_FORMATS,
+    InputError,
+    check_folder_output,
+    write_folder_atomic,
+)
+from .._jax import fast_compile, in_float64
+from ..calibration import CalibrationResult, load_result
+from ..data import Observations, load_dataset
 from ..optim import CHUNK_GENERATIONS
-from ..problem._objective import chain_points, stage1_errors, stage2_errors
+from ..problem import chain_points, stage1_errors, stage2_errors
 
-FIGURES = ("fig3_landmarks", "chains_stage1", "chains_stage2", "residuals", "convergence", "loo")
-FORMATS = ("png", "svg")
 DPI = 120
 #: Residual arrows are drawn this many times their length in both stages' figures (which say
 #: so), so that arrows of the two stages compare at a glance.
@@ -70,7 +70,7 @@ def chain_data(result: CalibrationResult) -> tuple[ChainPlotData, ChainPlotData]
     return ChainPlotData(*map(np.asarray, s1)), ChainPlotData(*map(np.asarray, s2))
 
 
-@_xla.fast_compile  # one small program, not one per operation (2.9 s -> 0.5 s here)
+@fast_compile  # one small program, not one per operation (2.9 s -> 0.5 s here)
 def _chain_arrays(model, correction, obs: Observations):
     points = chain_points(model, obs)
     e1 = stage1_errors(points)
@@ -363,13 +363,13 @@ def write_report(
     out = Path(out_dir) if out_dir is not None else result_path.with_name(
         f"{result_path.stem}_report"
     )  # fmt: skip
-    names = [f"{name}.{ext}" for name in FIGURES for ext in FORMATS]
+    names = [f"{name}.{ext}" for name in REPORT_FIGURES for ext in REPORT_FORMATS]
     check_folder_output(out, names, field, [result_path, dataset])
     rendered = {}
     figures = render(result)
     with _drawing():
         for name, fig in figures.items():
-            for ext in FORMATS:
+            for ext in REPORT_FORMATS:
                 buf = io.BytesIO()
                 fig.savefig(buf, format=ext, dpi=DPI)
                 rendered[f"{name}.{ext}"] = buf.getvalue()

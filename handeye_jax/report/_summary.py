@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from ..calibration._result import CalibrationResult, StageResult
-from ..diagnostics._scope import scope_lines
+from ..calibration import CalibrationResult, StageResult
+from ..diagnostics import scope_lines
 from ..models import AffinePair
 
 

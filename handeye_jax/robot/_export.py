@@ -31,6 +31,7 @@ import textwrap
 
 import numpy as np
 
+from .._core import package_version
 from . import _npchain
 from ._frames import AXES, REASONS, Frames
 
@@ -46,9 +47,7 @@ MM_PER_M = 1000.0
 
 
 def _version() -> str:
-    from .. import __version__
-
-    return __version__
+    return package_version()
 
 
 def zero_filled(frames: Frames, fmt: str) -> list[str]:

@@ -20,8 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from .._core._errors import InputError
-from .._core._validate import MAX_DEG, MAX_MM, MAX_PX
+from .._core import MAX_DEG, MAX_MM, MAX_PX, InputError
 
 FORMAT = "handeye-jax.frames/1"
 UNITS = {"length": "mm", "angle": "deg", "image": "px"}

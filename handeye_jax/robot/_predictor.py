@@ -14,8 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from .._core._errors import InputError
-from .._core._io import DIGEST_KEY, document_digest
+from .._core import DIGEST_KEY, InputError, document_digest
 from . import _npchain
 from ._frames import FORMAT as FRAMES_FORMAT
 from ._frames import MAX_FILE_BYTES, Frames

@@ -5,7 +5,7 @@ Ctrl-C. Only whoever has the secret the server prints (in its URL and QR code) c
 (:mod:`.guard`). The page lives in ``static/`` (HTML, JS and CSS; no build step).
 """
 
-from ..data._dataset_io import backup_path as versioned_backup_path
+from ..data import backup_path as versioned_backup_path
 from ._calibration import apply_touch_errors
 from ._guard import new_token
 from ._posts import (

@@ -6,8 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data._dataset import Dataset
-from ..data._dataset_io import backup_path, update_dataset
+from ..data import Dataset, backup_path, update_dataset
 from ._posts import CalibrationPost, PostError
 
 

@@ -56,9 +56,8 @@ from typing import Any
 
 import numpy as np
 
-from .._core._atomic import check_output, reason
-from .._core._errors import InputError
-from ..data._dataset_io import load_dataset
+from .._core import InputError, check_output, reason
+from ..data import load_dataset
 from ..geometry import mm_per_tablet_px
 from . import _guard as guard
 from . import _posts as posts
@@ -761,7 +760,7 @@ def _bind_error(e: OSError, host: str, port: int) -> InputError:
 
 
 def _result_info(path: str | Path) -> dict[str, Any]:
-    from ..calibration._result_io import load_result
+    from ..calibration import load_result
 
     r = load_result(path)
     return {"path": str(path), "model": r.model_name, "seed": r.seed, "dataset": r.dataset_name}

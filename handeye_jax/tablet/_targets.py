@@ -10,9 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._core._io import load_json
-from .._core._validate import Reader, describe
-from ..twin._synthetic import snake_grid_px
+from .._core import Reader, describe, load_json
+from ..data import snake_grid_px
 from ._posts import MAX_SCREEN_PX, MAX_TOUCHES
 
 TARGETS_FORMAT = "handeye-jax.targets/1"
@@ -27,7 +26,7 @@ def load_targets(path: str | Path) -> np.ndarray:
     """
     path = Path(path)
     if path.suffix.lower() == ".toml":
-        from ..data._dataset_io import load_dataset
+        from ..data import load_dataset
 
         return load_dataset(path).tablet_px
     r = Reader(path)

@@ -24,9 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from .._core._atomic import write_output
-from .._core._io import load_json
-from .._core._validate import Reader, describe
+from .._core import Reader, describe, load_json, write_output
 from ..geometry import mm_per_tablet_px
 from ._posts import EvaluationPost
 

@@ -19,16 +19,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Float
 
-from .._core._errors import InputError
-from .._core._validate import MAX_DEG, MAX_MM, MAX_PX
-from .._jax._x64 import in_float64
-from ..calibration._calibrate import Settings, fit_correction
-from ..calibration._result import CalibrationResult
-from ..calibration._result_io import load_result
-from ..data._dataset import Dataset
-from ..data._dataset_io import load_dataset
-from ..data._points import csv_number, hand_command, read_points_csv
-from ..models import AbstractModel
+from .._core import MAX_DEG, MAX_MM, MAX_PX, InputError
+from .._jax import in_float64
+from ..calibration import CalibrationResult, Settings, fit_correction, load_result
+from ..data import Dataset, csv_number, load_dataset, read_points_csv
+from ..models import AbstractModel, hand_command
 from ._truth import TwinTruth, load_truth
 
 

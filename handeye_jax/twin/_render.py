@@ -21,7 +21,7 @@ import numpy as np
 from jax.scipy.special import ndtr
 from jaxtyping import Float, UInt8, UInt16
 
-from .._jax._x64 import in_float64
+from .._jax import in_float64
 from ._truth import TwinTruth
 
 # Linear radiance of the lit display, of a black display pixel and of the bezel, 0..1.

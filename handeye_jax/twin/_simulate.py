@@ -27,23 +27,24 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .._core._atomic import reason, write_folder_atomic
-from .._core._constants import (
+from .._core import (
     CAPTURE_RISE_MM,
     DERIVED_FILES,
     DERIVED_FOLDER,
     HELDOUT_ABOVE_MM,
     HELDOUT_RISES_MM,
+    MAX_HELDOUT,
     MORE_CAPTURE_FILES,
+    REPORT_FIGURES,
+    REPORT_FORMATS,
+    InputError,
+    reason,
+    write_folder_atomic,
 )
-from .._core._constants import MAX_TWIN_CAPTURES as MAX_CAPTURES
-from .._core._constants import TWIN_SEED_RANGE as SEED_RANGE
-from .._core._errors import InputError
-from .._core._validate import MAX_HELDOUT
-from ..data._dataset import Camera, Capture, Dataset
-from ..data._dataset_io import dataset_to_toml
-from ..report._figures import FIGURES, FORMATS
-from ..vision._detect import BlobCountError, DetectSettings, depth_at, find_blobs, order_blobs
+from .._core import MAX_TWIN_CAPTURES as MAX_CAPTURES
+from .._core import TWIN_SEED_RANGE as SEED_RANGE
+from ..data import Camera, Capture, Dataset, dataset_to_toml
+from ..vision import BlobCountError, DetectSettings, depth_at, find_blobs, order_blobs
 from ._render import DepthSensing, Imaging, render_capture, render_depth
 from ._synthetic import synthesize_dataset
 from ._truth import TwinTruth
@@ -451,7 +452,7 @@ def check_twin_folder(out_dir: str | Path, force: bool = False, field: str = "")
     stale = [p for pattern in (*DERIVED_FILES, *MORE_CAPTURE_FILES)
              for p in sorted(folder.glob(pattern))]  # fmt: skip
     figures = folder / DERIVED_FOLDER
-    stale += [figures / f"{name}.{ext}" for name in FIGURES for ext in FORMATS]
+    stale += [figures / f"{name}.{ext}" for name in REPORT_FIGURES for ext in REPORT_FORMATS]
     return [p for p in stale if p.is_file() or p.is_symlink()]
 
 

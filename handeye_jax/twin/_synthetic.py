@@ -13,10 +13,9 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .. import geometry as geo
-from .._jax._x64 import in_float64
-from ..data._dataset import Camera, Capture, Dataset
-from ..data._observations import Rig
-from ..models import AbstractModel
+from .._jax import in_float64
+from ..data import Camera, Capture, Dataset
+from ..models import AbstractModel, Rig
 
 
 @in_float64
@@ -214,14 +213,3 @@ def true_command(
     offset = truth.pen_offset(rig.phi_deg(jnp.asarray(hand_angle_deg, dtype=float)))
     return np.asarray(jnp.concatenate(
         [p[:, :2] - offset[:, :2], p[:, 2:] + pen_z_mm], axis=1))  # fmt: skip
-
-
-def snake_grid_px(
-    xs: tuple[float, ...] = (400.0, 720.0, 1040.0), ys: tuple[float, ...] = (150.0, 350.0, 550.0)
-) -> np.ndarray:
-    """Landmarks on a grid, numbered in snake order (the paper's 3×3 layout by default), px."""
-    rows = []
-    for r, y in enumerate(ys):
-        row = [(x, y) for x in xs]
-        rows.extend(row[::-1] if r % 2 else row)
-    return np.array(rows, dtype=float)

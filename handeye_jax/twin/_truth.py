@@ -22,22 +22,22 @@ import numpy as np
 from jaxtyping import Float
 
 from .. import geometry as geo
-from .._core._constants import CHANGES, MAX_DOT_PX
-from .._core._io import load_json
-from .._core._validate import (
+from .._core import (
+    CHANGES,
     MAX_DEG,
+    MAX_DOT_PX,
     MAX_IMAGE_PIXELS,
     MAX_LANDMARKS,
     MAX_MM,
     MAX_PX,
     Reader,
     describe,
+    load_json,
 )
-from .._jax._x64 import in_float64
-from ..data._dataset_io import check_tablet_px
-from ..data._observations import Rig
-from ..models import HTMModel
-from ._synthetic import snake_grid_px, tablet_to_camera
+from .._jax import in_float64
+from ..data import check_tablet_px, snake_grid_px
+from ..models import HTMModel, Rig
+from ._synthetic import tablet_to_camera
 
 FORMAT = "handeye-jax.twin-truth/1"
 

@@ -1,2 +1,25 @@
 """The camera's pictures: landmark detection and matching in a colour and depth picture
 (OpenCV), and the pictures to take (capture planning)."""
+
+from __future__ import annotations
+
+from .._core import lazy_exports
+
+# What the layers above may use, by module; each loads on first use (PEP 562).
+_EXPORTS = {
+    "_captures": ("plan_captures",),
+    "_detect": (
+        "BlobCountError",
+        "depth_at",
+        "detect_landmarks",
+        "Detection",
+        "DetectSettings",
+        "fill_capture",
+        "fill_dataset",
+        "find_blobs",
+        "order_blobs",
+        "overlay_image",
+        "read_image",
+    ),
+}
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

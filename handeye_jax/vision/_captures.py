@@ -13,8 +13,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .._core._constants import RECOMMENDED_CAPTURES as RECOMMENDED
-from ..data._dataset import Capture, Dataset
+from .._core import RECOMMENDED_CAPTURES as RECOMMENDED
+from ..data import Capture, Dataset
 
 
 def plan_captures(

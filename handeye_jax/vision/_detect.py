@@ -38,11 +38,15 @@ import cv2
 import numpy as np
 from jaxtyping import Float, Int, UInt8, UInt16
 
-from .._core._constants import MAX_AREA_PX, MIN_AREA_PX
-from .._core._errors import InputError
-from .._core._io import MAX_IMAGE_BYTES, read_bytes
-from .._core._validate import MAX_IMAGE_PIXELS
-from ..data._dataset import Capture, Dataset
+from .._core import (
+    MAX_AREA_PX,
+    MAX_IMAGE_BYTES,
+    MAX_IMAGE_PIXELS,
+    MIN_AREA_PX,
+    InputError,
+    read_bytes,
+)
+from ..data import Capture, Dataset
 
 
 @dataclass(frozen=True)
