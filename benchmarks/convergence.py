@@ -12,7 +12,7 @@ reach the target, and the best F1st found; then one row per seed with details. I
 
 Methods and accounting:
 
-* **DE alone**: ``differential_evolution`` with ``calibrate``'s defaults (N = 500, G <= 3000,
+* **DE alone**: ``DifferentialEvolution`` with ``calibrate``'s defaults (N = 500, G <= 3000,
   early stop at ``std(F) <= 1e-3·|mean(F)|``). Evaluations to success are ``N·(g + 1)``, ``g``
   the first generation whose best F is at the target (+1 for the initial population). Its wall
   time to success is measured by running the same DE (same key, so the same trajectory) again
@@ -55,7 +55,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from handeye_jax import HTMModel, Settings, Stage1Objective, load_dataset, vectorise_small_loops
-from handeye_jax.optim import Bounds, Box, LevenbergMarquardt, differential_evolution, minimise
+from handeye_jax.optim import Box, DifferentialEvolution, LevenbergMarquardt, minimise
 
 PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
 TARGET = 1.675  # mm, success threshold on F1st
@@ -104,12 +104,14 @@ def _timed(fn, *args, **kwargs):
 # ---------------------------------------------------------------- DE alone, DE + LM
 
 
+def _de(obj, lo, hi, *, key, **config):
+    return minimise(obj, DifferentialEvolution(**config), Box(lo, hi), key=key)
+
+
 def de_alone(obj, lo, hi, seed, n, g_max, tol, early_stop, label) -> Run:
     key = jax.random.PRNGKey(seed)
-    de, wall = _timed(
-        differential_evolution, obj, lo, hi, key=key, population=n, generations=g_max,
-        tol=tol, early_stop=early_stop,
-    )  # fmt: skip
+    de, wall = _timed(_de, obj, lo, hi, key=key, population=n, generations=g_max, tol=tol,
+                      early_stop=early_stop)  # fmt: skip
     hist = de.best_history
     gens = np.arange(1, len(hist) + 1)
     run = Run(label, seed, de.value, de.evaluations, wall, twin=_twin(de.x),
@@ -119,21 +121,17 @@ def de_alone(obj, lo, hi, seed, n, g_max, tol, early_stop, label) -> Run:
         g = int(hit[0]) + 1
         run.evals = n * (g + 1)
         # The same run stopped at generation g (same key: the same trajectory), timed.
-        _, run.wall = _timed(
-            differential_evolution, obj, lo, hi, key=key, population=n, generations=g,
-            tol=tol, early_stop=early_stop,
-        )  # fmt: skip
+        _, run.wall = _timed(_de, obj, lo, hi, key=key, population=n, generations=g, tol=tol,
+                             early_stop=early_stop)  # fmt: skip
     run.note = f"{de.steps} generations" + (", early stop" if de.converged else "")
     return run
 
 
 def de_then_lm(obj, lo, hi, seed, n, k) -> Run:
-    de, t_de = _timed(
-        differential_evolution, obj, lo, hi, key=jax.random.PRNGKey(seed), population=n,
-        generations=k, early_stop=False,
-    )  # fmt: skip
+    de, t_de = _timed(_de, obj, lo, hi, key=jax.random.PRNGKey(seed), population=n,
+                      generations=k, early_stop=False)  # fmt: skip
     t0 = time.perf_counter()
-    lm = minimise(obj, LevenbergMarquardt(rtol=RTOL, atol=ATOL), Bounds(lo, hi), x0=de.x)
+    lm = minimise(obj, LevenbergMarquardt(rtol=RTOL, atol=ATOL), Box(lo, hi), x0=de.x)
     f_lm = lm.value
     t_lm = time.perf_counter() - t0
     x, f = (lm.x, f_lm) if f_lm < de.value else (de.x, de.value)

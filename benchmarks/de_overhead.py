@@ -8,7 +8,7 @@ Every variant runs inside the DE's own compiled loop (``optim._de._chunk_scan``,
 bookkeeping, selection and XLA options); only the way a generation makes its trial vectors
 changes. The variants are ablations for measurement, not alternative algorithms:
 
-* ``as shipped``: DE/rand/1/bin as ``differential_evolution`` runs it;
+* ``as shipped``: DE/rand/1/bin as ``DifferentialEvolution`` runs it;
 * ``x·(1+ε) trial``: the trial is the member itself, scaled; no draws, no donors, no bounds;
 * ``fixed donors``: the shipped mutation and bounds, but the donors are fixed neighbours
   (rows i−1, i−2, i−3) and the crossover mask is fixed (components above the box's centre),

@@ -6,7 +6,7 @@
 All three minimise the same F1st (data/paper2023.toml, HTM model, float64), evaluated by the
 same jitted, vmapped JAX objective, with the same N and D, in one run:
 
-* ours: ``handeye_jax.optim.differential_evolution`` (DE/rand/1/bin, CR 0.9, F 0.5);
+* ours: ``handeye_jax.optim.DifferentialEvolution`` (DE/rand/1/bin, CR 0.9, F 0.5);
 * scipy: ``differential_evolution(strategy="rand1bin", mutation=0.5, recombination=0.9,
   updating="deferred", vectorized=True, tol=0, polish=False)`` with an N-member initial
   population; its objective is the jitted JAX one, called on the (D, N) array scipy passes;
@@ -44,8 +44,8 @@ import numpy as np
 
 from handeye_jax import HTMModel, Stage1Objective, load_dataset
 from handeye_jax._jax._xla import loop_compiler_options
+from handeye_jax.optim import Box, DifferentialEvolution, minimise
 from handeye_jax.optim import _de as de
-from handeye_jax.optim import differential_evolution
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import PAPER, de_start, interleaved_ms  # noqa: E402
@@ -143,12 +143,12 @@ def evosax_de(objective, lower, upper, n: int, generations: int) -> float:
 
 def full_budget(objective, lower, upper, n: int, generations: int) -> float:
     """Seconds for a complete DE run with early stop off, after compilation."""
-    kw = dict(population=n, early_stop=False)
-    differential_evolution(objective, lower, upper, key=jax.random.PRNGKey(5), generations=1, **kw)
+    box = Box(lower, upper)
+    de = DifferentialEvolution(population=n, generations=1, early_stop=False)
+    minimise(objective, de, box, key=jax.random.PRNGKey(5))
     t0 = time.perf_counter()
-    differential_evolution(
-        objective, lower, upper, key=jax.random.PRNGKey(6), generations=generations, **kw
-    )
+    de = DifferentialEvolution(population=n, generations=generations, early_stop=False)
+    minimise(objective, de, box, key=jax.random.PRNGKey(6))
     return time.perf_counter() - t0
 
 
@@ -157,12 +157,12 @@ MEMORY_PROBE = textwrap.dedent(
     import sys, jax
     from handeye_jax import HTMModel, load_dataset
     from handeye_jax import Stage1Objective
-    from handeye_jax.optim import differential_evolution
+    from handeye_jax.optim import Box, DifferentialEvolution, minimise
     with jax.enable_x64(True):
         obj = Stage1Objective(HTMModel, load_dataset(sys.argv[1]).observations())
-        lo, hi = HTMModel.search_bounds()
-        differential_evolution(obj, lo, hi, key=jax.random.PRNGKey(0), population=int(sys.argv[2]),
-                               generations=int(sys.argv[3]), early_stop=False)
+        de = DifferentialEvolution(population=int(sys.argv[2]), generations=int(sys.argv[3]),
+                                   early_stop=False)
+        minimise(obj, de, Box(*HTMModel.search_bounds()), key=jax.random.PRNGKey(0))
     # VmHWM belongs to this process's own address space; ru_maxrss would carry the parent's
     # high-water mark across fork and exec.
     status = open("/proc/self/status").read().split("VmHWM:")[1]

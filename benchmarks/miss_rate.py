@@ -50,9 +50,9 @@ from handeye_jax import (
     vectorise_small_loops,
 )
 from handeye_jax.optim import (
-    Bounds,
+    Box,
+    DifferentialEvolution,
     LevenbergMarquardt,
-    differential_evolution,
     latin_hypercube,
     minimise,
     minimise_starts,
@@ -88,14 +88,14 @@ def reference_F(ds, population: int, starts: int, seed: int) -> float:
         obj = Stage1Objective(HTMModel, ds.observations())
         lo, hi = HTMModel.search_bounds(ds.search)
         key = jax.random.PRNGKey(10_000 + seed)
-        de = differential_evolution(obj, lo, hi, key=key, population=population,
-                                    generations=3000, tol=1e-6)  # fmt: skip
-        box, lm = Bounds(lo, hi), LevenbergMarquardt()
+        box, lm = Box(lo, hi), LevenbergMarquardt()
+        de = minimise(obj, DifferentialEvolution(population=population, generations=3000,
+                                                 tol=1e-6), box, key=key)  # fmt: skip
         best = [de.value, minimise(obj, lm, box, x0=de.x).value]
         X0 = np.asarray(latin_hypercube(jax.random.fold_in(key, 1), starts, jnp.asarray(lo),
                                         jnp.asarray(hi)))  # fmt: skip
         many = minimise_starts(obj, LevenbergMarquardt(rtol=1e-10, atol=0.0), box, X0)
-        ends, cost = many.x, many.cost
+        ends, cost = many.x, many.value
         for i in np.argsort(np.where(np.isfinite(cost), cost, np.inf))[:8]:
             x = minimise(obj, lm, box, x0=ends[i]).x
             best += [float(obj(jnp.asarray(ends[i]))), float(obj(jnp.asarray(x)))]

@@ -75,7 +75,7 @@ from handeye_jax import (
     vectorise_small_loops,
 )
 from handeye_jax.calibration._calibrate import POLISH, PULL_FLAG
-from handeye_jax.optim import Bounds, minimise
+from handeye_jax.optim import Box, minimise
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from twin_study import write_section  # noqa: E402
@@ -170,7 +170,7 @@ def joint_fit(old, old_ds: Dataset, new_ds: Dataset, part: str, start, squares: 
                   + [start.stage1.params[names[i]] for i in group])  # fmt: skip
     lo, hi = HTMModel.search_bounds()
     lo, hi = np.r_[lo, lo[list(group)]], np.r_[hi, hi[list(group)]]
-    x = minimise(objective, POLISH, Bounds(lo - 50.0, hi + 50.0), x0=x0).x
+    x = minimise(objective, POLISH, Box(lo - 50.0, hi + 50.0), x0=x0).x
     params = dict(zip(names, x[: len(names)], strict=True))
     params |= {names[i]: float(x[len(names) + j]) for j, i in enumerate(group)}
     return replace(start, model=HTMModel.from_dict(params),

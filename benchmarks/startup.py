@@ -55,30 +55,27 @@ t0 = time.perf_counter()
 import handeye_jax.cli as cli
 import jax, jax.monitoring
 import handeye_jax.calibration._calibrate as cal
+import handeye_jax.diagnostics as diagnostics
 t_import = time.perf_counter() - t0
 events = []  # (end time, kind, seconds)
 jax.monitoring.register_event_duration_secs_listener(
     lambda name, secs, **kw: events.append((time.perf_counter(), name, secs)))
 spans = []  # (label, start, end)
-fit_stage, diagnose = cal.fit_stage, cal.diagnose
-inside = []
+fit_stage, diagnose = cal.fit_stage, diagnostics.diagnose
 def timed_fit_stage(*args, **kwargs):
     start = time.perf_counter()
     fit = fit_stage(*args, **kwargs)
     end = time.perf_counter()
-    if inside:  # a refit the diagnostics adopt: theirs
-        return fit
     stage = "stage2" if len([s for s in spans if s[0].endswith("_de")]) else "stage1"
     spans.extend([(f"{stage}_de", start, end - fit.timings["polish"]),
                   (f"{stage}_polish", end - fit.timings["polish"], end)])
     return fit
 def timed_diagnose(*args, **kwargs):
     start = time.perf_counter()
-    inside.append(1)
     out = diagnose(*args, **kwargs)
     spans.append(("diagnostics", start, time.perf_counter()))
     return out
-cal.fit_stage, cal.diagnose = timed_fit_stage, timed_diagnose
+cal.fit_stage, diagnostics.diagnose = timed_fit_stage, timed_diagnose
 t1 = time.perf_counter()
 code = cli.main(sys.argv[2:])
 t_end = time.perf_counter()

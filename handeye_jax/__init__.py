@@ -50,7 +50,7 @@ _EXPORTS = {
     "Detection": "vision",
     "DetectSettings": "vision",
     "DHModel": "models",
-    "diagnose": "calibration",
+    "diagnose": "diagnostics",
     "draw_truth": "twin",
     "errors_of": "problem",
     "evaluate": "twin",
@@ -162,7 +162,6 @@ if TYPE_CHECKING:
         Plan,
         StageFit,
         calibrate,
-        diagnose,
         fit,
         fit_correction,
         fit_stage,
@@ -184,6 +183,7 @@ if TYPE_CHECKING:
     )
     from .data._layouts import snake_grid_px
     from .data._observations import Observations
+    from .diagnostics._diagnose import diagnose
     from .diagnostics._scope import capture_scope
     from .models import (
         AbstractCorrection,

@@ -18,6 +18,7 @@ from handeye_jax import (
     InputError,
     LengthBlock,
     LossObjective,
+    ParameterSpace,
     Rig,
     Settings,
     Stage1Objective,
@@ -40,12 +41,14 @@ from handeye_jax import (
     snake_grid_px,
     synthesize_dataset,
 )
+from handeye_jax._core import Stages
+from handeye_jax.calibration import CONVENTIONS, FittedStage
 from handeye_jax.calibration._calibrate import RESTART_LANDMARKS, fit_correction
 from handeye_jax.diagnostics._diagnostics import OUTLIER_FACTOR, population_modes
-from handeye_jax.diagnostics._refits import CONVENTIONS, EXACT_LOO_LANDMARKS, refits
+from handeye_jax.diagnostics._refits import EXACT_LOO_LANDMARKS, refits
 from handeye_jax.models import AffinePair
 from handeye_jax.optim import (
-    Bounds,
+    Box,
     LevenbergMarquardt,
     minimise,
     minimise_batch,
@@ -90,10 +93,11 @@ def _refits(ds, x1, x2, **kw):
         stage1 = Stage1Objective(HTMModel, obs)
         points = chain_points(HTMModel.from_vector(jnp.asarray(x1)), obs)
         stage2 = Stage2Objective(AffinePair, points, obs.centre_index)
-        return refits(
-            stage1, stage2, get_loss("l1"), x1, x2, Bounds(*HTMModel.search_bounds()),
-            Bounds(*AffinePair.search_bounds()), 1, 2, 100, **kw,
-        )  # fmt: skip
+        stages = Stages(
+            FittedStage(ParameterSpace.all_free(HTMModel.nominal()), stage1, x1),
+            FittedStage(ParameterSpace.all_free(AffinePair.nominal()), stage2, x2),
+        )
+        return refits(stages, get_loss("l1"), 1, 2, 100, **kw)
 
 
 # -- identifiability ---------------------------------------------------------------------
@@ -265,7 +269,7 @@ def test_leave_one_out_matches_an_explicit_refit(paper_result):
         obj = LossObjective(Stage1Objective(HTMModel, obs), get_loss("l1"), w)
         x1 = np.array([paper_result.stage1.params[n] for n in HTMModel.param_names])
         lo, hi = HTMModel.search_bounds()
-        ref = minimise(obj, LevenbergMarquardt(), Bounds(lo, hi), x0=x1)
+        ref = minimise(obj, LevenbergMarquardt(), Box(lo, hi), x0=x1)
         e = errors_of(obj, jnp.asarray(ref.x))
         want = float(jnp.linalg.norm(e.image_vs_tablet[m])), float(jnp.linalg.norm(e.hand[m]))
     got = paper_result.diagnostics["stage1"]["loo"]["held_out_mm"][m]
@@ -463,8 +467,8 @@ def test_batched_lm_solves_each_problem_of_a_batch(a, b):
     lo, hi = np.array([0.1, -2.0]), np.array([4.0, 2.0])
     x0 = np.tile([1.5, 0.0], (3, 1))
     lm = LevenbergMarquardt(rtol=1e-10, atol=0.0, max_steps=300)
-    out = minimise_batch(lambda X: _lines_rj(truths, jnp.asarray(X)), lm, Bounds(lo, hi), x0)
-    x, cost = out.x, out.cost
+    out = minimise_batch(lambda X: _lines_rj(truths, jnp.asarray(X)), lm, Box(lo, hi), x0)
+    x, cost = out.x, out.value
     np.testing.assert_allclose(x, np.asarray(truths), atol=1e-6)
     assert np.all(cost < 1e-12)
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from handeye_jax._jax import _xla
-from handeye_jax.optim import Bounds, DifferentialEvolution, LevenbergMarquardt, minimise
+from handeye_jax.optim import Box, DifferentialEvolution, LevenbergMarquardt, minimise
 
 TRACES = {"n": 0}
 
@@ -31,7 +31,7 @@ class Problem(eqx.Module):
         return _rosenbrock(x)
 
 
-BOUNDS = Bounds(np.array([-2.0, -2.0, -2.0]), np.array([2.0, 3.0, 2.0]))
+BOUNDS = Box(np.array([-2.0, -2.0, -2.0]), np.array([2.0, 3.0, 2.0]))
 DE = DifferentialEvolution(population=24, generations=40, early_stop=False)
 LM = LevenbergMarquardt(rtol=1e-12, atol=0.0, max_steps=200)
 

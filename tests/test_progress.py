@@ -5,7 +5,7 @@ import jax
 import jax.numpy as jnp
 
 from handeye_jax._core import progress_bar
-from handeye_jax.optim import differential_evolution
+from handeye_jax.optim import Box, DifferentialEvolution, minimise
 
 
 class Sphere(eqx.Module):
@@ -14,9 +14,9 @@ class Sphere(eqx.Module):
 
 
 def test_early_stop_closes_a_complete_bar(capsys):
-    r = differential_evolution(Sphere(), [-1.0] * 3, [1.0] * 3, key=jax.random.PRNGKey(0),
-                               population=30, generations=5000, tol=1e-3, progress=True,
-                               desc="test DE")  # fmt: skip
+    de = DifferentialEvolution(population=30, generations=5000, tol=1e-3)
+    r = minimise(Sphere(), de, Box([-1.0] * 3, [1.0] * 3), key=jax.random.PRNGKey(0),
+                 progress=True, desc="test DE")
     assert r.converged and r.steps < 5000
     err = capsys.readouterr().err
     last = err.replace("\r", "\n").strip().splitlines()[-1]

@@ -6,8 +6,10 @@ from __future__ import annotations
 from .._core import lazy_exports
 
 # What the layers above may use, by module; each loads on first use (PEP 562).
+# fmt: off
 _EXPORTS = {
     "_x64": ("float64", "in_float64"),
     "_xla": ("fast_compile", "hot_loop", "store_programs", "vectorise_small_loops"),
 }
+# fmt: on
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

@@ -8,22 +8,17 @@ from __future__ import annotations
 from .._core import lazy_exports
 
 # What the layers above may use, by module; each loads on first use (PEP 562).
+# fmt: off
 _EXPORTS = {
     "_calibrate": (
-        "calibrate",
-        "diagnose",
-        "fit",
-        "fit_correction",
-        "fit_stage",
-        "full_plan",
-        "Plan",
-        "recalibrate",
-        "recalibration_plan",
-        "StageFit",
+        "all_warnings", "bound_hits", "calibrate", "convention_index", "CONVENTIONS", "fit",
+        "fit_correction", "fit_stage", "fitted_stages", "FittedStage", "full_plan", "Plan",
+        "recalibrate", "recalibration_plan", "REFIT_STARTS", "StageFit", "uniform_starts",
     ),
     "_result": ("CalibrationResult", "StageResult"),
     "_result_frames": ("compute_frames",),
     "_result_io": ("load_frames", "load_result", "result_to_json", "save_result"),
     "_settings": ("Settings",),
 }
+# fmt: on
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

@@ -2,13 +2,14 @@
 
 A stage's fit works on a :class:`~handeye_jax.ParameterSpace`: the free parameters of a
 template, their box and maybe a Gaussian prior. DE searches some of them (all, by default),
-Levenberg–Marquardt polishes all free ones from the best member and from restarts, and the
-lowest value any of them reaches is the stage's optimum. :func:`calibrate` fits every
+Levenberg–Marquardt polishes all free ones from the best member, from restarts and (stage 1)
+from the multi-start refits, and the lowest value any of them reaches is the stage's optimum:
+the search for the best optimum is the fit's, all of it. :func:`calibrate` fits every
 parameter; :func:`recalibrate` starts from a previous result (the paper's open problem:
 another pen, a moved tablet, a remounted camera).
 
 This is the only place that joins the hand–eye pieces (dataset, model, objective) to the
-general optimisers. The diagnostics are a separate step (:func:`handeye_jax.diagnose`).
+general optimisers. The diagnostics (:func:`handeye_jax.diagnose`) only read a result.
 """
 
 from __future__ import annotations
@@ -24,17 +25,19 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._core import MAX_RESTARTS, InputError
+from .._core import MAX_RESTARTS, InputError, Stages
 from .._jax import fast_compile, in_float64
 from ..data import Dataset, Observations, check_distinct, check_population
-from ..diagnostics import MAX_MODES, REFIT_LANDMARKS, bound_hits, capture_scope, mode_leaders
 from ..models import AbstractCorrection, AbstractModel, AbstractParametric, AffinePair, get_model
 from ..optim import (
-    Bounds,
+    MAX_MODES,
+    Box,
+    DESolution,
     LevenbergMarquardt,
     latin_hypercube,
     minimise,
     minimise_starts,
+    mode_leaders,
 )
 from ..problem import (
     FIXED,
@@ -146,6 +149,21 @@ def with_prior(
 
 
 @dataclass(frozen=True)
+class Population:
+    """A DE run's final population, for the restarts and the diagnostics.
+
+    Attributes:
+        members: the members in the searched parameters, ``(N, k)``.
+        values: what each member's objective value is, ``(N,)``.
+        searched: the names of the searched parameters, in column order.
+    """
+
+    members: np.ndarray
+    values: np.ndarray
+    searched: tuple[str, ...]
+
+
+@dataclass(frozen=True)
 class StageFit:
     """One stage's optimum in the fit's own terms (before it becomes a :class:`StageResult`).
 
@@ -156,8 +174,7 @@ class StageFit:
         x: the optimum's free parameters.
         de, polish, convergence: the DE and LM summaries and the DE's history.
         timings: seconds of DE and of the polish.
-        population: the final DE population and its values (in the searched parameters) and
-            the names searched, for the diagnostics.
+        population: the final DE population (``None`` without DE), for the diagnostics.
     """
 
     space: ParameterSpace
@@ -168,138 +185,260 @@ class StageFit:
     polish: dict[str, Any]
     convergence: dict[str, list[float]]
     timings: dict[str, float]
-    population: tuple[np.ndarray, np.ndarray, tuple[str, ...]] | None = None
+    population: Population | None = None
 
     def model(self) -> AbstractParametric:
         """The template with the optimum put in."""
         return put(self.space.template, self.space.free, jnp.asarray(self.x))
 
 
-def fit_stage(
-    build: Callable[[AbstractParametric, tuple[str, ...]], AbstractObjective],
-    space: ParameterSpace,
-    settings: Settings,
-    keys: tuple[jax.Array, jax.Array],
-    *,
-    search: Sequence[str] | None = None,
-    n_landmarks: int,
-    progress: bool = False,
-    label: str = "DE",
-    restart_landmarks: np.ndarray | None = None,
-) -> StageFit:
-    """Fit one stage: DE over ``search``, then LM over every free parameter.
+@dataclass(frozen=True)
+class StageTask:
+    """One stage to fit, and how its search runs.
 
-    Args:
+    Attributes:
         build: the stage's data objective for a template and the names of its free
             parameters (the loss applied, no prior).
         space: the stage's parameters, box and prior.
-        settings: DE, LM and restart settings.
-        keys: the DE's key and the restarts' key.
-        search: the free parameters DE searches (default: all); the others start at the
+        search: the free parameters DE searches (``None``: all); the others start at the
             template's values. An empty search skips DE.
         n_landmarks: landmarks behind each data block (the prior's weight is ``s/n``).
-        progress: show DE's progress bar.
         label: the progress bar's label.
-        restart_landmarks: the landmarks the restarts search on (default: all).
+        restart_landmarks: the landmarks the restarts and refits search on (default: all).
+        refit_starts: start points of the multi-start refits in ``space``'s box (stage 1:
+            :func:`refit_starts`), or ``None``.
     """
-    search = space.free if search is None else tuple(search)
-    base = space.clip(space.theta())
-    objective = with_prior(build(space.template, space.free), space, n_landmarks)
-    data = build(space.template, space.free)
-    lm_bounds = Bounds(space.lower, space.upper)
-    t0 = time.perf_counter()
-    de_info: dict[str, Any] = {"searched": list(search)}
+
+    build: Callable[[AbstractParametric, tuple[str, ...]], AbstractObjective]
+    space: ParameterSpace
+    n_landmarks: int
+    search: tuple[str, ...] | None = None
+    label: str = "DE"
+    restart_landmarks: np.ndarray | None = None
+    refit_starts: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Optimum:
+    """The lowest point a stage's search has reached so far, and which search reached it."""
+
+    x: np.ndarray
+    value: float
+    found_by: str
+
+
+@dataclass(frozen=True)
+class _Search:
+    """What DE searched: the subspace (all free parameters, or the task's ``search``), its
+    objective (prior conditioned on the others) and the start of the others."""
+
+    space: ParameterSpace
+    objective: AbstractObjective
+    base: np.ndarray
+    de: DESolution
+
+
+def fit_stage(
+    task: StageTask, settings: Settings, keys: tuple[jax.Array, jax.Array], *,
+    progress: bool = False,
+) -> StageFit:  # fmt: skip
+    """Fit one stage: DE over the task's search, then LM over every free parameter from DE's
+    best member, from restarts and from the task's refit starts; the lowest value wins.
+
+    Args:
+        task: the stage's objective, parameters and search.
+        settings: DE, LM and restart settings.
+        keys: the DE's key and the restarts' key.
+        progress: show DE's progress bar.
+    """
+    space = task.space
+    search = space.free if task.search is None else tuple(task.search)
+    objective = with_prior(task.build(space.template, space.free), space, task.n_landmarks)
     if space.d == 0:
         settings = replace(settings, polish=False)
-    convergence: dict[str, list[float]] = {}
-    population = None
-    if search:
-        sub = space if search == space.free else space.subspace(search, base)
-        sub_objective = with_prior(build(sub.template, sub.free), sub, n_landmarks)
-        de = minimise(sub_objective, settings.de(), Bounds(sub.lower, sub.upper),
-                      key=keys[0], progress=progress, desc=label)  # fmt: skip
-        x = space.embed(search, de.x, base)
-        de_info.update(F=de.value, generations=de.steps, evaluations=de.evaluations,
-                       converged=de.converged)  # fmt: skip
-        convergence = {
-            "best_F": [float(v) for v in de.best_history],
-            "median_F": [float(v) for v in de.median_history],
-            "median_generation": [int(g) for g in de.median_generations],
-        }
-        population = (de.population, de.fitness, search)
-        found_by = "DE"
-    else:
-        sub = sub_objective = de = None
-        x = base
-        found_by = "the previous result"
-    f = _value(objective, x)
-    if de is not None:
-        de_info["F"] = f  # the whole objective's value at DE's best (equal with a full search)
+    t0 = time.perf_counter()
+    found = _de_search(task, search, settings, keys[0], progress)
+    base = space.clip(space.theta())
+    x = base if found is None else space.embed(search, found.de.x, base)
+    best = Optimum(np.asarray(x), _value(objective, x), "DE" if found else "the previous result")
+    de_info, convergence = _de_summary(search, found, best.value)
     t1 = time.perf_counter()
-    polish: dict[str, Any] = {"ran": settings.polish, "accepted": False, "F_before": f}
+    polish: dict[str, Any] = {"ran": settings.polish, "accepted": False, "F_before": best.value}
     if settings.polish:
-        lm = minimise(objective, POLISH, lm_bounds, x0=x)
-        polish.update(steps=lm.steps, solver_converged=lm.converged)
-        if np.isfinite(lm.value) and lm.value < f:
-            x, f, found_by = lm.x, lm.value, f"{found_by} + LM"
-        if settings.restarts > 0 and de is not None:
-            x, f, found_by, polish["restarts"] = _restarts(
-                objective, sub_objective, sub, space, de, base, keys[1], settings.restarts,
-                (x, f, found_by), restart_landmarks,
-            )  # fmt: skip
-        polish.update(accepted=bool(f < polish["F_before"]), F_after=f)
-    polish["found_by"] = found_by
-    t2 = time.perf_counter()
+        best = _polished(objective, space.box, best, polish)
+        if settings.restarts > 0 and found is not None:
+            best, polish["restarts"] = _restarts(task, objective, found, keys[1], settings, best)
+        if task.refit_starts is not None:
+            best = _refits(task, objective, best, polish, settings.restarts)
+        polish.update(accepted=bool(best.value < polish["F_before"]), F_after=best.value)
+    polish["found_by"] = best.found_by
+    population = None if found is None else Population(found.de.population,
+                                                       found.de.fitness, search)  # fmt: skip
     return StageFit(
-        space=space, objective=objective, data=data, x=np.asarray(x, dtype=float), de=de_info,
-        polish=polish, convergence=convergence, timings={"de": t1 - t0, "polish": t2 - t1},
-        population=population,
+        space=space, objective=objective, data=task.build(space.template, space.free),
+        x=np.asarray(best.x, dtype=float), de=de_info, polish=polish, convergence=convergence,
+        timings={"de": t1 - t0, "polish": time.perf_counter() - t1}, population=population,
     )  # fmt: skip
 
 
-def _restarts(objective, sub_objective, sub, space, de, base, key, restarts, fit, landmarks):
-    """LM (on ``sub``, the searched parameters) from the final population's other optima and
-    from hypercube points, all at once; the end point with the lowest value of ``objective``,
-    polished on all free parameters, replaces ``fit = (x, value, found_by)`` if lower."""
-    x, f, found_by = fit
-    lower, upper = sub.lower, sub.upper
-    leaders = mode_leaders(de.population, de.fitness, lower, upper)[0][1:MAX_MODES]
-    points = np.array(_lhs(key, restarts, lower, upper))
+def _de_search(
+    task: StageTask, search: tuple[str, ...], settings: Settings, key, progress: bool
+) -> _Search | None:
+    """DE over ``search`` (the other free parameters at the template's values), or ``None``
+    for an empty search."""
+    if not search:
+        return None
+    space = task.space
+    base = space.clip(space.theta())
+    sub = space if search == space.free else space.subspace(search, base)
+    sub_objective = with_prior(task.build(sub.template, sub.free), sub, task.n_landmarks)
+    de = minimise(sub_objective, settings.de(), sub.box, key=key, progress=progress,
+                  desc=task.label)  # fmt: skip
+    return _Search(sub, sub_objective, base, de)
+
+
+def _de_summary(search, found: _Search | None, value: float):
+    """The result's ``de`` summary and ``convergence`` history of a stage's DE."""
+    info: dict[str, Any] = {"searched": list(search)}
+    if found is None:
+        return info, {}
+    de = found.de
+    # F: the whole objective's value at DE's best (equal to DE's own with a full search).
+    info.update(F=value, generations=de.steps, evaluations=de.evaluations,
+                converged=de.converged)  # fmt: skip
+    convergence = {
+        "best_F": [float(v) for v in de.best_history],
+        "median_F": [float(v) for v in de.median_history],
+        "median_generation": [int(g) for g in de.median_generations],
+    }
+    return info, convergence
+
+
+def _polished(objective: AbstractObjective, box: Box, best: Optimum, polish: dict) -> Optimum:
+    """LM from ``best`` (recording its steps in ``polish``), kept if it lowers the value."""
+    lm = minimise(objective, POLISH, box, x0=best.x)
+    polish.update(steps=lm.steps, solver_converged=lm.converged)
+    if np.isfinite(lm.value) and lm.value < best.value:
+        return Optimum(lm.x, lm.value, f"{best.found_by} + LM")
+    return best
+
+
+def _restarts(task: StageTask, objective, found: _Search, key, settings: Settings,
+              best: Optimum) -> tuple[Optimum, dict[str, Any]]:  # fmt: skip
+    """LM (on the searched parameters) from the final population's other optima and from
+    hypercube points, all at once; the best end point, polished on all free parameters,
+    replaces ``best`` if lower. Returns it and the ``restarts`` summary."""
+    sub, restarts = found.space, settings.restarts
+    leaders = mode_leaders(found.de.population, found.de.fitness, sub.lower, sub.upper)[0]
+    leaders = leaders[1:MAX_MODES]
+    points = np.array(_lhs(key, restarts, sub.lower, sub.upper))
     k = min(len(leaders), restarts)
     points[:k] = leaders[:k]
-    searched = sub_objective if landmarks is None else sub_objective.on_landmarks(landmarks)
-    ends = minimise_starts(
-        searched, LevenbergMarquardt(rtol=1e-10, atol=0.0, max_steps=RESTART_STEPS),
-        Bounds(lower, upper), points,
-    ).x  # fmt: skip
-    full = np.array([space.embed(sub.free, e, base) for e in ends])
-    values = np.array([_value(objective, e) for e in full])
-    values = np.where(np.isfinite(values), values, np.inf)
-    i = int(np.argmin(values))
-    x_i, f_i = full[i], float(values[i])
-    narrowed = searched is not sub_objective or sub is not space
-    if (narrowed and f_i < f + 1e-4) or f_i < f - BETTER_BY_MM:
-        # The batch stops on a looser rule than the polish (and may have searched fewer
-        # landmarks or parameters): finish the winner as the DE's best was finished.
-        lm = minimise(objective, POLISH, Bounds(space.lower, space.upper), x0=x_i)
-        if np.isfinite(lm.value) and lm.value < f_i:
-            x_i, f_i = lm.x, lm.value
-    if f_i < f - BETTER_BY_MM:
-        x, f = x_i, f_i
-        found_by = (
-            f"LM from another optimum of the final DE population (restart {i + 1} of {restarts})"
-            if i < k
-            else f"LM from a Latin-hypercube start (restart {i + 1} of {restarts})"
-        )
+    labels = [f"LM from another optimum of the final DE population (restart {i + 1} of "
+              f"{restarts})" if i < k else f"LM from a Latin-hypercube start (restart {i + 1} "
+              f"of {restarts})" for i in range(restarts)]  # fmt: skip
+    ends = _multistart(found.objective, sub, points, task.restart_landmarks, restarts)
+    full = np.array([task.space.embed(sub.free, e, found.base) for e in ends])
+    narrowed = task.restart_landmarks is not None or sub is not task.space
+    out, values, best_F = _best_end(objective, task.space.box, full, labels, best, narrowed)
     info = {
-        "starts": restarts, "from_population": int(k), "best_F": f_i,
+        "starts": restarts, "from_population": int(k), "best_F": best_F,
         # How many restarts ended within 1e-4 mm of the result: few say the basin was found
         # by few starts, so a larger budget might find a lower one.
-        "reached_result": int(np.sum(values <= f + 1e-4)),
+        "reached_result": int(np.sum(values <= out.value + 1e-4)),
     }  # fmt: skip
-    if landmarks is not None:
-        info["landmarks"] = len(landmarks)
-    return x, f, found_by, info
+    if task.restart_landmarks is not None:
+        info["landmarks"] = len(task.restart_landmarks)
+    return out, info
+
+
+def _refits(task: StageTask, objective, best: Optimum, polish: dict, batch: int) -> Optimum:
+    """LM on every free parameter from the task's refit starts and from ``best`` itself, all
+    at once (the convention check's multi-start, declared convention); the best end point,
+    polished, replaces ``best`` if lower, and ``polish`` records the value it replaced."""
+    starts = np.concatenate([task.refit_starts, np.asarray(best.x)[None]])
+    k = len(task.refit_starts)
+    labels = [f"LM from a uniform start (refit {i + 1} of {k})" for i in range(k)]
+    labels.append(f"{best.found_by.split(', refined')[0]}, refined by a refit from it")
+    ends = _multistart(objective, task.space, starts, task.restart_landmarks, batch)
+    out, _, _ = _best_end(objective, task.space.box, ends, labels, best,
+                          task.restart_landmarks is not None)  # fmt: skip
+    if out is not best:
+        width = task.space.upper - task.space.lower
+        if np.all(np.abs(out.x - best.x) <= MODE_PARAM_FRACTION * width):
+            out = replace(out, found_by=labels[-1])  # the fit's own optimum, further down
+        polish["replaced_F"] = [*polish.get("replaced_F", []), best.value]
+    return out
+
+
+#: A refit that lands within this fraction of every parameter's range of the fit has refined
+#: the fit's own optimum rather than found another.
+MODE_PARAM_FRACTION = 0.01
+
+
+def _multistart(objective, space: ParameterSpace, starts: np.ndarray, landmarks, batch: int):
+    """End points of LM from ``starts`` (in ``space``'s box) on ``objective`` (on
+    ``landmarks`` only, if given), in one batch of at least ``batch`` problems: the restarts'
+    size, so that the refits run the restarts' compiled program (copies of the last start
+    fill it; a copy's path is its original's, so the others' are unchanged)."""
+    searched = objective if landmarks is None else objective.on_landmarks(landmarks)
+    k = len(starts)
+    padded = np.concatenate([starts, np.repeat(starts[-1:], max(batch - k, 0), axis=0)])
+    lm = LevenbergMarquardt(rtol=1e-10, atol=0.0, max_steps=RESTART_STEPS)
+    return minimise_starts(searched, lm, space.box, padded).x[:k]
+
+
+def _best_end(objective, box: Box, ends: np.ndarray, labels: list[str], best: Optimum,
+              narrowed: bool) -> tuple[Optimum, np.ndarray, float]:  # fmt: skip
+    """The end point with the lowest value of ``objective``, polished as the fit was, if it
+    is lower than ``best`` by more than :data:`BETTER_BY_MM` (else ``best``); every end
+    point's value; and the lowest one's value after that polish. ``narrowed``: the ends
+    searched fewer landmarks or parameters, so a near one is polished before it is compared."""
+    values = np.array([_value(objective, e) for e in ends])
+    values = np.where(np.isfinite(values), values, np.inf)
+    i = int(np.argmin(values))
+    x_i, f_i = ends[i], float(values[i])
+    if (narrowed and f_i < best.value + 1e-4) or f_i < best.value - BETTER_BY_MM:
+        # The batch stops on a looser rule than the polish (and may have searched fewer
+        # landmarks or parameters): finish the winner as the DE's best was finished.
+        lm = minimise(objective, POLISH, box, x0=x_i)
+        if np.isfinite(lm.value) and lm.value < f_i:
+            x_i, f_i = lm.x, lm.value
+    if f_i < best.value - BETTER_BY_MM:
+        return Optimum(np.asarray(x_i), f_i, labels[i]), values, f_i
+    return best, values, f_i
+
+
+#: The hand-angle conventions ``φ = zero + sign·θh``, ``(zero deg, sign)``, that the
+#: multi-start refits and the diagnostics' convention check know.
+CONVENTIONS: tuple[tuple[float, int], ...] = tuple(
+    (zero, sign) for sign in (1, -1) for zero in (0.0, 90.0, 180.0, 270.0)
+)
+#: Uniform LM starts per convention (multi-start: on the paper's data 70 % of uniform starts
+#: reach the global basin, see ``benchmarks/RESULTS.md``).
+REFIT_STARTS = 6
+
+
+def convention_index(zero_deg: float, sign: float) -> int:
+    """The position of ``(zero_deg, sign)`` in :data:`CONVENTIONS` (0 if it is not there)."""
+    zero = np.array([c[0] for c in CONVENTIONS])
+    signs = np.array([float(c[1]) for c in CONVENTIONS])
+    return int(np.argmax((zero == float(zero_deg)) & (signs == float(sign))))
+
+
+def uniform_starts(seed: int, box: Box, n: int) -> np.ndarray:
+    """``n`` uniform points of ``box`` drawn by NumPy's PCG64 from ``seed`` (a negative seed
+    is taken modulo 2⁶⁴)."""
+    rng = np.random.default_rng(seed % 2**64)
+    return rng.uniform(box.lower, box.upper, size=(n, box.d))
+
+
+def refit_starts(seed: int, box: Box, rig) -> np.ndarray:
+    """Stage 1's refit starts: the declared convention's share of the uniform points the
+    convention check draws (the same points, so its refits never reach below the fit)."""
+    k = convention_index(float(rig.angle_zero_deg), float(rig.angle_sign))
+    draws = uniform_starts(seed, box, len(CONVENTIONS) * REFIT_STARTS)
+    return draws[k * REFIT_STARTS : (k + 1) * REFIT_STARTS]
 
 
 def _prior_report(stage: StageFit) -> dict[str, Any] | None:
@@ -432,6 +571,38 @@ def check_determined(
     return []
 
 
+#: A parameter closer than this fraction of its range to a bound is on the bound.
+BOUND_FRACTION = 1e-3
+
+
+def bound_hits(
+    params: dict[str, float], cls: type[AbstractParametric], search: dict
+) -> list[dict[str, Any]]:
+    """Parameters on a bound of their search range, each with a wider range to try.
+
+    Args:
+        params: the fitted parameters, name → value (in each parameter's unit).
+        cls: the model or correction class (names, units, default ranges).
+        search: the dataset's ``[search]`` overrides.
+    """
+    lower, upper = cls.search_bounds(search)
+    out = []
+    for name, unit, lo, hi in zip(cls.param_names, cls.param_units, lower, upper, strict=True):
+        v, width = params[name], hi - lo
+        side = (
+            "lower"
+            if v - lo <= BOUND_FRACTION * width
+            else ("upper" if hi - v <= BOUND_FRACTION * width else None)
+        )
+        if side:
+            wider = (lo - width, hi) if side == "lower" else (lo, hi + width)
+            out.append({
+                "param": name, "value": float(v), "unit": unit, "side": side,
+                "range": [float(lo), float(hi)], "widen_to": [float(wider[0]), float(wider[1])],
+            })  # fmt: skip
+    return out
+
+
 def bound_warnings(
     params: dict[str, float],
     cls: type[AbstractParametric],
@@ -489,8 +660,8 @@ def prior_warnings(stage: StageResult, label: str) -> list[str]:
 
 def _sign_twin(stage: StageFit) -> dict[str, Any]:
     cls = type(stage.space.template)
-    names = [n for n in getattr(cls, "sign_twin", ()) if n in stage.space.free]
-    if len(names) != len(getattr(cls, "sign_twin", ())) or not names:
+    names = [n for n in cls.sign_twin if n in stage.space.free]
+    if len(names) != len(cls.sign_twin) or not names:
         return {}
     idx = [stage.space.free.index(n) for n in names]
     flipped = np.array(stage.x, copy=True)
@@ -554,40 +725,27 @@ def fit(
     dataset: Dataset, plan: Plan, settings: Settings = Settings(), *, progress: bool = False
 ) -> CalibrationResult:
     """Fit both stages of ``plan`` to ``dataset``; the engine of :func:`calibrate` and
-    :func:`recalibrate` (no diagnostics: see :func:`handeye_jax.diagnose`)."""
+    :func:`recalibrate`. The result holds the best optimum the search found; the diagnostics
+    (:func:`handeye_jax.diagnose`) only read it."""
     t_start = time.perf_counter()
-    model_cls = type(plan.space1.template)
-    if settings.model != model_cls.name:
-        raise ValueError(f"settings.model is {settings.model!r}, the plan's {model_cls.name!r}")
-    check_population(dataset, settings.population)
-    if not 0 <= settings.restarts <= MAX_RESTARTS:
-        raise ValueError(f"restarts must be 0 to {MAX_RESTARTS:,} (got {settings.restarts})")
-    obs = dataset.observations()
+    obs = _checked(dataset, plan, settings)
     n = obs.n_landmarks
-    # Refuse an undetermined fit before any work (the warnings come with the result).
-    check_determined(n, plan.space1, "stage 1", dataset.source)
-    check_determined(n, plan.space2, "stage 2", dataset.source)
-    check_distinct(dataset.tablet_px, dataset.source)
     keys1, keys2 = _stage_keys(np.int64(settings.seed))
     with_loss = _loss_wrapper(settings, n)
-    subset1 = subset2 = None
-    if n > RESTART_LANDMARKS:
-        subset1 = spread_landmarks(n, RESTART_LANDMARKS)
-        subset2 = spread_landmarks(n, RESTART_LANDMARKS, include=obs.centre_index)
+    subset1 = spread_landmarks(n, RESTART_LANDMARKS) if n > RESTART_LANDMARKS else None
 
     def build1(template, free):
         return with_loss(Stage1Objective(template, obs, free))
 
-    fit1 = fit_stage(build1, plan.space1, settings, keys1, search=plan.search1, n_landmarks=n,
-                     progress=progress, label="stage 1 DE", restart_landmarks=subset1)  # fmt: skip
-    stage1 = _stage_result(fit1, _prior_report(fit1))
-    _check_finite(stage1, "stage 1", dataset.source)
+    task1 = StageTask(build1, plan.space1, n, plan.search1, "stage 1 DE", subset1,
+                      refit_starts(settings.seed, plan.space1.box, obs.rig))  # fmt: skip
+    fit1 = fit_stage(task1, settings, keys1, progress=progress)
+    stage1 = _finished(fit1, "stage 1", dataset.source)
     fit2, stage2, centres = fit_correction_stage(
-        obs, fit1.model(), plan.space2, plan.search2, settings, keys2, progress, subset2,
-        dataset.source,
+        obs, fit1.model(), plan.space2, plan.search2, settings, keys2,
+        progress=progress, source=dataset.source,
     )  # fmt: skip
-    warnings = _all_warnings(n, (plan.space1, plan.space2), stage1, stage2, dataset.search,
-                             dataset.source)  # fmt: skip
+    spaces, stages = Stages(plan.space1, plan.space2), Stages(stage1, stage2)
     timings = {
         "stage1_de": fit1.timings["de"], "stage1_polish": fit1.timings["polish"],
         "stage2_de": fit2.timings["de"], "stage2_polish": fit2.timings["polish"],
@@ -598,23 +756,35 @@ def fit(
         recal = {"previous": plan.previous, "refit": list(plan.refit),
                  "others": "fixed" if plan.fixed else "prior"}  # fmt: skip
     return CalibrationResult(
-        model=fit1.model(),
-        correction=fit2.model(),
-        rig=obs.rig,
-        centres_mm=np.asarray(centres),
-        centre_index=obs.centre_index,
-        stage1=stage1,
-        stage2=stage2,
-        settings=settings,
-        data=dataset,
-        dataset_name=dataset.name,
-        timings_s=timings,
-        sign_twin=_sign_twin(fit1),
-        warnings=warnings,
-        recalibration=recal,
-        fits=(fit1, fit2),
-        heights=height_summary(fit1.model(), obs),
-    )
+        model=fit1.model(), correction=fit2.model(), rig=obs.rig, centres_mm=np.asarray(centres),
+        centre_index=obs.centre_index, stage1=stage1, stage2=stage2, settings=settings,
+        data=dataset, dataset_name=dataset.name, timings_s=timings, sign_twin=_sign_twin(fit1),
+        warnings=all_warnings(n, spaces, stages, dataset.search, dataset.source),
+        recalibration=recal, fits=Stages(fit1, fit2), heights=height_summary(fit1.model(), obs),
+    )  # fmt: skip
+
+
+def _checked(dataset: Dataset, plan: Plan, settings: Settings) -> Observations:
+    """The dataset's observations, once the plan, the settings and the data can make a fit
+    (an undetermined one is refused before any work; its warnings come with the result)."""
+    model_cls = type(plan.space1.template)
+    if settings.model != model_cls.name:
+        raise ValueError(f"settings.model is {settings.model!r}, the plan's {model_cls.name!r}")
+    check_population(dataset, settings.population)
+    if not 0 <= settings.restarts <= MAX_RESTARTS:
+        raise ValueError(f"restarts must be 0 to {MAX_RESTARTS:,} (got {settings.restarts})")
+    obs = dataset.observations()
+    check_determined(obs.n_landmarks, plan.space1, "stage 1", dataset.source)
+    check_determined(obs.n_landmarks, plan.space2, "stage 2", dataset.source)
+    check_distinct(dataset.tablet_px, dataset.source)
+    return obs
+
+
+def _finished(stage: StageFit, name: str, source: str | Path | None) -> StageResult:
+    """A stage's fit as numbers, once it is finite (``source`` names the data if not)."""
+    out = _stage_result(stage, _prior_report(stage))
+    _check_finite(out, name, source)
+    return out
 
 
 def fit_correction_stage(
@@ -624,8 +794,8 @@ def fit_correction_stage(
     search2: Sequence[str],
     settings: Settings,
     keys2: tuple[jax.Array, jax.Array],
+    *,
     progress: bool = False,
-    subset: np.ndarray | None = None,
     source: str | Path | None = None,
 ) -> tuple[StageFit, StageResult, np.ndarray]:
     """Stage 2 on the chain points of a stage-1 ``model``: its fit, its result and its
@@ -633,14 +803,16 @@ def fit_correction_stage(
     n = obs.n_landmarks
     points = _points(model, obs)
     with_loss = _loss_wrapper(settings, n)
+    subset = None
+    if n > RESTART_LANDMARKS:
+        subset = spread_landmarks(n, RESTART_LANDMARKS, include=obs.centre_index)
 
     def build2(template, free):
         return with_loss(Stage2Objective(template, points, obs.centre_index, free))
 
-    fit2 = fit_stage(build2, space2, settings, keys2, search=search2, n_landmarks=n,
-                     progress=progress, label="stage 2 DE", restart_landmarks=subset)  # fmt: skip
-    stage2 = _stage_result(fit2, _prior_report(fit2))
-    _check_finite(stage2, "stage 2", source)
+    task = StageTask(build2, space2, n, tuple(search2), "stage 2 DE", subset)
+    fit2 = fit_stage(task, settings, keys2, progress=progress)
+    stage2 = _finished(fit2, "stage 2", source)
     return fit2, stage2, np.asarray(_centres(fit2.model(), points, obs.centre_index))
 
 
@@ -795,23 +967,12 @@ def fit_correction(
     """
     _, keys2 = _stage_keys(np.int64(settings.seed))
     space2 = ParameterSpace.all_free(AffinePair.nominal(), dataset.search)
-    n = dataset.n_landmarks
-    subset = None
-    if n > RESTART_LANDMARKS:
-        centre = dataset.observations().centre_index
-        subset = spread_landmarks(n, RESTART_LANDMARKS, include=centre)
-    fit2, _, centres = fit_correction_stage(
-        dataset.observations(), model, space2, space2.free, settings, keys2, False, subset,
-        dataset.source,
-    )  # fmt: skip
+    fit2, _, centres = fit_correction_stage(dataset.observations(), model, space2, space2.free,
+                                            settings, keys2, source=dataset.source)  # fmt: skip
     return fit2.model(), centres
 
 
-# -- the diagnostics, a step of their own --------------------------------------------------
-
-#: How many times the diagnostics may replace a result's stage 1 with a lower refit (each
-#: time stage 2 and the diagnostics are run again).
-MAX_ADOPTIONS = 2
+# -- what the diagnostics read of a result -------------------------------------------------
 
 
 def _prior_of(report: dict[str, Any] | None) -> Prior | None:
@@ -821,7 +982,7 @@ def _prior_of(report: dict[str, Any] | None) -> Prior | None:
                  report["data_scale_mm"], report.get("data_sigma_mm"))  # fmt: skip
 
 
-def _spaces_of(result: CalibrationResult, search: dict) -> tuple[ParameterSpace, ParameterSpace]:
+def _spaces_of(result: CalibrationResult, search: dict) -> Stages[ParameterSpace]:
     """The stages' parameter spaces of a result read from a file (its boxes: the search
     ranges, widened to hold the fit and its priors)."""
     spaces = []
@@ -832,154 +993,76 @@ def _spaces_of(result: CalibrationResult, search: dict) -> tuple[ParameterSpace,
         prior = _prior_of(stage.prior)
         lo, hi = _widened(cls, search, free, prior, template)
         spaces.append(ParameterSpace(template, free, lo, hi, prior, stage.fixed_source))
-    return spaces[0], spaces[1]
+    return Stages(*spaces)
 
 
-def _all_warnings(n, spaces, stage1, stage2, search, path, convention_warning=None) -> list[str]:
-    model_cls = type(spaces[0].template)
-    warnings = fit_warnings(stage1, stage2)
-    warnings += check_determined(n, spaces[0], "stage 1", path)
-    warnings += check_determined(n, spaces[1], "stage 2", path)
-    warnings += bound_warnings(stage1.params, model_cls, search, spaces[0].free)
-    warnings += bound_warnings(stage2.params, AffinePair, search, spaces[1].free)
-    warnings += prior_warnings(stage1, "stage 1") + prior_warnings(stage2, "stage 2")
-    if convention_warning:
-        warnings.append(convention_warning)
-    return warnings
+@dataclass(frozen=True)
+class FittedStage:
+    """One stage of a result as its fit saw it, for the diagnostics to read.
 
-
-def _better_refit(objective, diagnostics: dict, space: ParameterSpace, f: float,
-                  searched_fewer: bool):  # fmt: skip
-    """The diagnostics' multi-start refit (declared convention) with the lowest value of
-    ``objective``, if lower than ``f`` by more than :data:`BETTER_BY_MM`, as ``(x, value,
-    elsewhere)`` (``elsewhere``: another optimum, not the fit's own refined); else None.
-
-    ``searched_fewer``: the refits searched on fewer landmarks than ``objective`` has, so
-    their end points are polished on all before they are compared.
+    Attributes:
+        space: the stage's parameters, box and prior.
+        objective: the stage's objective on ``space.free`` as fitted, its prior included and
+            the loss not (stage 2 at stage 1's chain points).
+        x: the optimum's free parameters.
+        population: the final DE population, if the result was just computed.
     """
-    found = []
-    for mode in diagnostics["stage1"].get("local_optima", []):
-        x_r = np.array([mode["params"][n] for n in space.free])
-        found.append((_value(objective, x_r), x_r, bool(mode["differs_from_fit"])))
-    found = sorted((c for c in found if np.isfinite(c[0])), key=lambda c: c[0])
-    elsewhere = [c for c in found if c[2]]
-    if searched_fewer and elsewhere:
-        f_r, x_r, _ = elsewhere[0]
-        lm = minimise(objective, POLISH, Bounds(space.lower, space.upper), x0=x_r)
-        better = np.isfinite(lm.value) and lm.value < f_r
-        found.append((lm.value, lm.x, True) if better else elsewhere[0])
-        found.sort(key=lambda c: c[0])
-    if found and found[0][0] < f - BETTER_BY_MM:
-        return found[0][1], found[0][0], found[0][2]
-    return None
+
+    space: ParameterSpace
+    objective: AbstractObjective
+    x: np.ndarray
+    population: Population | None = None
 
 
 @in_float64
-def diagnose(
-    result: CalibrationResult, *, search: dict | None = None, progress: bool = False
-) -> CalibrationResult:
-    """The result with its ``diagnostics``: uncertainty and identifiability, the optima in
-    the final DE population, bound hits, leave-one-out, outliers and the convention check.
-
-    All on each stage's free parameters (their priors included). A multi-start refit of stage
-    1 that reaches a lower value than the fit becomes the result (stage 2 and the diagnostics
-    are then run again on it), and stage 1's ``polish.found_by`` says so: a calibration never
-    reports a worse optimum than it found.
-
-    Args:
-        result: a result just computed, or read from a file (the DE populations are then
-            unknown, and the optima in them are not reported).
-        search: the dataset's ``[search]`` overrides (a result read from a file does not
-            record them; default: none).
-        progress: show progress bars (of a stage-2 refit) on stderr.
-    """
-    from ..diagnostics import diagnostics_of
-
-    t0 = time.perf_counter()
-    settings = result.settings
-    search = search or {}
+def fitted_stages(result: CalibrationResult, search: dict | None = None) -> Stages[FittedStage]:
+    """Both stages of ``result`` as fitted: from its fits when it was just computed, else
+    rebuilt from its file's numbers (``search``: the dataset's ``[search]`` overrides, which a
+    file does not record)."""
     if result.data is None:
         raise InputError(None, "data", "the result does not carry its data: it cannot be "
                          "diagnosed; calibrate again")  # fmt: skip
     obs = result.data.observations()
     n = obs.n_landmarks
     if result.fits is not None:
-        fit1, fit2 = result.fits
-        spaces = (fit1.space, fit2.space)
-        x1, x2 = fit1.x, fit2.x
-        populations = (fit1.population, fit2.population)
+        spaces = Stages(result.fits.stage1.space, result.fits.stage2.space)
+        xs = Stages(result.fits.stage1.x, result.fits.stage2.x)
+        populations = Stages(result.fits.stage1.population, result.fits.stage2.population)
     else:
-        spaces = _spaces_of(result, search)
-        x1 = np.array([result.stage1.params[nm] for nm in spaces[0].free])
-        x2 = np.array([result.stage2.params[nm] for nm in spaces[1].free])
-        populations = (None, None)
-    loss = get_loss(settings.loss, settings.loss_scale_mm)
-    with_loss = _loss_wrapper(settings, n)
-    stage1, stage2, pol1 = result.stage1, result.stage2, dict(result.stage1.polish)
-    centres, t_restage = result.centres_mm, 0.0
-    _, keys2 = _stage_keys(np.int64(settings.seed))
-    fits = result.fits
-    gaussian = isinstance(loss, L1Loss)  # as the fit's objectives (with_prior)
-    for adoption in range(MAX_ADOPTIONS + 1):
-        s1 = with_prior(Stage1Objective(spaces[0].template, obs, spaces[0].free), spaces[0], n,
-                        gaussian=gaussian)  # fmt: skip
-        points = _points(put(spaces[0].template, spaces[0].free, jnp.asarray(x1)), obs)
-        s2 = Stage2Objective(spaces[1].template, points, obs.centre_index, spaces[1].free)
-        s2 = with_prior(s2, spaces[1], n, gaussian=gaussian)
-        diagnostics = diagnostics_of(
-            stage1=s1, stage2=s2, spaces=spaces, loss=loss, loss_scale_mm=settings.loss_scale_mm,
-            x=(x1, x2), stage_results=(stage1, stage2), populations=populations, search=search,
-            seed=settings.seed, depth_mm=np.asarray(obs.depth_mm),
-            declared=(float(obs.rig.angle_zero_deg), int(obs.rig.angle_sign)),
-        )  # fmt: skip
-        obj1 = with_loss(s1)
-        better = _better_refit(obj1, diagnostics, spaces[0], _value(obj1, x1), n > REFIT_LANDMARKS)
-        if better is None or adoption == MAX_ADOPTIONS or spaces[0].d == 0:
-            break
-        # A refit reached a lower value than the fit (another optimum, or the fit's own one
-        # further down): take it, refit stage 2 on its points, and diagnose again from it.
-        t_a = time.perf_counter()
-        x_r, f_r, elsewhere = better
-        lm = minimise(obj1, POLISH, Bounds(spaces[0].lower, spaces[0].upper), x0=x_r)
-        if np.isfinite(lm.value) and lm.value < f_r:
-            x_r, f_r = lm.x, lm.value
-        pol1 = {
-            **pol1, "accepted": bool(f_r < result.stage1.de.get("F", np.inf)), "F_after": f_r,
-            "found_by": "diagnostics multi-start refit" if elsewhere else
-            f"{pol1['found_by'].split(', refined')[0]}, refined by the diagnostics' refit "
-            "from it",
-            "replaced_F": [*pol1.get("replaced_F", []), _value(obj1, x1)],
-        }  # fmt: skip
-        x1 = np.asarray(x_r, dtype=float)
-        new1 = StageFit(spaces[0], obj1, with_loss(Stage1Objective(spaces[0].template, obs,
-                        spaces[0].free)), x1, result.stage1.de, pol1, result.stage1.convergence,
-                        {}, populations[0])  # fmt: skip
-        stage1 = _stage_result(new1, _prior_report(new1))
-        _check_finite(stage1, "stage 1", None)
-        search2 = spaces[1].free if spaces[1].prior is None else ()
-        fit2, stage2, centres = fit_correction_stage(
-            obs, new1.model(), spaces[1], search2, settings, keys2, progress
-        )
-        x2 = fit2.x
-        populations = (populations[0], fit2.population)
-        fits = (new1, fit2)
-        centres = np.asarray(centres).tolist()
-        t_restage += time.perf_counter() - t_a
-    timings = dict(result.timings_s)
-    timings["diagnostics"] = time.perf_counter() - t0 - t_restage
-    if t_restage:
-        timings["refit_adoption"] = t_restage
-    warnings = _all_warnings(n, spaces, stage1, stage2, search, None,
-                             diagnostics["convention"]["warning"])  # fmt: skip
-    sign_twin = result.sign_twin
-    if fits is not None and fits is not result.fits:
-        sign_twin = _sign_twin(fits[0])
-    if fits is not result.fits:  # a refit was adopted: the models are the new fits'
-        result = replace(result, model=fits[0].model(), correction=fits[1].model(),
-                         heights=height_summary(fits[0].model(), obs))  # fmt: skip
-    result = replace(
-        result, stage1=stage1, stage2=stage2, centres_mm=centres, diagnostics=diagnostics,
-        warnings=warnings, timings_s=timings, sign_twin=sign_twin, fits=fits,
-    )  # fmt: skip
-    diagnostics["scope"] = capture_scope(result)  # where the calibration holds (_scope)
-    return result
+        spaces = _spaces_of(result, search or {})
+        xs = Stages(*(np.array([s.params[nm] for nm in sp.free])
+                      for sp, s in ((spaces.stage1, result.stage1),
+                                    (spaces.stage2, result.stage2))))  # fmt: skip
+        populations = Stages(None, None)
+    # Gaussian data under a prior that states its noise, unless a robust loss was chosen: as
+    # the fit's objectives (with_prior).
+    gaussian = isinstance(get_loss(result.settings.loss, result.settings.loss_scale_mm), L1Loss)
+    sp1, sp2 = spaces.stage1, spaces.stage2
+    s1 = with_prior(Stage1Objective(sp1.template, obs, sp1.free), sp1, n, gaussian=gaussian)
+    points = _points(put(sp1.template, sp1.free, jnp.asarray(xs.stage1)), obs)
+    s2 = Stage2Objective(sp2.template, points, obs.centre_index, sp2.free)
+    s2 = with_prior(s2, sp2, n, gaussian=gaussian)
+    return Stages(FittedStage(sp1, s1, xs.stage1, populations.stage1),
+                  FittedStage(sp2, s2, xs.stage2, populations.stage2))  # fmt: skip
+
+
+def all_warnings(
+    n: int,
+    spaces: Stages[ParameterSpace],
+    stages: Stages[StageResult],
+    search: dict,
+    path: str | Path | None,
+    extra: Sequence[str] = (),
+) -> list[str]:
+    """Every warning of a fit of ``n`` landmarks: a fit that is no rig's, stages with no
+    residuals to spare, parameters on a bound, priors the data pull from, and ``extra`` ones
+    (the diagnostics'), one line each."""
+    model_cls = type(spaces.stage1.template)
+    stage1, stage2 = stages.stage1, stages.stage2
+    warnings = fit_warnings(stage1, stage2)
+    warnings += check_determined(n, spaces.stage1, "stage 1", path)
+    warnings += check_determined(n, spaces.stage2, "stage 2", path)
+    warnings += bound_warnings(stage1.params, model_cls, search, spaces.stage1.free)
+    warnings += bound_warnings(stage2.params, AffinePair, search, spaces.stage2.free)
+    warnings += prior_warnings(stage1, "stage 1") + prior_warnings(stage2, "stage 2")
+    return warnings + [w for w in extra if w]

@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._core import InputError
+from .._core import InputError, Stages
 from .._jax import in_float64
 from ..data import Dataset
 from ..models import AbstractCorrection, AbstractModel, Rig, hand_command
@@ -120,7 +120,7 @@ class CalibrationResult:
     warnings: list[str] = field(default_factory=list)
     diagnostics: dict[str, Any] = field(default_factory=dict)
     recalibration: dict[str, Any] | None = None
-    fits: tuple[Any, Any] | None = field(default=None, repr=False)
+    fits: Stages[Any] | None = field(default=None, repr=False)
     heights: dict[str, float] | None = None
 
     def __post_init__(self):

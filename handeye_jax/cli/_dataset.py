@@ -114,7 +114,7 @@ def add_dataset_commands(sub: argparse._SubParsersAction) -> None:
         help="write here (default: update DATASET in place, the old one kept as "
         "DATASET.<UTC time>.bak)",
     )  # fmt: skip
-    p.set_defaults(func=_cmd_plan, imports=("..data._dataset_io", "..vision._captures"))
+    p.set_defaults(func=_cmd_plan, imports=("data.load_dataset", "vision.plan_captures"))
 
 
 def add_convert_command(sub: argparse._SubParsersAction) -> None:
@@ -139,4 +139,4 @@ def add_convert_command(sub: argparse._SubParsersAction) -> None:
         help="replace an existing --out (also the dataset itself); the replaced file is kept "
         "as OUT.<UTC time>.bak",
     )  # fmt: skip
-    p.set_defaults(func=_cmd_convert, imports=("..data._dataset_io",))
+    p.set_defaults(func=_cmd_convert, imports=("data.convert_to_v2",))

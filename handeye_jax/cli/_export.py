@@ -64,7 +64,7 @@ def add_export_command(sub) -> None:
         "--pen-frame", type=_name, default=DEFAULT_PEN_FRAME, metavar="NAME",
         help=f"the pen tip frame (urdf, ros2; default {DEFAULT_PEN_FRAME})",
     )  # fmt: skip
-    p.set_defaults(func=_cmd_export, imports=("..calibration._result_frames", "..robot._export"))
+    p.set_defaults(func=_cmd_export, imports=("calibration.load_frames", "robot.export_text"))
 
 
 def _cmd_export(args: argparse.Namespace) -> int:

@@ -125,15 +125,9 @@ def _output_path(
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from ..calibration import (
-        Settings,
-        calibrate,
-        diagnose,
-        load_result,
-        recalibrate,
-        result_to_json,
-    )
+    from ..calibration import Settings, calibrate, load_result, recalibrate, result_to_json
     from ..data import load_dataset
+    from ..diagnostics import diagnose
     from ..report import format_summary
 
     out = _output_path(args.out, "--out", [args.dataset, args.prior])
@@ -330,8 +324,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="write the result (JSON) here (default: print the summary only)",
     )  # fmt: skip
     cal.add_argument("--quiet", action="store_true", help="no progress bars on stderr")
-    cal.set_defaults(func=_cmd_calibrate, imports=("..calibration._calibrate", "..data._dataset_io",
-                                                    "..calibration._result_io"))  # fmt: skip
+    cal.set_defaults(func=_cmd_calibrate, imports=("calibration.calibrate", "data.load_dataset",
+                                                    "diagnostics.diagnose"))  # fmt: skip
     add_twin_commands(sub)  # simulate, detect, evaluate
     add_export_command(sub)
     add_dataset_commands(sub)  # convert, plan
@@ -417,15 +411,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _start_jax(*modules: str, announce: bool = False) -> None:
     """Before JAX's first computation: XLA's flags and the persistent compilation cache (and
-    ``announce`` each program compiled for it); the command's ``modules`` (names relative to
-    this package) imported."""
+    ``announce`` each program compiled for it); the command's ``modules`` imported: each
+    ``folder.name`` (of this package) loads what the folder's ``name`` needs."""
     with interrupts.deferred():  # the imports take a second or more: Ctrl-C waits for them
         from .._jax import vectorise_small_loops
 
         vectorise_small_loops()
         _enable_compilation_cache(announce)
         for name in modules:
-            importlib.import_module(name, __package__)
+            folder, _, attribute = name.rpartition(".")
+            getattr(importlib.import_module(f"..{folder}", __package__), attribute)
 
 
 def _enable_compilation_cache(announce: bool = False) -> None:

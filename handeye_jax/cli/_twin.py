@@ -394,7 +394,7 @@ def add_twin_commands(sub: argparse._SubParsersAction) -> None:
         f"what was made from it ({', '.join(DERIVED_FILES)}, the figures in {DERIVED_FOLDER}/);"
         " other files are left as they are",
     )
-    sim.set_defaults(func=_cmd_simulate, imports=("..twin._simulate",))
+    sim.set_defaults(func=_cmd_simulate, imports=("twin.simulate",))
 
     det = sub.add_parser(
         "detect",
@@ -451,7 +451,7 @@ def add_twin_commands(sub: argparse._SubParsersAction) -> None:
                      help="smallest blob, px² (default: %(default)s)")  # fmt: skip
     det.add_argument("--max-area", type=_positive_int, default=MAX_AREA_PX,
                      help="largest blob, px² (default: %(default)s)")  # fmt: skip
-    det.set_defaults(func=_cmd_detect, imports=("..vision._detect", "..data._dataset_io"))
+    det.set_defaults(func=_cmd_detect, imports=("vision.detect_landmarks", "data.load_dataset"))
 
     ev = sub.add_parser(
         "evaluate",
@@ -465,4 +465,4 @@ def add_twin_commands(sub: argparse._SubParsersAction) -> None:
     )
     ev.add_argument("result", help="result file from 'calibrate --out'")
     ev.add_argument("twin_dir", help="folder written by 'simulate'")
-    ev.set_defaults(func=_cmd_evaluate, imports=("..twin._evaluate",))
+    ev.set_defaults(func=_cmd_evaluate, imports=("twin.evaluate_twin",))

@@ -7,9 +7,10 @@ from __future__ import annotations
 from .._core import lazy_exports
 
 # What the layers above may use, by module; each loads on first use (PEP 562).
+# fmt: off
 _EXPORTS = {
-    "_diagnostics": ("bound_hits", "diagnostics_of", "MAX_MODES", "mode_leaders"),
-    "_refits": ("REFIT_LANDMARKS",),
+    "_diagnose": ("diagnose",),
     "_scope": ("capture_scope", "scope_lines"),
 }
+# fmt: on
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

@@ -13,18 +13,20 @@ from typing import Any
 
 import numpy as np
 
-from ..models import AbstractParametric
-from ..optim import Bounds
-from ..problem import AbstractLoss, AbstractObjective, ParameterSpace, analyse_jacobian
-from ._refits import CONVENTIONS, refits
+from .._core import Stages
+from ..calibration import (
+    CONVENTIONS,
+    REFIT_STARTS,
+    FittedStage,
+    Settings,
+    StageResult,
+    bound_hits,
+)
+from ..data import Observations
+from ..optim import MAX_MODES, mode_leaders
+from ..problem import ParameterSpace, analyse_jacobian, get_loss
+from ._refits import refits
 
-# A parameter closer than this fraction of its range to a bound is reported as on the bound.
-BOUND_FRACTION = 1e-3
-#: Population members closer than this to a better member, in every parameter (as a fraction
-#: of its search range), belong to its optimum.
-MODE_RADIUS = 0.05
-#: At most this many optima are reported, best first.
-MAX_MODES = 5
 #: A distinct optimum is reported when its best F is within this many mm of the best.
 MODE_F_MARGIN_MM = 0.5
 #: Parameters that differ by more than this fraction of their range are listed per optimum.
@@ -35,86 +37,9 @@ OUTLIER_FACTOR = 3.0
 #: fraction of the declared one's, and at least CONVENTION_MARGIN_MM.
 CONVENTION_FRACTION = 0.1
 CONVENTION_MARGIN_MM = 0.05
-#: Budget of the refits: random LM starts per convention, most LM iterations per refit.
-CONVENTION_STARTS = 6
+#: Most LM iterations of each refit (the random starts per convention: REFIT_STARTS, the
+#: fit's own multi-start refits).
 REFIT_STEPS = 400
-
-
-def bound_hits(
-    params: dict[str, float], cls: type[AbstractParametric], search: dict
-) -> list[dict[str, Any]]:
-    """Parameters on a bound of their search range, each with a wider range to try.
-
-    Args:
-        params: the fitted parameters, name → value (in each parameter's unit).
-        cls: the model or correction class (names, units, default ranges).
-        search: the dataset's ``[search]`` overrides.
-    """
-    lower, upper = cls.search_bounds(search)
-    out = []
-    for name, unit, lo, hi in zip(cls.param_names, cls.param_units, lower, upper, strict=True):
-        v, width = params[name], hi - lo
-        side = (
-            "lower"
-            if v - lo <= BOUND_FRACTION * width
-            else ("upper" if hi - v <= BOUND_FRACTION * width else None)
-        )
-        if side:
-            wider = (lo - width, hi) if side == "lower" else (lo, hi + width)
-            out.append({
-                "param": name, "value": float(v), "unit": unit, "side": side,
-                "range": [float(lo), float(hi)], "widen_to": [float(wider[0]), float(wider[1])],
-            })  # fmt: skip
-    return out
-
-
-def mode_leaders(
-    population: np.ndarray,
-    fitness: np.ndarray,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    names: Sequence[str] = (),
-    flat_steps: Sequence[dict[str, float]] = (),
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The best member of each distinct optimum in a population, best first.
-
-    Members are grouped greedily in order of fitness: a member within :data:`MODE_RADIUS` of
-    a group's best member in every parameter (as a fraction of its range) joins that group.
-    Non-finite fitnesses are left out.
-
-    Args:
-        population, fitness: the population ``(N, d)`` and its F (mm).
-        lower, upper: the search box.
-        names, flat_steps: parameter names, and directions along which F barely or never
-            changes (``{name: step}``); members apart only along them are one optimum (see
-            :func:`population_modes`).
-
-    Returns:
-        ``(x, F, members)``: each optimum's best member ``(k, d)``, its F ``(k,)`` and how
-        many members the group holds ``(k,)``.
-    """
-    ok = np.isfinite(fitness)
-    pop, f = np.asarray(population)[ok], np.asarray(fitness)[ok]
-    order = np.argsort(f, kind="stable")
-    pop, f = pop[order], f[order]
-    width = np.asarray(upper) - np.asarray(lower)
-    u = (pop - lower) / width
-    if flat_steps:
-        V = np.array([[st.get(n, 0.0) for n in names] for st in flat_steps]) / width
-        Q, _ = np.linalg.qr(V.T)  # orthonormal basis of the flat directions
-        u = u - (u @ Q) @ Q.T
-    leaders: list[int] = []
-    counts: list[int] = []
-    for i in range(len(f)):
-        if leaders:
-            dist = np.abs(u[leaders] - u[i]).max(axis=1)
-            j = int(np.argmin(dist))
-            if dist[j] < MODE_RADIUS:
-                counts[j] += 1
-                continue
-        leaders.append(i)
-        counts.append(1)
-    return pop[leaders], f[leaders], np.array(counts, dtype=int)
 
 
 def population_modes(
@@ -225,7 +150,7 @@ def convention_check(
         "fits": fits,
         "passed": warning is None,
         "warning": warning,
-        "method": f"LM from {CONVENTION_STARTS} uniform starts per convention "
+        "method": f"LM from {REFIT_STARTS} uniform starts per convention "
         f"(at most {REFIT_STEPS} iterations each), the declared one also from the fit; the pen's "
         "search box is kept"
         + (
@@ -248,88 +173,73 @@ def _prior_precision(space: ParameterSpace) -> np.ndarray | None:
 
 
 def diagnostics_of(
-    *,
-    stage1: AbstractObjective,
-    stage2: AbstractObjective,
-    spaces: tuple[ParameterSpace, ParameterSpace],
-    loss: AbstractLoss,
-    loss_scale_mm: float,
-    x: tuple[np.ndarray, np.ndarray],
-    stage_results: tuple[Any, Any],
-    populations: tuple[Any, Any],
+    stages: Stages[FittedStage],
+    results: Stages[StageResult],
+    settings: Settings,
+    obs: Observations,
     search: dict,
-    seed: int,
-    depth_mm: np.ndarray,
-    declared: tuple[float, int],
 ) -> dict[str, Any]:
     """The ``diagnostics`` object of a result, on each stage's free parameters.
 
     Args:
-        stage1, stage2: the stages' objectives as fitted (prior included, loss not).
-        spaces: the stages' parameter spaces.
-        loss, loss_scale_mm: the loss the fit used, and its scale in mm.
-        x: each stage's optimum (free parameters).
-        stage_results: each stage's :class:`~handeye_jax.result.StageResult`.
-        populations: each stage's final DE ``(population, fitness, names searched)``, or
-            ``None`` where it is not known (a result read from a file).
+        stages: each stage as fitted (:func:`~handeye_jax.calibration.fitted_stages`).
+        results: each stage's numbers (:class:`~handeye_jax.StageResult`).
+        settings: the calibration's settings: its loss and the seed the convention
+            multi-starts draw from.
+        obs: the observations fitted (depths explain a shift–tilt trade-off; the rig's
+            convention is the declared one).
         search: the dataset's ``[search]`` overrides.
-        seed: the calibration's seed (the convention multi-starts draw from it).
-        depth_mm: the landmarks' depths, mm (to explain a shift–tilt trade-off).
-        declared: the dataset's hand-angle convention ``(zero deg, sign)``.
     """
-    bounds = [Bounds(sp.lower, sp.upper) for sp in spaces]
-    out = refits(
-        stage1, stage2, loss, np.asarray(x[0]), np.asarray(x[1]), bounds[0], bounds[1], seed,
-        CONVENTION_STARTS, REFIT_STEPS,
-    )  # fmt: skip
-    loo = (
-        _loo(out.loo1_image_vs_tablet, out.loo1_hand, stage_results[0].F),
-        _loo(out.loo2_image_vs_tablet, out.loo2_hand, stage_results[1].F),
-    )
-    threshold = OUTLIER_FACTOR * loss_scale_mm
-    stages = {}
-    jacobians = ((out.errors1, out.jacobian1), (out.errors2, out.jacobian2))
-    flat: dict[int, list[dict[str, float]]] = {}
-    for k, (space, (e, J), sr, pop) in enumerate(
-        zip(spaces, jacobians, stage_results, populations, strict=True)
-    ):
-        cls = type(space.template)
-        units = [cls.param_units[cls.param_names.index(n)] for n in space.free]
-        jac = analyse_jacobian(e, J, space.free, units, depth_mm, _prior_precision(space))
-        flat[k] = [w["step"] for w in jac["weak_directions"]]
-        modes = []
-        if pop is not None and pop[2]:
-            members, fitness_, names = pop
-            idx = [space.free.index(n) for n in names]
-            twin = tuple(n for n in getattr(cls, "sign_twin", ()) if n in names)
-            steps = [{n: v for n, v in st.items() if n in names} for st in flat[k]]
-            modes = population_modes(
-                members, fitness_, space.lower[idx], space.upper[idx], names, twin,
-                [st for st in steps if st], np.asarray(x[k])[idx],
-            )  # fmt: skip
-        stages[f"stage{k + 1}"] = {
-            **jac,
-            "free": list(space.free),
-            "modes": modes,
-            "bound_hits": [
-                h for h in bound_hits(sr.params, cls, search) if h["param"] in space.free
-            ],  # fmt: skip
-            "loo": loo[k],
-            "loo_method": out.loo_method,
-            "outliers": outliers(sr.residuals_mm, threshold),
-        }
-    space1 = spaces[0]
-    cls1 = type(space1.template)
-    stages["stage1"]["local_optima"] = population_modes(
+    loss = get_loss(settings.loss, settings.loss_scale_mm)
+    out = refits(stages, loss, settings.seed, REFIT_STARTS, REFIT_STEPS)
+    loo = Stages(_loo(out.loo1_image_vs_tablet, out.loo1_hand, results.stage1.F),
+                 _loo(out.loo2_image_vs_tablet, out.loo2_hand, results.stage2.F))  # fmt: skip
+    jacobians = Stages((out.errors1, out.jacobian1), (out.errors2, out.jacobian2))
+    depth = np.asarray(obs.depth_mm)
+    threshold = OUTLIER_FACTOR * settings.loss_scale_mm
+    found = {}
+    for key, stage in stages.items():
+        result = getattr(results, key)
+        found[key] = _stage_diagnostics(stage, getattr(jacobians, key), depth, result, search)
+        found[key].update(loo=getattr(loo, key), loo_method=out.loo_method,
+                          outliers=outliers(result.residuals_mm, threshold))  # fmt: skip
+    space1 = stages.stage1.space
+    found["stage1"]["local_optima"] = population_modes(
         out.declared_params, out.declared_F, space1.lower, space1.upper, space1.free,
-        tuple(n for n in getattr(cls1, "sign_twin", ()) if n in space1.free), flat[0],
-        np.asarray(x[0]),
+        tuple(n for n in type(space1.template).sign_twin if n in space1.free),
+        [w["step"] for w in found["stage1"]["weak_directions"]], np.asarray(stages.stage1.x),
     )  # fmt: skip
-    n = len(depth_mm)
+    n = obs.n_landmarks
     searched = out.refit_landmarks if out.refit_landmarks < n else 0
+    declared = (float(obs.rig.angle_zero_deg), int(obs.rig.angle_sign))
     return {
-        "loss": {"name": loss.name, "scale_mm": float(loss_scale_mm)},
+        "loss": {"name": loss.name, "scale_mm": float(settings.loss_scale_mm)},
         "outlier_threshold_mm": threshold,
-        **stages,
-        "convention": convention_check(out.convention_F, declared, stage_results[0].F, searched),
+        **found,
+        "convention": convention_check(out.convention_F, declared, results.stage1.F, searched),
     }
+
+
+def _stage_diagnostics(stage: FittedStage, jacobian: tuple[np.ndarray, np.ndarray],
+                       depth_mm: np.ndarray, result: StageResult,
+                       search: dict) -> dict[str, Any]:  # fmt: skip
+    """One stage's uncertainty, weak directions (from its error vectors and their Jacobian at
+    the fit), the optima in its final DE population and its parameters on a bound."""
+    space = stage.space
+    cls = type(space.template)
+    e, J = jacobian
+    units = [cls.param_units[cls.param_names.index(n)] for n in space.free]
+    jac = analyse_jacobian(e, J, space.free, units, depth_mm, _prior_precision(space))
+    flat = [w["step"] for w in jac["weak_directions"]]
+    modes = []
+    pop = stage.population
+    if pop is not None and pop.searched:
+        idx = [space.free.index(n) for n in pop.searched]
+        twin = tuple(n for n in cls.sign_twin if n in pop.searched)
+        steps = [{n: v for n, v in st.items() if n in pop.searched} for st in flat]
+        modes = population_modes(
+            pop.members, pop.values, space.lower[idx], space.upper[idx], pop.searched, twin,
+            [st for st in steps if st], np.asarray(stage.x)[idx],
+        )  # fmt: skip
+    hits = [h for h in bound_hits(result.params, cls, search) if h["param"] in space.free]
+    return {**jac, "free": list(space.free), "modes": modes, "bound_hits": hits}

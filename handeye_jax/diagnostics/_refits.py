@@ -40,8 +40,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._core import Stages
 from .._jax import fast_compile
-from ..optim import Bounds, LevenbergMarquardt, minimise_batch
+from ..calibration import CONVENTIONS, convention_index, uniform_starts
+from ..optim import Box, LevenbergMarquardt, minimise_batch
 from ..problem import (
     AbstractLoss,
     AbstractObjective,
@@ -67,10 +69,19 @@ REFIT_LANDMARKS = 64
 #: moves first): O(this · n).
 LOO_REFITS = 16
 
-#: The hand-angle conventions (zero deg, sign) the convention check tries.
-CONVENTIONS: tuple[tuple[float, int], ...] = tuple(
-    (zero, sign) for sign in (1, -1) for zero in (0.0, 90.0, 180.0, 270.0)
-)
+
+@dataclass(frozen=True)
+class _Pair:
+    """Both stages as the refits take them: objectives without the loss (a prior kept), the
+    loss, the fit's free parameters and each stage's box."""
+
+    stage1: AbstractObjective
+    stage2: AbstractObjective
+    loss: AbstractLoss
+    x1: np.ndarray
+    x2: np.ndarray
+    box1: Box
+    box2: Box
 
 
 @dataclass(frozen=True)
@@ -292,13 +303,8 @@ def one_step_loo(
 
 
 def refits(
-    stage1: AbstractObjective,
-    stage2: AbstractObjective,
+    stages: Stages,
     loss: AbstractLoss,
-    x1: Float[Array, " d1"],
-    x2: Float[Array, " d2"],
-    bounds1: Bounds,
-    bounds2: Bounds,
     seed: int,
     starts: int,
     max_steps: int,
@@ -309,12 +315,10 @@ def refits(
     """Leave-one-out refits of both stages and the convention refits of stage 1.
 
     Args:
-        stage1: the stage-1 objective the fit used, on its free parameters (a prior kept), with
-            the dataset's declared convention; without the loss.
-        stage2: the stage-2 objective likewise, at the fit's stage-1 points.
+        stages: each stage as fitted (:class:`~handeye_jax.calibration.FittedStage`: its
+            objective on its free parameters, a prior kept and the loss not, with the
+            dataset's declared convention; its optimum ``x``; its ``space``'s box).
         loss: the loss the calibration used.
-        x1, x2: the full fit's free stage-1 and stage-2 parameters.
-        bounds1, bounds2: each stage's box.
         seed: seed of the convention multi-starts' uniform draws (NumPy's PCG64).
         starts: random LM starts per convention.
         max_steps: most LM iterations of every refit.
@@ -325,24 +329,24 @@ def refits(
     """
     if exact_loo_landmarks > refit_landmarks:
         raise ValueError("exact_loo_landmarks must not exceed refit_landmarks")
-    x1, x2 = np.asarray(x1, float), np.asarray(x2, float)
-    args = (stage1, stage2, loss, x1, x2, bounds1, bounds2, seed, starts, max_steps)
-    if _obs(stage1).n_landmarks > exact_loo_landmarks:
-        return _refits_one_step(*args, refit_landmarks)
-    return _refits_exact(*args)
+    one, two = stages.stage1, stages.stage2
+    pair = _Pair(one.objective, two.objective, loss, np.asarray(one.x, float),
+                 np.asarray(two.x, float), one.space.box, two.space.box)  # fmt: skip
+    if _obs(pair.stage1).n_landmarks > exact_loo_landmarks:
+        return _refits_one_step(pair, seed, starts, max_steps, refit_landmarks)
+    return _refits_exact(pair, seed, starts, max_steps)
 
 
-def _convention_problems(obs, x1, bounds: Bounds, seed, starts):
+def _convention_problems(obs, x1, box: Box, seed, starts):
     """Each convention's zero and sign, and the LM starts: ``starts`` uniform draws per
-    convention, then the declared convention from the fit."""
-    n_conv, d1 = len(CONVENTIONS), x1.shape[0]
+    convention, then the declared convention from the fit (the fit's own refits drew the
+    declared convention's, the same points)."""
+    n_conv = len(CONVENTIONS)
     zero = np.array([c[0] for c in CONVENTIONS])
     sign = np.array([float(c[1]) for c in CONVENTIONS])
-    declared = int(np.argmax((zero == float(obs.rig.angle_zero_deg))
-                             & (sign == float(obs.rig.angle_sign))))  # fmt: skip
+    declared = convention_index(float(obs.rig.angle_zero_deg), float(obs.rig.angle_sign))
     conv_of = np.concatenate([np.repeat(np.arange(n_conv), starts), [declared]])
-    rng = np.random.default_rng(seed)
-    x_random = rng.uniform(bounds.lower, bounds.upper, size=(n_conv * starts, d1))
+    x_random = uniform_starts(seed, box, n_conv * starts)
     return zero, sign, declared, conv_of, np.concatenate([x_random, x1[None]])
 
 
@@ -351,9 +355,10 @@ def _best_per_convention(F_conv, conv_of):
                      for c in range(len(CONVENTIONS))])  # fmt: skip
 
 
-def _refits_one_step(stage1, stage2, loss, x1, x2, bounds1, bounds2, seed, starts, max_steps,
-                     refit_landmarks) -> Refits:  # fmt: skip
+def _refits_one_step(p: _Pair, seed, starts, max_steps, refit_landmarks) -> Refits:
     """:func:`refits` with the one-step leave-one-out, in O(n)."""
+    stage1, stage2, loss, x1, x2, bounds1, bounds2 = (p.stage1, p.stage2, p.loss, p.x1, p.x2,
+                                                     p.box1, p.box2)  # fmt: skip
     obs = _obs(stage1)
     n = obs.n_landmarks
     zero, sign, declared, conv_of, x0 = _convention_problems(obs, x1, bounds1, seed, starts)
@@ -383,7 +388,7 @@ def _refits_one_step(stage1, stage2, loss, x1, x2, bounds1, bounds2, seed, start
     far = np.argsort(-moved, kind="stable")[:LOO_REFITS]
     far = np.sort(far[moved[far] > rms])
     if far.size:
-        exact = _exact_loo_at(stage1, stage2, loss, x1, x2, bounds1, bounds2, far, max_steps)
+        exact = _exact_loo_at(p, far, max_steps)
         for held, refit in zip(loo, exact, strict=True):
             held[far] = refit
     F_conv = np.where(np.isfinite(F), F, np.inf)
@@ -409,10 +414,11 @@ def _refits_one_step(stage1, stage2, loss, x1, x2, bounds1, bounds2, seed, start
     )
 
 
-def _exact_loo_at(stage1, stage2, loss, x1, x2, bounds1, bounds2, landmarks,
-                  max_steps) -> tuple[np.ndarray, ...]:  # fmt: skip
+def _exact_loo_at(p: _Pair, landmarks, max_steps) -> tuple[np.ndarray, ...]:
     """Leave-one-out by LM refits of both stages for ``landmarks`` only (as the exact
     path does for all), batched in :data:`LOO_REFITS` problems; O(LOO_REFITS · n) a step."""
+    stage1, stage2, loss, x1, x2, bounds1, bounds2 = (p.stage1, p.stage2, p.loss, p.x1, p.x2,
+                                                     p.box1, p.box2)  # fmt: skip
     obs = _obs(stage1)
     n, k = obs.n_landmarks, len(landmarks)
     which = np.concatenate([landmarks, np.full(LOO_REFITS - k, landmarks[-1])])
@@ -437,9 +443,10 @@ def _exact_loo_at(stage1, stage2, loss, x1, x2, bounds1, bounds2, landmarks,
     return n1, n2, m1, m2
 
 
-def _refits_exact(stage1, stage2, loss, x1, x2, bounds1, bounds2, seed, starts,
-                  max_steps) -> Refits:  # fmt: skip
+def _refits_exact(p: _Pair, seed, starts, max_steps) -> Refits:
     """:func:`refits` with leave-one-out by exact refits, O(n²)."""
+    stage1, stage2, loss, x1, x2, bounds1, bounds2 = (p.stage1, p.stage2, p.loss, p.x1, p.x2,
+                                                     p.box1, p.box2)  # fmt: skip
     obs = _obs(stage1)
     n, d1 = obs.n_landmarks, x1.shape[0]
     zero, sign, declared, conv_of, x0 = _convention_problems(obs, x1, bounds1, seed, starts)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import abc
 from collections.abc import Mapping
+from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -30,8 +31,12 @@ class AbstractParametric(eqx.Module):
         default_ranges: the search range ``(lo, hi)`` of each parameter, in its unit.
         groups: named groups of parameters that are refitted together when a part of the rig
             changes (``camera``, ``tablet``, ``pen`` for a model), by name.
+        sign_twin: parameters whose signs can flip together without changing the fit (the
+            tablet mirrored through its own plane); empty where there is no such symmetry.
+            Every stage answers it, so a result reports which twin it found.
     """
 
+    sign_twin: ClassVar[tuple[str, ...]] = ()
     name: eqx.AbstractClassVar[str]
     param_names: eqx.AbstractClassVar[tuple[str, ...]]
     param_units: eqx.AbstractClassVar[tuple[str, ...]]
@@ -83,12 +88,7 @@ class AbstractModel(AbstractParametric):
 
     Final subclasses implement :meth:`camera_mount`, :meth:`tablet_pose` and
     :meth:`t_hand_pen`; the chain of eqs. (5), (8) and (10) is written here once.
-
-    ``sign_twin`` names parameters whose signs can flip together without changing the fit
-    (empty if the model has no such symmetry); results report which twin was found.
     """
-
-    sign_twin: eqx.AbstractClassVar[tuple[str, ...]]
 
     @abc.abstractmethod
     def camera_mount(self) -> tuple[Float[Array, "3 3"], Float[Array, "3"]]:

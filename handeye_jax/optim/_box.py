@@ -1,4 +1,5 @@
-"""The one box transform of the optimisers: ``x = lo + (hi − lo)·(sin z + 1)/2``.
+"""The search box (:class:`Box`, the one box type) and its transform
+``x = lo + (hi − lo)·(sin z + 1)/2``.
 
 Levenberg–Marquardt is unconstrained; bounds are kept as MINUIT keeps them: LM works on ``z``,
 which the transform maps into the box smoothly, so the residuals and their minimiser are
@@ -11,7 +12,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 
 def _xp(*arrays):
@@ -37,14 +38,37 @@ def dx_dz(z: Float[Array, "*b d"], lower: Float[Array, " d"], upper: Float[Array
 
 
 class Box(eqx.Module):
-    """The box as a pytree, for a jitted or vmapped solve of one's own (as the notebooks and
-    ``benchmarks/convergence.py`` run optimistix in box coordinates)."""
+    """A search box: ``lower < upper``, finite, one entry per parameter (in its unit).
+
+    Built from concrete values it is checked and held as float64 NumPy arrays; it is a pytree,
+    so it also passes through ``jit`` and ``vmap`` (as the notebooks and
+    ``benchmarks/convergence.py`` run optimistix in box coordinates).
+    """
 
     lower: Float[Array, " d"]
     upper: Float[Array, " d"]
 
+    def __init__(self, lower: Float[ArrayLike, " d"], upper: Float[ArrayLike, " d"]):
+        if isinstance(lower, jax.core.Tracer) or isinstance(upper, jax.core.Tracer):
+            self.lower, self.upper = lower, upper  # inside a traced function: not checked
+            return
+        lo = np.array(lower, dtype=np.float64).reshape(-1)
+        hi = np.array(upper, dtype=np.float64).reshape(-1)
+        if lo.shape != hi.shape:
+            raise ValueError(f"bounds differ in length: {lo.shape[0]} and {hi.shape[0]}")
+        if not (np.isfinite(lo).all() and np.isfinite(hi).all() and (lo < hi).all()):
+            raise ValueError("bounds must be finite with lower < upper in every parameter")
+        self.lower, self.upper = lo, hi
+
+    @property
+    def d(self) -> int:
+        """The number of parameters."""
+        return self.lower.shape[0]
+
     def to_x(self, z):
+        """Box coordinates to parameters (see :func:`to_x`)."""
         return to_x(z, self.lower, self.upper)
 
     def to_z(self, x):
+        """Parameters to box coordinates (see :func:`to_z`)."""
         return to_z(x, self.lower, self.upper)

@@ -36,7 +36,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray, UInt
+from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray, UInt
 
 from .._core import progress_bar
 from .._jax import fast_compile, hot_loop, in_float64
@@ -199,78 +199,9 @@ def _chunk_scan(fn, state, lower, upper, max_generations, crossover, mutation, t
 _chunk = hot_loop(_chunk_scan)
 
 
-@in_float64
-def differential_evolution(
-    fn: Callable[[Float[Array, " d"]], Float[Array, ""]],
-    lower: Float[ArrayLike, " d"],
-    upper: Float[ArrayLike, " d"],
-    *,
-    key: PRNGKeyArray,
-    population: int,
-    generations: int,
-    crossover: float = 0.9,
-    mutation: float = 0.5,
-    tol: float = 1e-6,
-    atol: float = 0.0,
-    early_stop: bool = True,
-    progress: bool = False,
-    desc: str = "DE",
-) -> DESolution:
-    """Minimise ``fn`` over the box ``[lower, upper]`` with DE/rand/1/bin.
-
-    Args:
-        fn: the objective; a JAX-traceable function of one parameter vector. Pass an equinox
-            Module (or another pytree-callable) so repeated calls reuse the compiled code.
-        lower, upper: the box, one entry per parameter, ``lower < upper``.
-        key: JAX PRNG key; the same key gives the same run bit for bit. Runs in float64.
-        population: N, the number of members (≥ 4).
-        generations: G, the most generations to run.
-        crossover: CR, the binomial crossover probability.
-        mutation: F, the differential weight.
-        tol, atol: the early-stop spread criterion (see the module docstring).
-        early_stop: stop when the spread criterion holds; False runs all G generations.
-        progress: show a tqdm progress bar on stderr.
-        desc: the progress bar's label.
-    """
-    if population < 4:
-        raise ValueError(f"population must be at least 4 for DE/rand/1 (got {population})")
-    lower = jnp.asarray(lower, dtype=float)
-    upper = jnp.asarray(upper, dtype=float)
-    state = _init(fn, key, lower, upper, population)
-    # Arrays, not Python numbers, so that new settings reuse the compiled program (NumPy's:
-    # jnp.asarray would compile a small program for each).
-    dynamic = [np.asarray(v) for v in (generations, crossover, mutation, tol, atol, early_stop)]
-    best, median = [], []
-    with progress_bar(total=generations, desc=desc, enabled=progress, unit="gen") as bar:
-        while True:
-            state, (b, active) = _chunk(fn, state, lower, upper, *dynamic)
-            active = np.asarray(active)
-            best.append(np.asarray(b)[active])
-            median.append((int(state.generation), float(np.median(np.asarray(state.fitness)))))
-            bar.update(int(active.sum()))
-            if bool(state.converged) or int(state.generation) >= generations:
-                break
-    fitness = np.asarray(state.fitness)
-    final = np.asarray(state.population)
-    best = np.concatenate(best)
-    i_best = int(np.argmin(fitness))
-    n_gen = int(state.generation)
-    return DESolution(
-        x=final[i_best],
-        value=float(fitness[i_best]),
-        population=final,
-        fitness=fitness,
-        steps=n_gen,
-        evaluations=population * (n_gen + 1),
-        converged=bool(state.converged),
-        best_history=best,
-        median_history=np.array([m for _, m in median]),
-        median_generations=np.array([g for g, _ in median]),
-    )
-
-
-class DifferentialEvolution(AbstractSolver):
-    """DE/rand/1/bin (:func:`differential_evolution`) as a solver object.
+class DifferentialEvolution(AbstractSolver[DESolution]):
+    """DE/rand/1/bin (see the module docstring) as a solver object: the one way to run it,
+    ``minimise(fn, DifferentialEvolution(...), box, key=key)``.
 
     Attributes:
         population: N, the number of members (≥ 4).
@@ -289,13 +220,60 @@ class DifferentialEvolution(AbstractSolver):
     atol: float = 0.0
     early_stop: bool = True
 
-    def run(self, fn, bounds, *, x0, key, progress, desc):
-        del x0  # DE starts from a Latin hypercube of the box
+    def __check_init__(self):
+        if self.population < 4:
+            raise ValueError(f"population must be at least 4 for DE/rand/1 (got {self.population})")
+
+    @in_float64
+    def run(self, fn, box, *, x0, key, progress, desc) -> DESolution:
+        """Minimise ``fn`` (a JAX-traceable function of one parameter vector; pass an equinox
+        Module so repeated calls reuse the compiled code) over ``box``, from a Latin hypercube
+        (``x0`` is not used). The same ``key`` gives the same run bit for bit; float64."""
+        del x0
         if key is None:
             raise ValueError("differential evolution needs a PRNG key")
-        return differential_evolution(
-            fn, bounds.lower, bounds.upper, key=key, population=self.population,
-            generations=self.generations, crossover=self.crossover, mutation=self.mutation,
-            tol=self.tol, atol=self.atol, early_stop=self.early_stop, progress=progress,
-            desc=desc or "DE",
-        )  # fmt: skip
+        lower = jnp.asarray(box.lower, dtype=float)
+        upper = jnp.asarray(box.upper, dtype=float)
+        state = _init(fn, key, lower, upper, self.population)
+        # Arrays, not Python numbers, so that new settings reuse the compiled program (NumPy's:
+        # jnp.asarray would compile a small program for each).
+        dynamic = [np.asarray(v) for v in (self.generations, self.crossover, self.mutation,
+                                           self.tol, self.atol, self.early_stop)]  # fmt: skip
+        state, best, median = _generations(fn, state, lower, upper, dynamic,
+                                           (self.generations, desc or "DE", progress))  # fmt: skip
+        return _solution(state, best, median, self.population)
+
+
+def _generations(fn, state: DEState, lower, upper, dynamic: list, bar: tuple):
+    """Chunks of generations until the run converges or reaches its limit; the best value of
+    every generation and the median after every chunk. ``bar``: (total, label, shown)."""
+    total, desc, shown = bar
+    best, median = [], []
+    with progress_bar(total=total, desc=desc, enabled=shown, unit="gen") as bar:
+        while True:
+            state, (b, active) = _chunk(fn, state, lower, upper, *dynamic)
+            active = np.asarray(active)
+            best.append(np.asarray(b)[active])
+            median.append((int(state.generation), float(np.median(np.asarray(state.fitness)))))
+            bar.update(int(active.sum()))
+            if bool(state.converged) or int(state.generation) >= total:
+                return state, best, median
+
+
+def _solution(state: DEState, best: list, median: list, population: int) -> DESolution:
+    fitness = np.asarray(state.fitness)
+    final = np.asarray(state.population)
+    i_best = int(np.argmin(fitness))
+    n_gen = int(state.generation)
+    return DESolution(
+        x=final[i_best],
+        value=float(fitness[i_best]),
+        population=final,
+        fitness=fitness,
+        steps=n_gen,
+        evaluations=population * (n_gen + 1),
+        converged=bool(state.converged),
+        best_history=np.concatenate(best),
+        median_history=np.array([m for _, m in median]),
+        median_generations=np.array([g for g, _ in median]),
+    )

@@ -16,7 +16,6 @@ Both work in the box coordinates of :mod:`._box` and take the same
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import equinox as eqx
 import jax
@@ -25,7 +24,8 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._jax import fast_compile
 from . import _box
-from ._solvers import AbstractSolver, Bounds, LMSolution, Problem
+from ._box import Box
+from ._solvers import AbstractSolver, BatchSolution, LMSolution, Problem
 
 #: Damping of the batch iteration: start, and the factors after a step that lowers the cost
 #: and one that does not.
@@ -37,7 +37,7 @@ _LAMBDA_RANGE = (1e-12, 1e12)
 _QUIET_ITERATIONS = 10
 
 
-class LevenbergMarquardt(AbstractSolver):
+class LevenbergMarquardt(AbstractSolver[LMSolution]):
     """Levenberg–Marquardt on ``fn.residuals`` inside the box, from ``x0``.
 
     Attributes:
@@ -51,14 +51,13 @@ class LevenbergMarquardt(AbstractSolver):
     atol: float = 1e-12
     max_steps: int = 1000
 
-    def run(self, fn, bounds, *, x0, key, progress, desc):
+    def run(self, fn, box, *, x0, key, progress, desc) -> LMSolution:
         del key, progress, desc  # deterministic, and quick enough to need no progress bar
         if x0 is None:
             raise ValueError("Levenberg-Marquardt needs a start point x0")
-        x0 = np.clip(np.asarray(x0, dtype=float), bounds.lower, bounds.upper)
-        x, steps, ok = _lm_compiled(
-            fn, x0, bounds.lower, bounds.upper, self.rtol, self.atol, self.max_steps
-        )
+        x0 = np.clip(np.asarray(x0, dtype=float), box.lower, box.upper)
+        x, steps, ok = _lm_compiled(fn, x0, box.lower, box.upper, self.rtol, self.atol,
+                                    self.max_steps)  # fmt: skip
         x = np.asarray(x)
         return LMSolution(
             x=x, value=float(_value(fn, x)), steps=int(steps), evaluations=int(steps) + 1,
@@ -98,17 +97,6 @@ def _value(fn: Problem, x):
     return fn(x)
 
 
-@dataclass(frozen=True)
-class BatchSolution:
-    """What :func:`minimise_batch` found: end points ``x`` ``(B, d)`` and their ``|r|²``
-    ``cost`` ``(B,)`` (``inf`` where the residuals were not finite), after ``steps``
-    iterations."""
-
-    x: np.ndarray
-    cost: np.ndarray
-    steps: int
-
-
 def residuals_and_jacobian(
     residuals: Callable[[Float[Array, " d"]], Float[Array, " r"]], x: Float[Array, " d"]
 ) -> tuple[Float[Array, " r"], Float[Array, "r d"]]:
@@ -125,7 +113,7 @@ def residuals_and_jacobian(
 def minimise_batch(
     fn: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
     solver: LevenbergMarquardt,
-    bounds: Bounds,
+    box: Box,
     x0: Float[ArrayLike, "b d"],
 ) -> BatchSolution:
     """Levenberg–Marquardt on B problems at once, each inside ``bounds``.
@@ -138,10 +126,10 @@ def minimise_batch(
         fn: batched residuals and Jacobians: ``x (B, d) -> (r (B, m), J (B, m, d))``. Compile
             it once (e.g. ``jax.jit`` of a ``vmap``); it is called once per iteration.
         solver: the tolerances and the most iterations.
-        bounds: the box, the same for every problem.
+        box: the search box, the same for every problem.
         x0: starts, ``(B, d)``.
     """
-    lo, hi = bounds.lower, bounds.upper
+    lo, hi = box.lower, box.upper
     z = _box.to_z(np.asarray(x0, float), lo, hi)
 
     def evaluate(z):
@@ -174,7 +162,8 @@ def minimise_batch(
         quiet = 0 if enough.any() else quiet + 1
         if quiet >= _QUIET_ITERATIONS:
             break
-    return BatchSolution(x=_box.to_x(z, lo, hi), cost=cost, steps=steps)
+    return BatchSolution(x=_box.to_x(z, lo, hi), value=cost, steps=steps, evaluations=steps + 1,
+                         converged=quiet >= _QUIET_ITERATIONS)  # fmt: skip
 
 
 # Called once per LM iteration, hence LLVM level 1 (see handeye_jax._xla).
@@ -184,7 +173,7 @@ def _starts_rj(fn: Problem, X):
 
 
 def minimise_starts(
-    fn: Problem, solver: LevenbergMarquardt, bounds: Bounds, starts: Float[ArrayLike, "b d"]
+    fn: Problem, solver: LevenbergMarquardt, box: Box, starts: Float[ArrayLike, "b d"]
 ) -> BatchSolution:
     """:func:`minimise_batch` of one problem from several starts at once (a multi-start
     search for its lowest local optimum).
@@ -193,9 +182,9 @@ def minimise_starts(
         fn: the problem; pass an equinox Module so repeated calls reuse the compiled program.
             Its Jacobian is taken in forward mode, so the work is linear in the residuals.
         solver: the tolerances and the most iterations.
-        bounds: the box.
+        box: the search box.
         starts: start points ``(B, d)``; a fixed ``B`` reuses the program.
     """
     return minimise_batch(
-        lambda X: _starts_rj(fn, np.asarray(X)), solver, bounds, np.asarray(starts, float)
+        lambda X: _starts_rj(fn, np.asarray(X)), solver, box, np.asarray(starts, float)
     )

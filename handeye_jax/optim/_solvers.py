@@ -1,6 +1,6 @@
 """Solvers as configuration objects, kept apart from problems, as optimistix does.
 
-``minimise(fn, solver, bounds, ...)`` runs ``solver`` on ``fn`` inside ``bounds`` and returns a
+``minimise(fn, solver, box, ...)`` runs ``solver`` on ``fn`` inside ``box`` and returns its
 typed :class:`Solution`. A problem is any JAX-traceable callable of a flat vector ``x`` that
 returns a scalar (what DE minimises) and, for Levenberg–Marquardt, has a ``residuals(x)``
 method whose squares sum to (about) the same value. Pass an equinox Module so repeated calls
@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import abc
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Generic, Protocol, TypeVar
 
 import equinox as eqx
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
+
+from ._box import Box
 
 
 class Problem(Protocol):
@@ -26,42 +28,21 @@ class Problem(Protocol):
     def residuals(self, x: Float[Array, " d"]) -> Float[Array, " r"]: ...
 
 
-@dataclass(frozen=True, eq=False)
-class Bounds:
-    """A search box: ``lower < upper``, finite, one entry per parameter (in its unit)."""
-
-    lower: np.ndarray
-    upper: np.ndarray
-
-    def __post_init__(self):
-        lo = np.array(self.lower, dtype=np.float64).reshape(-1)
-        hi = np.array(self.upper, dtype=np.float64).reshape(-1)
-        if lo.shape != hi.shape:
-            raise ValueError(f"bounds differ in length: {lo.shape[0]} and {hi.shape[0]}")
-        if not (np.isfinite(lo).all() and np.isfinite(hi).all() and (lo < hi).all()):
-            raise ValueError("bounds must be finite with lower < upper in every parameter")
-        object.__setattr__(self, "lower", lo)
-        object.__setattr__(self, "upper", hi)
-
-    @property
-    def d(self) -> int:
-        return self.lower.shape[0]
-
-
 @dataclass(frozen=True)
 class Solution:
-    """What a solver found.
+    """What a solver found; every solver returns one of this family.
 
     Attributes:
-        x: the best point, ``(d,)``.
-        value: the problem's value there.
+        x: the best point, ``(d,)`` (a batch: each problem's, ``(B, d)``).
+        value: the problem's value there (a batch: each problem's ``|r|²``, ``(B,)``, ``inf``
+            where its residuals were not finite).
         steps: generations (DE) or iterations (LM) run.
         evaluations: calls of the problem (DE) or of its residuals and Jacobian (LM).
         converged: the solver's own stopping rule held (not a step limit).
     """
 
     x: np.ndarray
-    value: float
+    value: float | np.ndarray
     steps: int
     evaluations: int
     converged: bool
@@ -92,42 +73,54 @@ class LMSolution(Solution):
     start_value: float = float("nan")
 
 
-class AbstractSolver(eqx.Module):
-    """A solver's configuration. Final subclasses implement :meth:`run` only."""
+@dataclass(frozen=True)
+class BatchSolution(Solution):
+    """A :class:`Solution` of many problems solved at once (:func:`minimise_batch`): ``x``
+    ``(B, d)`` and ``value``, each problem's ``|r|²`` ``(B,)``."""
+
+
+#: The Solution a solver returns.
+S = TypeVar("S", bound="Solution", covariant=True)
+
+
+class AbstractSolver(eqx.Module, Generic[S]):
+    """A solver's configuration. Final subclasses implement :meth:`run` only; ``S`` is the
+    :class:`Solution` they return."""
 
     @abc.abstractmethod
     def run(
         self,
         fn: Problem,
-        bounds: Bounds,
+        box: Box,
         *,
         x0: Float[ArrayLike, " d"] | None,
         key: PRNGKeyArray | None,
         progress: bool,
         desc: str,
-    ) -> Solution:
-        """Minimise ``fn`` in ``bounds``; see :func:`minimise`."""
+    ) -> S:
+        """Minimise ``fn`` in ``box``; see :func:`minimise`."""
 
 
 def minimise(
     fn: Problem,
-    solver: AbstractSolver,
-    bounds: Bounds,
+    solver: AbstractSolver[S],
+    box: Box,
     *,
     x0: Float[ArrayLike, " d"] | None = None,
     key: PRNGKeyArray | None = None,
     progress: bool = False,
     desc: str = "",
-) -> Any:
-    """Minimise ``fn`` inside ``bounds`` with ``solver``.
+) -> S:
+    """Minimise ``fn`` inside ``box`` with ``solver``: its :class:`Solution`.
 
     Args:
         fn: the problem (see :class:`Problem`).
-        solver: e.g. :class:`DifferentialEvolution` or :class:`LevenbergMarquardt`.
-        bounds: the search box.
+        solver: e.g. :class:`DifferentialEvolution` (a :class:`DESolution`) or
+            :class:`LevenbergMarquardt` (an :class:`LMSolution`).
+        box: the search box.
         x0: the start (Levenberg–Marquardt needs one; DE ignores it).
         key: a JAX PRNG key (DE needs one; the same key gives the same run bit for bit).
         progress: show a progress bar on stderr.
         desc: the progress bar's label.
     """
-    return solver.run(fn, bounds, x0=x0, key=key, progress=progress, desc=desc)
+    return solver.run(fn, box, x0=x0, key=key, progress=progress, desc=desc)

@@ -20,6 +20,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..models import AbstractParametric
+from ..optim import Box
 
 #: How a parameter entered a fit.
 FREE, FIXED, PRIOR = "free", "fixed", "prior"
@@ -227,6 +228,11 @@ class ParameterSpace:
     @property
     def d(self) -> int:
         return len(self.free)
+
+    @property
+    def box(self) -> Box:
+        """The search box of the free parameters."""
+        return Box(self.lower, self.upper)
 
     @property
     def fixed(self) -> tuple[str, ...]:

@@ -7,18 +7,14 @@ from __future__ import annotations
 from .._core import lazy_exports
 
 # What the layers above may use, by module; each loads on first use (PEP 562).
+# fmt: off
 _EXPORTS = {
     "_export": (
-        "check_parses",
-        "DEFAULT_CAMERA_FRAME",
-        "DEFAULT_PARENT_LINK",
-        "DEFAULT_PEN_FRAME",
-        "export_text",
-        "FORMATS",
-        "NAME_PATTERN",
-        "zero_filled",
+        "check_parses", "DEFAULT_CAMERA_FRAME", "DEFAULT_PARENT_LINK", "DEFAULT_PEN_FRAME",
+        "export_text", "FORMATS", "NAME_PATTERN", "zero_filled",
     ),
     "_frames": ("Affine", "Frames", "TRANSLATIONS"),
     "_predictor": ("Predictor", "read_json", "stored_frames"),
 }
+# fmt: on
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

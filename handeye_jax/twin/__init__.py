@@ -7,28 +7,18 @@ from __future__ import annotations
 from .._core import lazy_exports
 
 # What the layers above may use, by module; each loads on first use (PEP 562).
+# fmt: off
 _EXPORTS = {
     "_evaluate": (
-        "evaluate",
-        "evaluate_points",
-        "evaluate_twin",
-        "format_evaluation",
-        "Heldout",
-        "load_heldout",
-        "PointErrors",
-        "TouchingError",
+        "evaluate", "evaluate_points", "evaluate_twin", "format_evaluation", "Heldout",
+        "load_heldout", "PointErrors", "TouchingError",
     ),
     "_simulate": (
-        "check_twin_folder",
-        "encode_png",
-        "NoisePreset",
-        "PRESETS",
-        "simulate",
-        "simulate_captures",
-        "Twin",
-        "write_twin",
+        "check_twin_folder", "encode_png", "NoisePreset", "PRESETS", "simulate",
+        "simulate_captures", "Twin", "write_twin",
     ),
     "_synthetic": ("synthesize_captures", "synthesize_dataset"),
     "_truth": ("change_truth", "draw_truth", "load_truth", "TwinTruth"),
 }
+# fmt: on
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

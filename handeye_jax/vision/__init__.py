@@ -6,20 +6,13 @@ from __future__ import annotations
 from .._core import lazy_exports
 
 # What the layers above may use, by module; each loads on first use (PEP 562).
+# fmt: off
 _EXPORTS = {
     "_captures": ("plan_captures",),
     "_detect": (
-        "BlobCountError",
-        "depth_at",
-        "detect_landmarks",
-        "Detection",
-        "DetectSettings",
-        "fill_capture",
-        "fill_dataset",
-        "find_blobs",
-        "order_blobs",
-        "overlay_image",
-        "read_image",
+        "BlobCountError", "depth_at", "detect_landmarks", "Detection", "DetectSettings",
+        "fill_capture", "fill_dataset", "find_blobs", "order_blobs", "overlay_image", "read_image",
     ),
 }
+# fmt: on
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)
