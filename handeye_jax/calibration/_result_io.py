@@ -520,7 +520,7 @@ def _diagnostics(
 AGREEMENT_TOL = 1e-9
 
 
-def _numbers(f: Frames) -> np.ndarray:
+def _frame_numbers(f: Frames) -> np.ndarray:
     """Every number of ``f`` as one vector (undetermined components as NaN)."""
     parts = [f.R_hand_camera, f.R_base_tablet, f.capture_position_mm, f.centres_mm,
              f.A1.as_tuple(), f.A2.as_tuple(), f.camera_px,
@@ -544,7 +544,7 @@ def load_frames(path: str | Path) -> Frames:
     if "frames" not in doc:
         return frames
     stored = Frames.from_dict(doc["frames"], path, "frames")
-    a, b = _numbers(stored), _numbers(frames)
+    a, b = _frame_numbers(stored), _frame_numbers(frames)
     nan_a, nan_b = np.isnan(a), np.isnan(b)
     if set(stored.undetermined) != set(frames.undetermined) or (nan_a != nan_b).any():
         raise InputError(path, "frames.undetermined", f"must list {', '.join(UNDETERMINED)} "
