@@ -386,9 +386,9 @@ def test_a_ctrl_c_that_a_callback_swallowed_still_stops_before_the_write(
 ):
     import signal
 
-    import handeye_jax.report._summary
+    import handeye_jax.report
 
-    summary = handeye_jax.report._summary.format_summary
+    summary = handeye_jax.report.format_summary
 
     def swallowing(result):  # the last step before the write
         try:
@@ -397,7 +397,7 @@ def test_a_ctrl_c_that_a_callback_swallowed_still_stops_before_the_write(
             pass  # as JAX's _xla_gc_callback swallows it
         return summary(result)
 
-    monkeypatch.setattr(handeye_jax.report._summary, "format_summary", swallowing)
+    monkeypatch.setattr(handeye_jax.report, "format_summary", swallowing)  # as the CLI finds it
     out = tmp_path / "result.json"
     out.write_text("precious\n")
     assert main(["calibrate", str(PAPER), *FAST, "--no-diagnostics", "--out", str(out)]) == 130

@@ -16,8 +16,8 @@ from handeye_jax._core import _atomic
 from handeye_jax.cli import main
 from tests.test_cli import FAST, PAPER
 
-# the package exports the function
-CALIBRATE = importlib.import_module("handeye_jax.calibration._calibrate")
+# The folder the command line takes calibrate from.
+CALIBRATE = importlib.import_module("handeye_jax.calibration")
 UNWRITABLE = ["/sys", "/proc", "FILE"]  # folders no one can write in; FILE: a regular file
 
 
@@ -235,8 +235,7 @@ def test_detect_discards_the_overlay_when_the_dataset_write_fails(
     def refuse(ds, path):
         raise InputError(path, "", "cannot write: No space left on device")
 
-    # detect imports it on use
-    monkeypatch.setattr("handeye_jax.data._dataset_io.save_dataset", refuse)
+    monkeypatch.setattr("handeye_jax.data.save_dataset", refuse)  # as detect finds it
     (tmp_path / "ov.png").write_text("SENTINEL")
     before = _snapshot(tmp_path)
     argv = _detect(twin_dir, twin_dir / "dataset.toml", "--out", str(tmp_path / "new.toml"),
