@@ -57,6 +57,7 @@ from handeye_jax import (
     PRESETS,
     AbstractObjective,
     Dataset,
+    Diagnostics,
     Heldout,
     HTMModel,
     InputError,
@@ -64,6 +65,7 @@ from handeye_jax import (
     Settings,
     SquaresBlock,
     Stage1Objective,
+    StageDiagnostics,
     Twin,
     calibrate,
     change_truth,
@@ -110,12 +112,12 @@ def heldout(twin: Twin) -> Heldout:
 def measure(result, twin: Twin, seconds: float) -> dict:
     """Stage 1 and 2 held-out mean errors (mm), the flagged pulls, the time."""
     rows = {r.label: r for r in evaluate(result, twin.truth, heldout(twin))}
-    pulls = [p for s in (result.stage1, result.stage2) if s.prior for p in s.prior["pulls"]]
+    pulls = [p for s in (result.stage1, result.stage2) if s.prior for p in s.prior.pulls]
     return {
         "s1": rows["stage 1"].mean_mm, "s2": rows["stage 2"].mean_mm,
         "oracle": rows["oracle"].mean_mm, "time": seconds,
-        "flagged": sorted(p["param"] for p in pulls if abs(p["pull"]) > PULL_FLAG),
-        "pulls": {p["param"]: p["pull"] for p in pulls},
+        "flagged": sorted(p.param for p in pulls if abs(p.pull) > PULL_FLAG),
+        "pulls": {p.param: p.pull for p in pulls},
     }  # fmt: skip
 
 
@@ -188,7 +190,7 @@ def bound_rows(old, old_ds, truth, twin, part, k, s) -> dict:
         rows[f"joint {'squares' if squares else 'L1'}, {k}"] = measure(r, twin, t + t_joint)
     params = dict(truth.model)
     true = replace(old, model=HTMModel.from_dict(params),
-                   stage1=replace(old.stage1, params=params), diagnostics={})  # fmt: skip
+                   stage1=replace(old.stage1, params=params), diagnostics=None)  # fmt: skip
     r, t = timed(recalibrate, ds, true, (part,), s, fix=True)
     rows[f"true others, {k}"] = measure(r, twin, t)
     for row in rows.values():  # stage 1 alone: their stage 2 is another fit's
@@ -201,8 +203,12 @@ def without_noise(result):
     precisions alone): a recalibration from it weighs the new data by the paper's mean
     lengths and its pulls estimate σ from the new residuals, as before the Gaussian data
     term."""
-    diagnostics = {stage: {"precision": result.posterior(stage).precision.tolist()}
-                   for stage in ("stage1", "stage2")}  # fmt: skip
+    def precision_alone(stage: str) -> StageDiagnostics:  # σ 0: "no noise stated"
+        rows = tuple(map(tuple, result.posterior(stage).precision.tolist()))
+        return StageDiagnostics(sigma_mm=0.0, dof=0, std={}, precision=rows, singular_values=(),
+                                weak_directions=())  # fmt: skip
+
+    diagnostics = Diagnostics(stage1=precision_alone("stage1"), stage2=precision_alone("stage2"))
     return replace(result, diagnostics=diagnostics, fits=None)
 
 
@@ -271,7 +277,7 @@ def wrong_prior(old, truth, seed: int, ks, settings: Settings) -> dict:
         except InputError:
             continue
         m = measure(r, twin, 0.0)
-        m["warnings"] = [w for w in r.warnings if f"pull {WRONG_PARAM} " in w]
+        m["warnings"] = [w.text for w in r.warnings if f"pull {WRONG_PARAM} " in w.text]
         out[k] = m
     return out
 

@@ -22,13 +22,13 @@ PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
 
 
 def stage_evaluations(stage, d: int) -> int:
-    return stage.de["evaluations"] + stage.polish.get("steps", 0) * (1 + d)
+    return stage.de.evaluations + (stage.polish.steps or 0) * (1 + d)
 
 
 def row(label, r, seconds):
     s1, s2 = r.stage1, r.stage2
     evals = stage_evaluations(s1, len(s1.params))
-    twin = r.sign_twin.get("found", {})
+    twin = {} if r.sign_twin is None else r.sign_twin.found
     twin_s = ", ".join(f"{k} {v:+.2f}" for k, v in twin.items())
     return (
         f"| {label} | {s1.F:.4f} | {s1.f1:.4f} | {s1.f2:.4f} | {s2.F:.4f} | {s2.f1:.4f} | "
@@ -61,7 +61,7 @@ def main() -> None:
             t0 = time.perf_counter()
             r = calibrate(data, s)
             print(row(f"seed {seed}", r, time.perf_counter() - t0), flush=True)
-            warnings.update(w.split(" is on")[0] for w in r.warnings)
+            warnings.update(w.text.split(" is on")[0] for w in r.warnings)
         if warnings:
             print(f"\non a search bound: {'; '.join(sorted(warnings))}")
 

@@ -34,9 +34,9 @@ OFF_MM = (3.0, 4.0)  # 5 mm
 
 def f_others(result) -> float:
     """F1st over every landmark but M, mm."""
-    keep = [r for r in result.stage1.residuals_mm if r["m"] != M]
-    return float(np.mean([r["image_vs_tablet_mm"] for r in keep])
-                 + np.mean([r["hand_mm"] for r in keep]))  # fmt: skip
+    keep = [r for r in result.stage1.residuals_mm if r.m != M]
+    return float(np.mean([r.image_vs_tablet_mm for r in keep])
+                 + np.mean([r.hand_mm for r in keep]))  # fmt: skip
 
 
 def main() -> None:
@@ -69,7 +69,7 @@ def main() -> None:
         s = Settings(population=args.population, generations=args.generations, seed=args.seed,
                      loss=loss, loss_scale_mm=scale_mm)  # fmt: skip
         a, b = calibrate(clean, s), diagnose(calibrate(touched, s))
-        flagged = b.diagnostics["stage1"]["outliers"]
+        flagged = list(b.diagnostics.stage1.outliers)
         diff = f_others(b) - f_others(a)
         print(
             f"| {loss} | {scale_mm:g} | {flagged} | {f_others(a):.4f} | {f_others(b):.4f} "

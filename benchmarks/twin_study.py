@@ -57,7 +57,7 @@ def run_seed(seed: int, preset: str, settings: Settings, folder: Path, dot_px: f
         "F1": result.stage1.F,
         "F2": result.stage2.F,
         "rows": rows,
-        "warnings": [w.split(" is on")[0] for w in result.warnings],
+        "warnings": [w.text.split(" is on")[0] for w in result.warnings],
     }
 
 

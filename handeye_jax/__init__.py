@@ -26,6 +26,24 @@ __version__ = package_version()
 
 _SUBMODULES = ("geometry", "models", "optim", "tablet")
 _EXPORTS = {
+    "ConventionCheck": "calibration",
+    "Convergence": "calibration",
+    "DESummary": "calibration",
+    "Diagnostics": "calibration",
+    "FitWarning": "calibration",
+    "LeaveOneOut": "calibration",
+    "Mode": "calibration",
+    "PolishSummary": "calibration",
+    "PriorReport": "calibration",
+    "Pull": "calibration",
+    "Recalibration": "calibration",
+    "Residual": "calibration",
+    "Scope": "calibration",
+    "SignTwin": "calibration",
+    "StageDiagnostics": "calibration",
+    "Heights": "problem",
+    "JacobianAnalysis": "problem",
+    "WeakDirection": "problem",
     "AbstractBlock": "problem",
     "AbstractCorrection": "models",
     "AbstractLoss": "problem",
@@ -169,6 +187,23 @@ if TYPE_CHECKING:
         recalibrate,
         recalibration_plan,
     )
+    from .calibration._payloads import (
+        ConventionCheck,
+        Convergence,
+        DESummary,
+        Diagnostics,
+        FitWarning,
+        LeaveOneOut,
+        Mode,
+        PolishSummary,
+        PriorReport,
+        Pull,
+        Recalibration,
+        Residual,
+        Scope,
+        SignTwin,
+        StageDiagnostics,
+    )
     from .calibration._result import CalibrationResult, StageResult
     from .calibration._result_frames import compute_frames
     from .calibration._result_io import load_frames, load_result, save_result
@@ -195,7 +230,12 @@ if TYPE_CHECKING:
         get_model,
         hand_command,
     )
-    from .problem._linearise import analyse_jacobian, jacobian_diagnostics
+    from .problem._linearise import (
+        JacobianAnalysis,
+        WeakDirection,
+        analyse_jacobian,
+        jacobian_diagnostics,
+    )
     from .problem._losses import AbstractLoss, CauchyLoss, HuberLoss, L1Loss, get_loss
     from .problem._objective import (
         AbstractBlock,
@@ -204,6 +244,7 @@ if TYPE_CHECKING:
         GaussianBlock,
         GaussianObjective,
         HeightOffsets,
+        Heights,
         LengthBlock,
         LossObjective,
         PriorObjective,
@@ -245,6 +286,24 @@ if TYPE_CHECKING:
     )
 
 __all__ = [
+    "ConventionCheck",
+    "Convergence",
+    "DESummary",
+    "Diagnostics",
+    "FitWarning",
+    "LeaveOneOut",
+    "Mode",
+    "PolishSummary",
+    "PriorReport",
+    "Pull",
+    "Recalibration",
+    "Residual",
+    "Scope",
+    "SignTwin",
+    "StageDiagnostics",
+    "Heights",
+    "JacobianAnalysis",
+    "WeakDirection",
     "AbstractBlock",
     "AbstractCorrection",
     "AbstractLoss",

@@ -60,8 +60,7 @@ class Case:
         records)."""
 
         def stage(params):
-            return StageResult(F=0.0, f1=0.0, f2=0.0, params=dict(params), residuals_mm=[],
-                               de={}, polish={})  # fmt: skip
+            return StageResult(F=0.0, f1=0.0, f2=0.0, params=dict(params))
 
         fx, fy, cx, cy = self.camera
         with jax.enable_x64(True):

@@ -54,10 +54,12 @@ def test_scaling_runs_and_plots(tmp_path):
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
 
 
-def test_miss_rate_finds_main_missing_twin_1_and_the_new_defaults_not():
+def test_miss_rate_finds_de_and_lm_missing_twin_1_and_the_defaults_not():
     out = run_in_process("miss_rate.py", "--quick")
-    assert "| main's defaults (no restarts) | 1 of 1 | 1 |" in out
-    assert "| new defaults (restarts 32 + refits) | 0 of 1 | - |" in out
+    assert "| DE + LM (restarts 0) | 1 of 1 | 1 |" in out
+    assert "| defaults (restarts 32 + refits) | 0 of 1 | - |" in out
+    assert "| defaults, then diagnose | 0 of 1 | - |" in out
+    assert "parameters they changed (bit for bit): on no twin" in out
 
 
 @pytest.mark.parametrize("seeds", [["--seeds", "1"]])

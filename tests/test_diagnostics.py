@@ -41,8 +41,8 @@ from handeye_jax import (
     snake_grid_px,
     synthesize_dataset,
 )
-from handeye_jax._core import Stages
-from handeye_jax.calibration import CONVENTIONS, FittedStage
+from handeye_jax._core import Stages, to_document
+from handeye_jax.calibration import CONVENTIONS, Convention, FittedStage, LossInfo, Population
 from handeye_jax.calibration._calibrate import RESTART_LANDMARKS, fit_correction
 from handeye_jax.diagnostics._diagnostics import OUTLIER_FACTOR, population_modes
 from handeye_jax.diagnostics._refits import EXACT_LOO_LANDMARKS, refits
@@ -113,10 +113,10 @@ def test_std_is_the_gauss_newton_covariance_when_well_posed(seed, d):
     out = analyse_jacobian(e, J, names, ["mm"] * d)
     sigma2 = e @ e / (20 - d)
     want = np.sqrt(np.diag(sigma2 * np.linalg.inv(J.T @ J)))
-    np.testing.assert_allclose([out["std"][n] for n in names], want, rtol=1e-8)
-    assert out["dof"] == 20 - d
+    np.testing.assert_allclose([out.std[n] for n in names], want, rtol=1e-8)
+    assert out.dof == 20 - d
     if np.linalg.cond(J / np.linalg.norm(J, axis=0)) < 50:
-        assert out["weak_directions"] == []
+        assert out.weak_directions == ()
 
 
 def test_parameters_entering_as_a_sum_are_named_and_undetermined():
@@ -124,11 +124,11 @@ def test_parameters_entering_as_a_sum_are_named_and_undetermined():
     J = rng.normal(size=(12, 3))
     J = np.c_[J, J[:, 1]]  # p1 and p3 act identically: only p1 + p3 is determined
     out = analyse_jacobian(rng.normal(size=12), J, ["a", "b", "c", "d"], ["deg"] * 4)
-    (weak,) = out["weak_directions"]
-    assert weak["determined"] == "b + d"
-    assert sorted(weak["params"]) == ["b", "d"]
-    assert out["std"]["b"] is None and out["std"]["d"] is None
-    assert out["std"]["a"] is not None and out["std"]["a"] > 0
+    (weak,) = out.weak_directions
+    assert weak.determined == "b + d"
+    assert sorted(weak.params) == ["b", "d"]
+    assert out.std["b"] is None and out.std["d"] is None
+    assert out.std["a"] is not None and out.std["a"] > 0
 
 
 def test_dh_redundancies_are_found_by_the_jacobian_not_hard_coded():
@@ -138,19 +138,19 @@ def test_dh_redundancies_are_found_by_the_jacobian_not_hard_coded():
         obs = ds.observations()
         out = jacobian_diagnostics(Stage1Objective(DHModel, obs), truth.to_vector(),
                                    DHModel.param_names, DHModel.param_units)  # fmt: skip
-    determined = {w["determined"] for w in out["weak_directions"]}
+    determined = {w.determined for w in out.weak_directions}
     assert {"theta_c1 + gamma_c", "theta_t1 + gamma_t"} <= determined
 
 
 def test_paper_fit_reports_the_shift_tilt_valley(paper_result):
-    d = paper_result.diagnostics["stage1"]
-    pairs = [set(w["params"]) for w in d["weak_directions"]]
+    d = paper_result.diagnostics.stage1
+    pairs = [set(w.params) for w in d.weak_directions]
     assert {"xc", "beta_c"} in pairs and {"yc", "alpha_c"} in pairs
-    assert all(w["determined"] is None for w in d["weak_directions"])  # weak, not null
-    assert all(v is not None and np.isfinite(v) and v > 0 for v in d["std"].values())
+    assert all(w.determined is None for w in d.weak_directions)  # weak, not null
+    assert all(v is not None and np.isfinite(v) and v > 0 for v in d.std.values())
     # The valley shows in the numbers: xc is known far worse than the tablet's xt.
-    assert d["std"]["xc"] > 10 * d["std"]["xt"]
-    assert paper_result.diagnostics["stage2"]["weak_directions"] == []
+    assert d.std["xc"] > 10 * d.std["xt"]
+    assert paper_result.diagnostics.stage2.weak_directions == ()
 
 
 # -- optima, bounds ----------------------------------------------------------------------
@@ -166,15 +166,16 @@ def test_population_modes_separate_basins_and_name_the_twin():
                           ((best, 30), (twin, 20), (other, 10))])  # fmt: skip
     f = np.concatenate([np.full(30, 1.674), np.full(20, 1.675), np.full(10, 1.698)])
     f = f + rng.uniform(0, 1e-4, 60)
-    modes = population_modes(pop, f, lo, hi, ["alpha_t", "beta_t", "z"], ("alpha_t", "beta_t"))
-    assert [m["members"] for m in modes] == [30, 20, 10]
-    assert [m["sign_twin"] for m in modes] == [False, True, False]
-    assert set(modes[1]["differs_from_fit"]) == {"alpha_t", "beta_t"}
+    names = ("alpha_t", "beta_t", "z")
+    modes = population_modes(Population(pop, f, names), Box(lo, hi), sign_twin=names[:2])
+    assert [m.members for m in modes] == [30, 20, 10]
+    assert [m.sign_twin for m in modes] == [False, True, False]
+    assert set(modes[1].differs_from_fit) == {"alpha_t", "beta_t"}
     # Compared with a reported fit that is the mirror twin, the roles swap.
-    from_twin = population_modes(pop, f, lo, hi, ["alpha_t", "beta_t", "z"],
-                                 ("alpha_t", "beta_t"), reference=twin)  # fmt: skip
-    assert from_twin[0]["differs_from_fit"]["beta_t"] == pytest.approx(-24.0, abs=0.5)
-    assert from_twin[1]["differs_from_fit"] == {}
+    from_twin = population_modes(Population(pop, f, names), Box(lo, hi), sign_twin=names[:2],
+                                 reference=twin)  # fmt: skip
+    assert from_twin[0].differs_from_fit["beta_t"] == pytest.approx(-24.0, abs=0.5)
+    assert from_twin[1].differs_from_fit == {}
 
 
 def test_members_apart_only_along_an_undetermined_direction_are_one_optimum():
@@ -183,17 +184,18 @@ def test_members_apart_only_along_an_undetermined_direction_are_one_optimum():
     pop = np.array([[t, 5.0 - t, 2.0] for t in (-20.0, -5.0, 0.0, 12.0)])
     f = np.array([1.0, 1.0 + 1e-6, 1.0 + 2e-6, 1.0 + 3e-6])
     names = ["theta", "gamma", "z"]
-    assert len(population_modes(pop, f, lo, hi, names)) == 4
-    merged = population_modes(pop, f, lo, hi, names, flat_steps=[{"theta": 1.0, "gamma": -1.0}])
-    assert [m["members"] for m in merged] == [4]
+    population = Population(pop, f, tuple(names))
+    assert len(population_modes(population, Box(lo, hi))) == 4
+    merged = population_modes(population, Box(lo, hi), flat_steps=[{"theta": 1.0, "gamma": -1.0}])
+    assert [m.members for m in merged] == [4]
 
 
 def test_paper_fit_finds_the_sign_twin_among_local_optima(paper_result):
-    d = paper_result.diagnostics["stage1"]
-    assert d["modes"] and d["modes"][0]["F"] == pytest.approx(paper_result.stage1.de["F"])
-    twins = [m for m in d["local_optima"] if m["sign_twin"]]
-    assert twins and abs(twins[0]["F"] - paper_result.stage1.F) < 1e-4
-    assert d["bound_hits"] == []
+    d = paper_result.diagnostics.stage1
+    assert d.modes and d.modes[0].F_mm == pytest.approx(paper_result.stage1.de.F_mm)
+    twins = [m for m in d.local_optima if m.sign_twin]
+    assert twins and abs(twins[0].F_mm - paper_result.stage1.F) < 1e-4
+    assert d.bound_hits == ()
 
 
 # -- never a worse optimum than the calibration found itself (issue 16, item 4) -----------
@@ -207,7 +209,7 @@ def twin1():
 
 
 def _best_refit_F(result) -> float:
-    return min(m["F"] for m in result.diagnostics["stage1"]["local_optima"])
+    return min(m.F_mm for m in result.diagnostics.stage1.local_optima)
 
 
 def test_fit_is_no_worse_than_any_refit_and_off_the_bound(twin1):
@@ -216,9 +218,9 @@ def test_fit_is_no_worse_than_any_refit_and_off_the_bound(twin1):
     assert r.stage1.F < 0.3465  # the basin the DE alone missed
     lo, hi = HTMModel.search_bounds(twin1.search)
     assert lo[0] + 1.0 < r.stage1.params["xc"] < hi[0] - 1.0
-    assert not any(w.startswith("xc") for w in r.warnings)
-    assert r.stage1.polish["found_by"].startswith("LM from")
-    assert r.stage1.polish["F_after"] == pytest.approx(r.stage1.F, abs=1e-12)
+    assert not any(w.startswith("xc") for w in map(str, r.warnings))
+    assert r.stage1.polish.found_by.startswith("LM from")
+    assert r.stage1.polish.F_after_mm == pytest.approx(r.stage1.F, abs=1e-12)
 
 
 def test_restarts_are_bounded_in_settings_and_in_result_files(paper_result, tmp_path):
@@ -235,24 +237,26 @@ def test_restarts_are_bounded_in_settings_and_in_result_files(paper_result, tmp_
 
 
 def test_a_refit_lower_than_the_fit_becomes_the_result(twin1):
-    """Without restarts the fit stays in the DE's basin; the diagnostics' multi-start refits
-    find the lower one, which becomes the result, with stage 2 refitted on it."""
-    alone = calibrate(twin1, Settings(restarts=0))
+    """DE and its polish stay in the DE's basin (xc on its bound), and one restart misses the
+    lower one; the fit's multi-start refits find it, and it is calibrate's result, stage 2
+    fitted on it. The diagnostics only read it."""
+    alone = calibrate(twin1, Settings(restarts=0))  # DE and LM only
     lo, hi = HTMModel.search_bounds(twin1.search)
     assert alone.stage1.params["xc"] > hi[0] - 1e-6  # on the bound, as the issue reported
-    r = diagnose(calibrate(twin1, Settings(restarts=0)))
+    r = calibrate(twin1, Settings(restarts=1))
     pol = r.stage1.polish
-    assert pol["found_by"] == "diagnostics multi-start refit"
-    assert pol["replaced_F"] == [pytest.approx(alone.stage1.F, abs=1e-9)]
-    assert r.stage1.F < alone.stage1.F - 1e-3 and r.stage1.F <= _best_refit_F(r) + 1e-9
+    assert pol.found_by.startswith("LM from a uniform start (refit ")
+    assert pol.replaced_F_mm == (pytest.approx(alone.stage1.F, abs=1e-9),)
+    assert r.stage1.F < alone.stage1.F - 1e-3
     # Stage 2 is the one fitted to the new stage 1's points, not the first one's.
-    again = calibrate(twin1, Settings(restarts=0))
-    assert again.stage2.params == alone.stage2.params
-    refit2 = fit_correction(twin1, HTMModel.from_dict(r.stage1.params), Settings(restarts=0))[0]
+    refit2 = fit_correction(twin1, HTMModel.from_dict(r.stage1.params), Settings(restarts=1))[0]
     assert np.allclose(refit2.to_vector(), list(r.stage2.params.values()), atol=1e-6)
     assert r.stage2.F < alone.stage2.F - 1e-3
-    text = format_summary(r)
-    assert "optimum found by: diagnostics multi-start refit" in text
+    d = diagnose(r)
+    assert d.stage1 == r.stage1 and d.stage2 == r.stage2 and d.model is r.model
+    assert r.stage1.F <= _best_refit_F(d) + 1e-9
+    text = format_summary(d)
+    assert "optimum found by: LM from a uniform start" in text
     assert f"{alone.stage1.F:.6f}" in text
 
 
@@ -272,9 +276,9 @@ def test_leave_one_out_matches_an_explicit_refit(paper_result):
         ref = minimise(obj, LevenbergMarquardt(), Box(lo, hi), x0=x1)
         e = errors_of(obj, jnp.asarray(ref.x))
         want = float(jnp.linalg.norm(e.image_vs_tablet[m])), float(jnp.linalg.norm(e.hand[m]))
-    got = paper_result.diagnostics["stage1"]["loo"]["held_out_mm"][m]
-    assert got["image_vs_tablet_mm"] == pytest.approx(want[0], abs=2e-3)
-    assert got["hand_mm"] == pytest.approx(want[1], abs=2e-3)
+    got = paper_result.diagnostics.stage1.loo.held_out_mm[m]
+    assert got.image_vs_tablet_mm == pytest.approx(want[0], abs=2e-3)
+    assert got.hand_mm == pytest.approx(want[1], abs=2e-3)
 
 
 def test_many_landmarks_restart_on_a_subset_and_leave_one_out_by_one_newton_step():
@@ -284,24 +288,24 @@ def test_many_landmarks_restart_on_a_subset_and_leave_one_out_by_one_newton_step
     ds = _noisy_grid(10, 7)
     assert ds.n_landmarks > max(EXACT_LOO_LANDMARKS, RESTART_LANDMARKS)
     r = diagnose(calibrate(ds, Settings(population=200, generations=400)))
-    assert r.stage1.polish["restarts"]["landmarks"] == RESTART_LANDMARKS
-    assert r.stage2.polish["restarts"]["landmarks"] - RESTART_LANDMARKS in (0, 1)  # + centre
+    assert r.stage1.polish.restarts.landmarks == RESTART_LANDMARKS
+    assert r.stage2.polish.restarts.landmarks - RESTART_LANDMARKS in (0, 1)  # + centre
     assert r.stage1.F <= _best_refit_F(r) + 1e-9
     x1 = np.array(list(r.stage1.params.values()))
     x2 = np.array(list(r.stage2.params.values()))
     exact = _refits(ds, x1, x2, exact_loo_landmarks=80, refit_landmarks=80)
     assert exact.loo_method.startswith("exact")
     for k, stage in ((1, "stage1"), (2, "stage2")):
-        d = r.diagnostics[stage]
-        assert d["loo_method"].startswith("one Newton step")
-        held = d["loo"]["held_out_mm"]
+        d = getattr(r.diagnostics, stage)
+        assert d.loo_method.startswith("one Newton step")
+        held = d.loo.held_out_mm
         for term in ("image_vs_tablet", "hand"):
             a = getattr(exact, f"loo{k}_{term}")
-            b = np.array([h[f"{term}_mm"] for h in held])
+            b = np.array([getattr(h, f"{term}_mm") for h in held])
             assert abs(a.mean() - b.mean()) < 0.01, (stage, term)  # the held-out F's terms
             assert np.abs(a - b).max() < 0.1, (stage, term)
         # Held out, the error exceeds the in-sample one, and the step sees it.
-        assert d["loo"]["F"] > d["loo"]["in_sample_F"] + 0.03
+        assert d.loo.F_mm > d.loo.in_sample_F_mm + 0.03
     assert "refits approximated: one Newton step" in format_summary(r)
 
 
@@ -327,28 +331,28 @@ def test_diagnostics_memory_is_linear_in_landmarks():
 
 def test_paper_held_out_error_exceeds_in_sample(paper_result):
     for stage in ("stage1", "stage2"):
-        loo = paper_result.diagnostics[stage]["loo"]
-        assert loo["F"] > loo["in_sample_F"] + 0.1
-        assert len(loo["held_out_mm"]) == 9
-        assert loo["F"] == pytest.approx(loo["f1"] + loo["f2"])
+        loo = getattr(paper_result.diagnostics, stage).loo
+        assert loo.F_mm > loo.in_sample_F_mm + 0.1
+        assert len(loo.held_out_mm) == 9
+        assert loo.F_mm == pytest.approx(loo.f1_mm + loo.f2_mm)
 
 
 def test_noise_free_data_predicts_held_out_landmarks_and_passes_its_convention():
     r = diagnose(calibrate(_synthetic(), FAST))
     for stage in ("stage1", "stage2"):
-        assert r.diagnostics[stage]["loo"]["F"] < 1e-3
-        assert r.diagnostics[stage]["outliers"] == []
-    assert r.diagnostics["convention"]["passed"]
+        assert getattr(r.diagnostics, stage).loo.F_mm < 1e-3
+        assert getattr(r.diagnostics, stage).outliers == ()
+    assert r.diagnostics.convention.passed
 
 
 # -- conventions -------------------------------------------------------------------------
 
 
 def test_published_data_passes_with_its_declared_convention(paper_result):
-    conv = paper_result.diagnostics["convention"]
-    assert conv["declared"] == {"zero_deg": 90.0, "sign": -1}
-    assert conv["passed"] and conv["warning"] is None
-    fits = {(c["zero_deg"], c["sign"]): c["F"] for c in conv["fits"]}
+    conv = paper_result.diagnostics.convention
+    assert conv.declared == Convention(90.0, -1)
+    assert conv.passed and conv.warning is None
+    fits = {(c.zero_deg, c.sign): c.F_mm for c in conv.fits}
     assert set(fits) == set(CONVENTIONS)
     assert fits[(90.0, -1)] == pytest.approx(paper_result.stage1.F, abs=1e-6)
     assert min(f for k, f in fits.items() if k != (90.0, -1)) > 2 * fits[(90.0, -1)]
@@ -358,10 +362,10 @@ def test_a_wrong_declared_convention_is_named():
     made = _synthetic(zero=0.0, sign=1.0)
     wrong = made.replace(hand_angle_zero_deg=90.0, hand_angle_sign=-1)
     r = diagnose(calibrate(wrong, FAST))
-    conv = r.diagnostics["convention"]
-    assert not conv["passed"]
-    assert "zero = 0 deg, sign = +1" in conv["warning"]
-    assert conv["warning"] in r.warnings
+    conv = r.diagnostics.convention
+    assert not conv.passed
+    assert "zero = 0 deg, sign = +1" in conv.warning
+    assert conv.warning in map(str, r.warnings)
 
 
 # -- losses and the robust option --------------------------------------------------------
@@ -430,16 +434,16 @@ def test_robust_fit_flags_a_touch_5mm_off_and_keeps_the_others(
     r_bad = diagnose(calibrate(touched, robust))
 
     def F_others(r):
-        keep = [x for x in r.stage1.residuals_mm if x["m"] != m]
-        return np.mean([x["image_vs_tablet_mm"] for x in keep]) + np.mean(
-            [x["hand_mm"] for x in keep]
+        keep = [x for x in r.stage1.residuals_mm if x.m != m]
+        return np.mean([x.image_vs_tablet_mm for x in keep]) + np.mean(
+            [x.hand_mm for x in keep]
         )
 
-    assert r_bad.diagnostics["stage1"]["outliers"] == [m]
-    assert r_clean.diagnostics["stage1"]["outliers"] == []
+    assert r_bad.diagnostics.stage1.outliers == (m,)
+    assert r_clean.diagnostics.stage1.outliers == ()
     assert abs(F_others(r_bad) - F_others(r_clean)) <= 0.2
-    assert r_bad.diagnostics["loss"] == {"name": loss, "scale_mm": scale_mm}
-    assert r_bad.diagnostics["outlier_threshold_mm"] == OUTLIER_FACTOR * scale_mm
+    assert r_bad.diagnostics.loss == LossInfo(loss, scale_mm)
+    assert r_bad.diagnostics.outlier_threshold_mm == OUTLIER_FACTOR * scale_mm
 
 
 # -- the batched LM ----------------------------------------------------------------------
@@ -480,13 +484,14 @@ def test_diagnostics_survive_the_result_file_and_old_files_load(paper_result, tm
     p = tmp_path / "r.json"
     save_result(paper_result, p)
     r = load_result(p)
-    assert r.diagnostics == json.loads(p.read_text())["diagnostics"]
+    assert r.diagnostics == paper_result.diagnostics
+    assert to_document(r.diagnostics) == json.loads(p.read_text())["diagnostics"]
     assert r.data.image_px[4].tolist() == [338.0, 244.0] and r.data == paper_result.data
     doc = json.loads(p.read_text())
     del doc["diagnostics"], doc["data"]
     p.write_text(json.dumps(doc))
     old = load_result(p)
-    assert old.diagnostics == {} and old.data is None
+    assert old.diagnostics is None and old.data is None
     doc["diagnostics"] = [1, 2]
     p.write_text(json.dumps(doc))
     with pytest.raises(Exception, match="diagnostics"):

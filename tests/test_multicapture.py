@@ -146,8 +146,8 @@ def test_noise_free_captures_are_recovered(fitted):
     tablet plane seen from a capture pose no fit used; the NumPy predictor agrees to 1e-9."""
     model, rig, _, r = fitted
     assert r.stage1.F < 1e-6 and r.stage2.F < 1e-6, (r.stage1.F, r.stage2.F)
-    assert abs(r.heights["pen_minus_camera_mm"] - (PEN_Z_MM - CAMERA_Z_MM)) < 1e-6
-    assert abs(r.heights["tablet_plus_camera_mm"] - (TABLET_Z_MM + CAMERA_Z_MM)) < 1e-6
+    assert abs(r.heights.pen_minus_camera_mm - (PEN_Z_MM - CAMERA_Z_MM)) < 1e-6
+    assert abs(r.heights.tablet_plus_camera_mm - (TABLET_Z_MM + CAMERA_Z_MM)) < 1e-6
     uv, depth, theta, position, angle, want = _targets(model, rig)
     for stage in (1, 2):
         got = r.predict(uv, depth, theta, stage=stage, capture_position_mm=position,
@@ -267,7 +267,7 @@ def test_exact_twin_is_recovered_from_any_capture_pose(exact_twin):
     twin, folder, r = exact_twin
     assert r.stage1.F < 1e-6 and r.stage2.F < 1e-6, (r.stage1.F, r.stage2.F)
     dz = twin.truth.pen_z_mm - twin.truth.camera_z_mm
-    assert abs(r.heights["pen_minus_camera_mm"] - dz) < 1e-6
+    assert abs(r.heights.pen_minus_camera_mm - dz) < 1e-6
     path = folder / "result.json"
     save_result(r, path)
     rows = evaluate_twin(path, folder)
@@ -313,17 +313,16 @@ def test_summary_says_where_the_calibration_holds():
     for k, ds in ((1, ds1), (3, ds3)):
         ds = ds.replace(hand_xy_mm=np.round(ds.hand_xy_mm, 1))
         r = diagnose(calibrate(ds, s))
-        scopes[k] = (r.diagnostics["scope"], format_summary(r))
+        scopes[k] = (r.diagnostics.scope, format_summary(r))
     one, text1 = scopes[1]
     three, text3 = scopes[3]
-    assert one["captures"] == 1 and one["camera_tradeoffs"]
-    assert min(one["expected_error_mm"]["+50"], one["expected_error_mm"]["-50"]) > (
-        5 * one["expected_error_mm"]["+0"]
-    )
+    assert one.captures == 1 and one.camera_tradeoffs
+    e = one.expected_error_mm
+    assert min(e["+50"], e["-50"]) > 5 * e["+0"]
     assert "scope: one capture: the calibration holds only for pictures taken from this" in text1
     assert "heights: the touches recorded no hand height" in text1
-    assert three["captures"] == 3 and not three["camera_tradeoffs"]
-    e = three["expected_error_mm"]
+    assert three.captures == 3 and not three.camera_tradeoffs
+    e = three.expected_error_mm
     assert max(e["+50"], e["-50"]) < 3 * e["+0"]
     assert "trade-offs of a single picture (xc/βc, yc/αc) are gone" in text3
     assert "z_pen − z_camera = 4.000" in text3

@@ -92,10 +92,10 @@ def test_all_seeds_reach_the_same_optimum(htm_results):
     assert max(F1) - min(F1) < 1e-4 and max(F2) - min(F2) < 1e-4
     for r in htm_results.values():
         twin = r.sign_twin
-        assert twin["params"] == ["alpha_t", "beta_t"]
-        assert abs(twin["F_found"] - twin["F_flipped"]) < 1e-9
+        assert twin.params == ("alpha_t", "beta_t")
+        assert abs(twin.F_found_mm - twin.F_flipped_mm) < 1e-9
         # The twin reported is the one whose parameters the result holds.
-        assert twin["found"]["alpha_t"] == r.stage1.params["alpha_t"]
+        assert twin.found["alpha_t"] == r.stage1.params["alpha_t"]
 
 
 def test_same_seed_is_bit_for_bit_identical(paper, htm_results):
@@ -107,11 +107,11 @@ def test_same_seed_is_bit_for_bit_identical(paper, htm_results):
 def test_polish_only_kept_when_it_lowers_f(htm_results):
     for r in htm_results.values():
         for s in (r.stage1, r.stage2):
-            if s.polish["accepted"]:
-                assert s.polish["F_after"] < s.polish["F_before"]
-                assert s.F == pytest.approx(s.polish["F_after"], abs=1e-12)
+            if s.polish.accepted:
+                assert s.polish.F_after_mm < s.polish.F_before_mm
+                assert s.F == pytest.approx(s.polish.F_after_mm, abs=1e-12)
             else:
-                assert s.F == pytest.approx(s.polish["F_before"], abs=1e-12)
+                assert s.F == pytest.approx(s.polish.F_before_mm, abs=1e-12)
 
 
 def test_dh_calibration_stays_in_table6_ranges_and_warns_at_the_bound(paper):
@@ -120,7 +120,7 @@ def test_dh_calibration_stays_in_table6_ranges_and_warns_at_the_bound(paper):
     x = np.array([r.stage1.params[n] for n in DHModel.param_names])
     assert np.all(x >= lo) and np.all(x <= hi)
     assert 7.0 < r.stage1.F < 8.0
-    assert any(w.startswith("a_c1") and "[search]" in w for w in r.warnings)
+    assert any(w.startswith("a_c1") and "[search]" in w for w in map(str, r.warnings))
 
 
 def test_dh_with_a_widened_range_reaches_the_papers_fitness(paper):

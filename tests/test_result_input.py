@@ -11,7 +11,9 @@ from hypothesis import strategies as st
 
 from handeye_jax import (
     CalibrationResult,
+    FitWarning,
     InputError,
+    PolishSummary,
     Settings,
     StageResult,
     load_result,
@@ -194,17 +196,17 @@ def test_a_written_result_loads_predicts_and_reports(folder, tmp_path, capsys):
         f"{f}.{e}" for f in FIGURES for e in FORMATS
     )
     # What the API can write: no polish, no diagnostics, and the tablet tests' bare result.
-    unpolished = dataclasses.replace(result.stage1, polish={"ran": False, "accepted": False,
-                                                            "F_before": 2.0})  # fmt: skip
-    bare = StageResult(F=1.0, f1=0.5, f2=0.5, params=result.stage2.params, residuals_mm=[],
-                       de={}, polish={})  # fmt: skip
+    unpolished = dataclasses.replace(
+        result.stage1, polish=PolishSummary(ran=False, accepted=False, F_before_mm=2.0)
+    )
+    bare = StageResult(F=1.0, f1=0.5, f2=0.5, params=result.stage2.params)
     for variant in (
-        dataclasses.replace(result, stage1=unpolished, diagnostics={}),
-        dataclasses.replace(result, data=None, diagnostics={}, stage2=bare),
+        dataclasses.replace(result, stage1=unpolished, diagnostics=None),
+        dataclasses.replace(result, data=None, diagnostics=None, stage2=bare),
         CalibrationResult(
             model=result.model, correction=result.correction, rig=result.rig,
             centres_mm=[[0.0, 0.0], [0.0, 0.0]], centre_index=4, stage1=result.stage1,
-            stage2=bare, settings=Settings(seed=1), dataset_name="d", warnings=["w"],
+            stage2=bare, settings=Settings(seed=1), dataset_name="d", warnings=[FitWarning("w")],
         ),
     ):  # fmt: skip
         save_result(variant, tmp_path / "v.json")
@@ -265,7 +267,7 @@ def test_first_results_load_and_draw(good_doc, tmp_path):
     p = tmp_path / "first.json"
     p.write_text(json.dumps(doc))
     r = load_result(p)
-    assert r.stage1.convergence["median_generation"] == list(range(1, len(c["best_F"]) + 1))
+    assert r.stage1.convergence.median_generation == tuple(range(1, len(c["best_F"]) + 1))
     fig_convergence(r)
 
 

@@ -61,12 +61,12 @@ def test_search_override_moves_the_range_and_is_obeyed():
     base = synthesize_dataset(truth, rig, snake_grid_px(), 22.5 * np.arange(9))
     narrow = calibrate(base, Settings(seed=2))
     assert narrow.stage1.F > 1e-3
-    assert any(w.startswith("xt") for w in narrow.warnings)
+    assert any(w.startswith("xt") for w in map(str, narrow.warnings))
 
     wide = calibrate(base.replace(search={"xt": (100.0, 250.0)}), Settings(seed=2))
     assert wide.stage1.F < 1e-6
     assert abs(wide.stage1.params["xt"] - 230.0) < 1e-5
-    assert not any(w.startswith("xt") for w in wide.warnings)
+    assert not any(w.startswith("xt") for w in map(str, wide.warnings))
 
 
 def test_touch_errors_are_compensated_by_eq20():

@@ -558,7 +558,7 @@ def paper_result(path, dataset_name="paper2023"):
                    X2=0.06, Y2=-0.11, theta2=0.0, Sx2=1.02, Sy2=0.99)  # fmt: skip
 
     def stage(F, f1, f2, params):
-        return StageResult(F=F, f1=f1, f2=f2, params=params, residuals_mm=[], de={}, polish={})
+        return StageResult(F=F, f1=f1, f2=f2, params=params)
 
     with jax.enable_x64(True):
         result = CalibrationResult(

@@ -26,6 +26,7 @@ _EXPORTS = {
         "read_text",
     ),
     "_progress": ("progress_bar",),
+    "_schema": ("bounded", "count", "each", "length", "read", "spec", "to_document"),
     "_stages": ("Stages",),
     "_validate": (
         "describe", "join_key", "MAX_DEG", "MAX_GENERATIONS", "MAX_HELDOUT", "MAX_IMAGE_PIXELS",

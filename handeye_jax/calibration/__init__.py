@@ -13,7 +13,13 @@ _EXPORTS = {
     "_calibrate": (
         "all_warnings", "bound_hits", "calibrate", "convention_index", "CONVENTIONS", "fit",
         "fit_correction", "fit_stage", "fitted_stages", "FittedStage", "full_plan", "Plan",
-        "recalibrate", "recalibration_plan", "REFIT_STARTS", "StageFit", "uniform_starts",
+        "Population", "recalibrate", "recalibration_plan", "REFIT_STARTS", "StageFit",
+        "uniform_starts",
+    ),
+    "_payloads": (
+        "Convention", "ConventionCheck", "ConventionFit", "Convergence", "DESummary", "Diagnostics",
+        "FitWarning", "HeldOut", "LeaveOneOut", "LossInfo", "Mode", "PolishSummary", "PriorReport",
+        "Pull", "Recalibration", "Residual", "Scope", "SignTwin", "StageDiagnostics",
     ),
     "_result": ("CalibrationResult", "StageResult"),
     "_result_frames": ("compute_frames",),

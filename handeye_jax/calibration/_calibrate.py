@@ -64,6 +64,19 @@ from ..problem import (
     stage2_errors,
     std_of_precision,
 )
+from ._payloads import (
+    BoundHit,
+    Convergence,
+    DESummary,
+    FitWarning,
+    PolishSummary,
+    PriorReport,
+    Pull,
+    Recalibration,
+    Residual,
+    RestartSummary,
+    SignTwin,
+)
 from ._result import CalibrationResult, StageResult
 from ._settings import Settings
 
@@ -181,9 +194,9 @@ class StageFit:
     objective: AbstractObjective
     data: AbstractObjective
     x: np.ndarray
-    de: dict[str, Any]
-    polish: dict[str, Any]
-    convergence: dict[str, list[float]]
+    de: DESummary
+    polish: PolishSummary
+    convergence: Convergence
     timings: dict[str, float]
     population: Population | None = None
 
@@ -263,15 +276,10 @@ def fit_stage(
     best = Optimum(np.asarray(x), _value(objective, x), "DE" if found else "the previous result")
     de_info, convergence = _de_summary(search, found, best.value)
     t1 = time.perf_counter()
-    polish: dict[str, Any] = {"ran": settings.polish, "accepted": False, "F_before": best.value}
+    polish = PolishSummary(ran=settings.polish, accepted=False, F_before_mm=best.value)
     if settings.polish:
-        best = _polished(objective, space.box, best, polish)
-        if settings.restarts > 0 and found is not None:
-            best, polish["restarts"] = _restarts(task, objective, found, keys[1], settings, best)
-        if task.refit_starts is not None:
-            best = _refits(task, objective, best, polish, settings.restarts)
-        polish.update(accepted=bool(best.value < polish["F_before"]), F_after=best.value)
-    polish["found_by"] = best.found_by
+        best, polish = _lm_searches(task, objective, found, keys[1], settings, best)
+    polish = replace(polish, found_by=best.found_by)
     population = None if found is None else Population(found.de.population,
                                                        found.de.fitness, search)  # fmt: skip
     return StageFit(
@@ -297,34 +305,45 @@ def _de_search(
     return _Search(sub, sub_objective, base, de)
 
 
-def _de_summary(search, found: _Search | None, value: float):
+def _de_summary(search, found: _Search | None, value: float) -> tuple[DESummary, Convergence]:
     """The result's ``de`` summary and ``convergence`` history of a stage's DE."""
-    info: dict[str, Any] = {"searched": list(search)}
     if found is None:
-        return info, {}
+        return DESummary(searched=tuple(search)), Convergence()
     de = found.de
     # F: the whole objective's value at DE's best (equal to DE's own with a full search).
-    info.update(F=value, generations=de.steps, evaluations=de.evaluations,
-                converged=de.converged)  # fmt: skip
-    convergence = {
-        "best_F": [float(v) for v in de.best_history],
-        "median_F": [float(v) for v in de.median_history],
-        "median_generation": [int(g) for g in de.median_generations],
-    }
+    info = DESummary(searched=tuple(search), F_mm=value, generations=de.steps,
+                     evaluations=de.evaluations, converged=de.converged)  # fmt: skip
+    convergence = Convergence(
+        best_F_mm=tuple(float(v) for v in de.best_history),
+        median_F_mm=tuple(float(v) for v in de.median_history),
+        median_generation=tuple(int(g) for g in de.median_generations),
+    )
     return info, convergence
 
 
-def _polished(objective: AbstractObjective, box: Box, best: Optimum, polish: dict) -> Optimum:
-    """LM from ``best`` (recording its steps in ``polish``), kept if it lowers the value."""
-    lm = minimise(objective, POLISH, box, x0=best.x)
-    polish.update(steps=lm.steps, solver_converged=lm.converged)
+def _lm_searches(task: StageTask, objective, found: _Search | None, key, settings: Settings,
+                 best: Optimum) -> tuple[Optimum, PolishSummary]:  # fmt: skip
+    """LM from DE's best, then from the restarts and the refits: the lowest point reached,
+    and the polish's summary."""
+    F_before = best.value
+    lm = minimise(objective, POLISH, task.space.box, x0=best.x)
     if np.isfinite(lm.value) and lm.value < best.value:
-        return Optimum(lm.x, lm.value, f"{best.found_by} + LM")
-    return best
+        best = Optimum(lm.x, lm.value, f"{best.found_by} + LM")
+    restarts = None
+    if settings.restarts > 0 and found is not None:
+        best, restarts = _restarts(task, objective, found, key, settings, best)
+    replaced: tuple[float, ...] = ()
+    if settings.restarts > 0 and task.refit_starts is not None:  # restarts=0: DE and LM only
+        best, replaced = _refits(task, objective, best, settings.restarts)
+    return best, PolishSummary(
+        ran=True, accepted=bool(best.value < F_before), F_before_mm=F_before, steps=lm.steps,
+        solver_converged=lm.converged, restarts=restarts, F_after_mm=best.value,
+        replaced_F_mm=replaced,
+    )  # fmt: skip
 
 
 def _restarts(task: StageTask, objective, found: _Search, key, settings: Settings,
-              best: Optimum) -> tuple[Optimum, dict[str, Any]]:  # fmt: skip
+              best: Optimum) -> tuple[Optimum, RestartSummary]:  # fmt: skip
     """LM (on the searched parameters) from the final population's other optima and from
     hypercube points, all at once; the best end point, polished on all free parameters,
     replaces ``best`` if lower. Returns it and the ``restarts`` summary."""
@@ -341,21 +360,22 @@ def _restarts(task: StageTask, objective, found: _Search, key, settings: Setting
     full = np.array([task.space.embed(sub.free, e, found.base) for e in ends])
     narrowed = task.restart_landmarks is not None or sub is not task.space
     out, values, best_F = _best_end(objective, task.space.box, full, labels, best, narrowed)
-    info = {
-        "starts": restarts, "from_population": int(k), "best_F": best_F,
+    landmarks = task.restart_landmarks
+    info = RestartSummary(
+        starts=restarts, from_population=int(k), best_F_mm=best_F,
         # How many restarts ended within 1e-4 mm of the result: few say the basin was found
         # by few starts, so a larger budget might find a lower one.
-        "reached_result": int(np.sum(values <= out.value + 1e-4)),
-    }  # fmt: skip
-    if task.restart_landmarks is not None:
-        info["landmarks"] = len(task.restart_landmarks)
+        reached_result=int(np.sum(values <= out.value + 1e-4)),
+        landmarks=None if landmarks is None else len(landmarks),
+    )  # fmt: skip
     return out, info
 
 
-def _refits(task: StageTask, objective, best: Optimum, polish: dict, batch: int) -> Optimum:
+def _refits(task: StageTask, objective, best: Optimum,
+            batch: int) -> tuple[Optimum, tuple[float, ...]]:  # fmt: skip
     """LM on every free parameter from the task's refit starts and from ``best`` itself, all
     at once (the convention check's multi-start, declared convention); the best end point,
-    polished, replaces ``best`` if lower, and ``polish`` records the value it replaced."""
+    polished, replaces ``best`` if lower. Returns it and the value it replaced, if any."""
     starts = np.concatenate([task.refit_starts, np.asarray(best.x)[None]])
     k = len(task.refit_starts)
     labels = [f"LM from a uniform start (refit {i + 1} of {k})" for i in range(k)]
@@ -363,12 +383,12 @@ def _refits(task: StageTask, objective, best: Optimum, polish: dict, batch: int)
     ends = _multistart(objective, task.space, starts, task.restart_landmarks, batch)
     out, _, _ = _best_end(objective, task.space.box, ends, labels, best,
                           task.restart_landmarks is not None)  # fmt: skip
-    if out is not best:
-        width = task.space.upper - task.space.lower
-        if np.all(np.abs(out.x - best.x) <= MODE_PARAM_FRACTION * width):
-            out = replace(out, found_by=labels[-1])  # the fit's own optimum, further down
-        polish["replaced_F"] = [*polish.get("replaced_F", []), best.value]
-    return out
+    if out is best:
+        return best, ()
+    width = task.space.upper - task.space.lower
+    if np.all(np.abs(out.x - best.x) <= MODE_PARAM_FRACTION * width):
+        out = replace(out, found_by=labels[-1])  # the fit's own optimum, further down
+    return out, (best.value,)
 
 
 #: A refit that lands within this fraction of every parameter's range of the fit has refined
@@ -441,7 +461,7 @@ def refit_starts(seed: int, box: Box, rig) -> np.ndarray:
     return draws[k * REFIT_STARTS : (k + 1) * REFIT_STARTS]
 
 
-def _prior_report(stage: StageFit) -> dict[str, Any] | None:
+def _prior_report(stage: StageFit) -> PriorReport | None:
     """The prior of a stage and how far the data pulled each parameter from it.
 
     With ``d = θ − μ`` the fit's move from the prior mean and ``Q = Σ_prior − Σ_post`` its
@@ -465,7 +485,7 @@ def _prior_report(stage: StageFit) -> dict[str, Any] | None:
         P_post = J.T @ J / prior.data_sigma_mm**2 + P_full
     else:
         P_post = np.asarray(analyse_jacobian(e, J, space.free, ["1"] * space.d, None,
-                                             P_full)["precision"])  # fmt: skip
+                                             P_full).precision)  # fmt: skip
     post = std_of_precision(P_post, space.free)
     Q = prior.covariance() - np.linalg.pinv(P_post, hermitian=True)[np.ix_(idx, idx)]
     w, V = np.linalg.eigh(0.5 * (Q + Q.T))
@@ -478,22 +498,16 @@ def _prior_report(stage: StageFit) -> dict[str, Any] | None:
         sp, spost = float(sig_prior[j]), post[name]
         pull = (Q_inv[j] @ d) / math.sqrt(Q_inv[j, j]) if Q_inv[j, j] > 0 else 0.0
         marginal = d[j] / math.sqrt(Q[j, j]) if Q[j, j] > 0 else 0.0
-        out.append({
-            "param": name, "mean": float(prior.mean[j]),
-            "sigma": sp if math.isfinite(sp) else None, "value": float(stage.x[idx[j]]),
-            "posterior_sigma": spost, "pull": float(pull), "marginal_pull": float(marginal),
-        })  # fmt: skip
-    report = {
-        "source": prior.source,
-        "names": list(prior.names),
-        "mean": prior.mean.tolist(),
-        "precision": prior.precision.tolist(),
-        "data_scale_mm": prior.data_scale_mm,
-        "pulls": out,
-    }
-    if prior.data_sigma_mm is not None:
-        report["data_sigma_mm"] = prior.data_sigma_mm
-    return report
+        out.append(Pull(
+            param=name, mean=float(prior.mean[j]), sigma=sp if math.isfinite(sp) else None,
+            value=float(stage.x[idx[j]]), posterior_sigma=spost, pull=float(pull),
+            marginal_pull=float(marginal),
+        ))  # fmt: skip
+    return PriorReport(
+        source=prior.source, names=tuple(prior.names), mean=tuple(prior.mean.tolist()),
+        precision=tuple(tuple(row) for row in prior.precision.tolist()),
+        data_scale_mm=prior.data_scale_mm, pulls=tuple(out), data_sigma_mm=prior.data_sigma_mm,
+    )  # fmt: skip
 
 
 @fast_compile
@@ -501,21 +515,15 @@ def _error_jacobian(objective, x):
     return error_jacobian(objective, x)
 
 
-def _stage_result(stage: StageFit, prior_report: dict | None = None) -> StageResult:
+def _stage_result(stage: StageFit, prior_report: PriorReport | None = None) -> StageResult:
     errors, (F, f1, f2), (n1, n2), value, terms = _report(stage.objective, stage.x)
     F, f1, f2 = float(F), float(f1), float(f2)
     n1, n2 = np.asarray(n1), np.asarray(n2)
     e1, e2 = np.asarray(errors.image_vs_tablet), np.asarray(errors.hand)
-    residuals = [
-        {
-            "m": m,
-            "image_vs_tablet_xy_mm": e1[m].tolist(),
-            "image_vs_tablet_mm": float(n1[m]),
-            "hand_xy_mm": e2[m].tolist(),
-            "hand_mm": float(n2[m]),
-        }  # fmt: skip
+    residuals = tuple(
+        Residual(m, tuple(e1[m].tolist()), float(n1[m]), tuple(e2[m].tolist()), float(n2[m]))
         for m in range(len(n1))
-    ]
+    )
     model = stage.model()
     space = stage.space
     params = {n: float(getattr(model, n)) for n in type(model).param_names}
@@ -541,7 +549,7 @@ def _check_finite(stage: StageResult, name: str, source) -> None:
 
 def check_determined(
     n_landmarks: int, space: ParameterSpace, stage: str, path: str | Path | None
-) -> list[str]:
+) -> list[FitWarning]:
     """Refuse a stage with fewer residuals than free parameters; warn when none are left over.
 
     Each landmark gives four residual scalars; a prior gives one per direction it informs.
@@ -563,11 +571,12 @@ def check_determined(
             "landmarks, or fewer free parameters (recalibrate with --prior and --refit)",
         )  # fmt: skip
     if residuals == d:
-        return [
+        return [FitWarning(
             f"{stage} has as many residuals ({residuals}: {n_landmarks} landmarks x "
             f"{RESIDUALS_PER_LANDMARK}{with_prior}) as free parameters: it can match the data "
-            "exactly, so its F says nothing about its accuracy; touch more landmarks"
-        ]
+            "exactly, so its F says nothing about its accuracy; touch more landmarks",
+            "residuals",
+        )]  # fmt: skip
     return []
 
 
@@ -577,7 +586,7 @@ BOUND_FRACTION = 1e-3
 
 def bound_hits(
     params: dict[str, float], cls: type[AbstractParametric], search: dict
-) -> list[dict[str, Any]]:
+) -> tuple[BoundHit, ...]:
     """Parameters on a bound of their search range, each with a wider range to try.
 
     Args:
@@ -596,11 +605,9 @@ def bound_hits(
         )
         if side:
             wider = (lo - width, hi) if side == "lower" else (lo, hi + width)
-            out.append({
-                "param": name, "value": float(v), "unit": unit, "side": side,
-                "range": [float(lo), float(hi)], "widen_to": [float(wider[0]), float(wider[1])],
-            })  # fmt: skip
-    return out
+            out.append(BoundHit(name, float(v), unit, side, (float(lo), float(hi)),
+                                (float(wider[0]), float(wider[1]))))  # fmt: skip
+    return tuple(out)
 
 
 def bound_warnings(
@@ -608,19 +615,19 @@ def bound_warnings(
     cls: type[AbstractParametric],
     search: dict,
     free: Sequence[str] | None = None,
-) -> list[str]:
+) -> list[FitWarning]:
     """One warning per free parameter sitting on a bound of its search range."""
     out = []
     for hit in bound_hits(params, cls, search):
-        if free is not None and hit["param"] not in free:
+        if free is not None and hit.param not in free:
             continue
-        name, u = hit["param"], "" if hit["unit"] == "1" else f" {hit['unit']}"
-        (lo, hi), (wlo, whi) = hit["range"], hit["widen_to"]
-        out.append(
-            f"{name} = {hit['value']:.4g}{u} is on the {hit['side']} bound of its search range "
+        name, u = hit.param, "" if hit.unit == "1" else f" {hit.unit}"
+        (lo, hi), (wlo, whi) = hit.range, hit.widen_to
+        out.append(FitWarning(
+            f"{name} = {hit.value:.4g}{u} is on the {hit.side} bound of its search range "
             f"[{lo:g}, {hi:g}]; the optimum may lie outside it: widen it in the dataset's "
-            f"[search] table, e.g. {name} = [{wlo:g}, {whi:g}]"
-        )
+            f"[search] table, e.g. {name} = [{wlo:g}, {whi:g}]", "bound", name,
+        ))  # fmt: skip
     return out
 
 
@@ -628,52 +635,51 @@ def bound_warnings(
 F_DOES_NOT_FIT_MM = 100.0
 
 
-def fit_warnings(stage1: StageResult, stage2: StageResult) -> list[str]:
+def fit_warnings(stage1: StageResult, stage2: StageResult) -> list[FitWarning]:
     """A plain warning when F is so large that the data cannot be a rig's."""
     F = max(stage1.F, stage2.F)
     if F <= F_DOES_NOT_FIT_MM:
         return []
-    return [
+    return [FitWarning(
         f"the data do not fit: F = {F:.4g} mm, more than {F_DOES_NOT_FIT_MM:g} mm (a working "
         "rig fits to about 1 mm); do not use this result. Check the dataset's units (mm, deg, "
-        "px), [tablet] ppi and scale, [camera], and the hand-angle convention"
-    ]
+        "px), [tablet] ppi and scale, [camera], and the hand-angle convention", "fit",
+    )]  # fmt: skip
 
 
-def prior_warnings(stage: StageResult, label: str) -> list[str]:
+def prior_warnings(stage: StageResult, label: str) -> list[FitWarning]:
     """One warning per prior parameter the data pull more than :data:`PULL_FLAG` σ away,
     largest pull first (the likeliest to have changed; correlated ones follow it)."""
-    prior = getattr(stage, "prior", None)
-    if not prior:
+    prior = stage.prior
+    if prior is None:
         return []
     out = []
-    for p in sorted(prior["pulls"], key=lambda p: -abs(p["pull"])):
-        if abs(p["pull"]) > PULL_FLAG:
-            sigma = "" if p["sigma"] is None else f" ± {p['sigma']:.3g}"
-            out.append(
-                f"{label}: the data pull {p['param']} {abs(p['pull']):.1f} sigma from its prior "
-                f"({prior['source']}: {p['mean']:.4g}{sigma}; fitted {p['value']:.4g}): the "
-                f"prior may be wrong for this rig; refit {p['param']} (--refit) instead"
-            )
+    for p in sorted(prior.pulls, key=lambda p: -abs(p.pull)):
+        if abs(p.pull) > PULL_FLAG:
+            sigma = "" if p.sigma is None else f" ± {p.sigma:.3g}"
+            out.append(FitWarning(
+                f"{label}: the data pull {p.param} {abs(p.pull):.1f} sigma from its prior "
+                f"({prior.source}: {p.mean:.4g}{sigma}; fitted {p.value:.4g}): the prior may "
+                f"be wrong for this rig; refit {p.param} (--refit) instead", "prior", p.param,
+            ))  # fmt: skip
     return out
 
 
-def _sign_twin(stage: StageFit) -> dict[str, Any]:
+def _sign_twin(stage: StageFit) -> SignTwin | None:
+    """The sign twin of a stage's fit, if its model has one and all its parameters are free."""
     cls = type(stage.space.template)
     names = [n for n in cls.sign_twin if n in stage.space.free]
     if len(names) != len(cls.sign_twin) or not names:
-        return {}
+        return None
     idx = [stage.space.free.index(n) for n in names]
     flipped = np.array(stage.x, copy=True)
     flipped[idx] = -flipped[idx]
-    return {
-        "params": list(names),
-        "found": {n: float(stage.x[i]) for n, i in zip(names, idx, strict=True)},
-        "F_found": _value(stage.data, stage.x),
-        "F_flipped": _value(stage.data, flipped),
-        "note": "flipping the signs of " + " and ".join(names) + " together mirrors the "
-        "tablet through its own plane and gives the same F",
-    }
+    return SignTwin(
+        params=tuple(names), found={n: float(stage.x[i]) for n, i in zip(names, idx, strict=True)},
+        F_found_mm=_value(stage.data, stage.x), F_flipped_mm=_value(stage.data, flipped),
+        note="flipping the signs of " + " and ".join(names) + " together mirrors the tablet "
+        "through its own plane and gives the same F",
+    )  # fmt: skip
 
 
 # -- both stages ---------------------------------------------------------------------------
@@ -753,8 +759,7 @@ def fit(
     }  # fmt: skip
     recal = None
     if plan.previous is not None:
-        recal = {"previous": plan.previous, "refit": list(plan.refit),
-                 "others": "fixed" if plan.fixed else "prior"}  # fmt: skip
+        recal = Recalibration(plan.previous, tuple(plan.refit), "fixed" if plan.fixed else "prior")
     return CalibrationResult(
         model=fit1.model(), correction=fit2.model(), rig=obs.rig, centres_mm=np.asarray(centres),
         centre_index=obs.centre_index, stage1=stage1, stage2=stage2, settings=settings,
@@ -975,11 +980,11 @@ def fit_correction(
 # -- what the diagnostics read of a result -------------------------------------------------
 
 
-def _prior_of(report: dict[str, Any] | None) -> Prior | None:
-    if not report:
+def _prior_of(report: PriorReport | None) -> Prior | None:
+    if report is None:
         return None
-    return Prior(tuple(report["names"]), report["mean"], report["precision"], report["source"],
-                 report["data_scale_mm"], report.get("data_sigma_mm"))  # fmt: skip
+    return Prior(report.names, report.mean, report.precision, report.source, report.data_scale_mm,
+                 report.data_sigma_mm)  # fmt: skip
 
 
 def _spaces_of(result: CalibrationResult, search: dict) -> Stages[ParameterSpace]:
@@ -1052,8 +1057,8 @@ def all_warnings(
     stages: Stages[StageResult],
     search: dict,
     path: str | Path | None,
-    extra: Sequence[str] = (),
-) -> list[str]:
+    extra: Sequence[FitWarning] = (),
+) -> list[FitWarning]:
     """Every warning of a fit of ``n`` landmarks: a fit that is no rig's, stages with no
     residuals to spare, parameters on a bound, priors the data pull from, and ``extra`` ones
     (the diagnostics'), one line each."""
@@ -1065,4 +1070,4 @@ def all_warnings(
     warnings += bound_warnings(stage1.params, model_cls, search, spaces.stage1.free)
     warnings += bound_warnings(stage2.params, AffinePair, search, spaces.stage2.free)
     warnings += prior_warnings(stage1, "stage 1") + prior_warnings(stage2, "stage 2")
-    return warnings + [w for w in extra if w]
+    return warnings + list(extra)

@@ -9,18 +9,20 @@ convention) it predicts hand commands without the dataset. Its file format,
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._core import InputError, Stages
+from .._core import InputError, Stages, bounded, each, length, spec
 from .._jax import in_float64
 from ..data import Dataset
 from ..models import AbstractCorrection, AbstractModel, Rig, hand_command
 from ..problem import (
     FIXED,
+    FREE,
+    Heights,
     Prior,
     Stage1Objective,
     Stage2Objective,
@@ -29,8 +31,23 @@ from ..problem import (
     error_jacobian,
 )
 from ..robot import Frames
+from ._payloads import (
+    Convergence,
+    DESummary,
+    Diagnostics,
+    FitWarning,
+    PolishSummary,
+    PriorReport,
+    Recalibration,
+    Residual,
+    SignTwin,
+)
 from ._result_frames import compute_frames
 from ._settings import Settings
+
+#: Largest magnitude of a fitted parameter: the widest search range a dataset admits (DE and
+#: the LM polish stay inside their range).
+MAX_PARAM = 1e6
 
 
 @dataclass(frozen=True)
@@ -43,35 +60,37 @@ class StageResult:
         params: every parameter's value, name → value (mm, deg or 1, as the model's
             ``param_units`` say), free or not.
         residuals_mm: per landmark, the error vectors and lengths of both terms, mm.
-        de: DE summary (generations, evaluations, converged, F found by DE, names searched).
-        polish: LM summary (accepted, F before and after, steps, ``found_by``: which search
-            found the optimum; restarts).
+        de: what DE did (names searched, generations, evaluations, converged, its best value).
+        polish: what LM did (accepted, values before and after, steps, restarts, refits, and
+            ``found_by``: which search found the optimum).
         convergence: best and median F after each DE generation, mm.
         status: each parameter's role: ``"free"``, ``"prior"`` (free, with a prior) or
             ``"fixed"`` (held at the template's value).
         fixed_source: where each fixed parameter's value came from (a result file).
         prior: the prior (its source, mean, precision, data scale) and each of its parameters'
             pull, or ``None``.
+
+    Its JSON form (``stage1``, ``stage2`` of a result file) is its fields'.
         prior_F: the prior block's value at the optimum, mm (the MAP objective is ``F`` plus
             it), or ``None``.
     """
 
-    F: float
-    f1: float
-    f2: float
-    params: dict[str, float]
-    residuals_mm: list[dict[str, Any]]
-    de: dict[str, Any]
-    polish: dict[str, Any]
-    convergence: dict[str, list[float]] = field(default_factory=dict)
-    status: dict[str, str] = field(default_factory=dict)
-    fixed_source: dict[str, str] = field(default_factory=dict)
-    prior: dict[str, Any] | None = None
-    prior_F: float | None = None
+    F: float = spec(check=length)
+    f1: float = spec(check=length)
+    f2: float = spec(check=length)
+    params: dict[str, float] = spec(check=each(bounded(MAX_PARAM)))
+    residuals_mm: tuple[Residual, ...] = ()
+    de: DESummary = field(default_factory=DESummary)
+    polish: PolishSummary = field(default_factory=PolishSummary)
+    convergence: Convergence = field(default_factory=Convergence)
+    status: dict[str, Literal["free", "prior", "fixed"]] = field(default_factory=dict)
+    fixed_source: dict[str, str] = spec(omit="empty", default_factory=dict)
+    prior: PriorReport | None = spec(omit="none", default=None)
+    prior_F: float | None = spec(check=length, omit="none", default=None)
 
     def __post_init__(self):
         if not self.status:  # every parameter free: the paper's fit, and every older result
-            object.__setattr__(self, "status", dict.fromkeys(self.params, "free"))
+            object.__setattr__(self, "status", dict.fromkeys(self.params, FREE))
 
     def free(self) -> tuple[str, ...]:
         """The parameters the fit moved (free or with a prior), in ``params`` order."""
@@ -93,15 +112,15 @@ class CalibrationResult:
         data: the dataset it was fitted on (``None`` for results that did not record it).
         dataset_name: the dataset's name.
         timings_s: seconds of each step.
-        sign_twin: the sign twin found and the F of its mirror.
+        sign_twin: the sign twin found and the F of its mirror, or ``None``.
         warnings: what the user should know, one line each.
-        diagnostics: the ``diagnostics`` object (:func:`~handeye_jax.diagnose`), or empty.
+        diagnostics: what the result can and cannot tell (:func:`~handeye_jax.diagnose`), or
+            ``None``.
         recalibration: the previous result it started from, what was refitted, and how the
-            others entered (``"prior"`` or ``"fixed"``), or ``None``.
+            others entered, or ``None``.
         fits: the stages' fits in memory (objectives, final DE populations), for the
             diagnostics of a result just computed; not written to the file.
-        heights: when the touches recorded the hand's heights, what they determine
-            (:func:`~handeye_jax._objective.height_summary`: ``pen_minus_camera_mm``, the
+        heights: when the touches recorded the hand's heights, what they determine (the
             ``z_p − z_c`` a height command needs, and how well); else ``None``.
     """
 
@@ -116,15 +135,16 @@ class CalibrationResult:
     data: Dataset | None = None
     dataset_name: str = ""
     timings_s: dict[str, float] = field(default_factory=dict)
-    sign_twin: dict[str, Any] = field(default_factory=dict)
-    warnings: list[str] = field(default_factory=list)
-    diagnostics: dict[str, Any] = field(default_factory=dict)
-    recalibration: dict[str, Any] | None = None
+    sign_twin: SignTwin | None = None
+    warnings: tuple[FitWarning, ...] = ()
+    diagnostics: Diagnostics | None = None
+    recalibration: Recalibration | None = None
     fits: Stages[Any] | None = field(default=None, repr=False)
-    heights: dict[str, float] | None = None
+    heights: Heights | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "centres_mm", np.asarray(self.centres_mm, dtype=float))
+        object.__setattr__(self, "warnings", tuple(self.warnings))
 
     @property
     def model_name(self) -> str:
@@ -179,14 +199,13 @@ class CalibrationResult:
             centres_mm=jnp.asarray(self.centres_mm, dtype=float),
             capture_position_mm=f(capture_position_mm),
             capture_hand_angle_deg=f(capture_hand_angle_deg),
-            pen_minus_camera_mm=f(self.heights["pen_minus_camera_mm"]) if axes == "xyz"
-            else None,
+            pen_minus_camera_mm=f(self.heights.pen_minus_camera_mm) if axes == "xyz" else None,
         )  # fmt: skip
         return np.asarray(out)
 
     def frames(self) -> Frames:
         """The fitted frames as plain numbers (NumPy), from the parameters and the rig."""
-        z = None if not self.heights else self.heights["pen_minus_camera_mm"]
+        z = None if self.heights is None else self.heights.pen_minus_camera_mm
         return compute_frames(self.model, self.rig, self.correction, self.centres_mm,
                               pen_minus_camera_z_mm=z)  # fmt: skip
 
@@ -200,13 +219,12 @@ class CalibrationResult:
         """
         s: StageResult = getattr(self, stage)
         free = s.free()
-        diag = self.diagnostics.get(stage, {}) if self.diagnostics else {}
-        P, sigma = diag.get("precision"), diag.get("sigma_mm")
-        if (
-            P is None
-            or np.shape(P) != (len(free), len(free))
-            or list(diag.get("free", free)) != list(free)
-        ):
+        diag = None if self.diagnostics is None else getattr(self.diagnostics, stage)
+        P = sigma = None
+        if diag is not None and np.shape(diag.precision) == (len(free), len(free)):
+            if not diag.free or tuple(diag.free) == tuple(free):
+                P, sigma = diag.precision, diag.sigma_mm
+        if P is None:
             P, sigma = self._posterior_precision(stage, free)
         return Prior(free, [s.params[n] for n in free], np.asarray(P, dtype=float),
                      source or f"previous result ({self.dataset_name})",
@@ -226,9 +244,9 @@ class CalibrationResult:
         x = jnp.asarray([s.params[n] for n in free])
         e, J = (np.asarray(a) for a in error_jacobian(objective, x))
         P_prior = None
-        if s.prior:
+        if s.prior is not None:
             P_prior = np.zeros((len(free), len(free)))
-            idx = [free.index(n) for n in s.prior["names"]]
-            P_prior[np.ix_(idx, idx)] = np.asarray(s.prior["precision"])
+            idx = [free.index(n) for n in s.prior.names]
+            P_prior[np.ix_(idx, idx)] = np.asarray(s.prior.precision)
         out = analyse_jacobian(e, J, free, ["1"] * len(free), None, P_prior)
-        return np.asarray(out["precision"]), out["sigma_mm"]
+        return np.asarray(out.precision), out.sigma_mm

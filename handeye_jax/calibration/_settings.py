@@ -28,9 +28,10 @@ class Settings:
             ``restarts``; the lowest F any of them reaches is the stage's result.
         restarts: LM starts in each stage besides the best DE member: the best member of each
             other distinct optimum in the final DE population, the rest points of a Latin
-            hypercube of the search box; 0 runs none. The DE alone can settle in a basin that
-            is not the lowest (6 of 50 ``paper`` twins with these DE settings,
-            ``benchmarks/miss_rate.py``).
+            hypercube of the search box; and in stage 1 the multi-start refits (LM from the
+            convention check's uniform starts and from the fit). 0 runs none of them. The DE
+            alone can settle in a basin that is not the lowest (6 of 50 ``paper`` twins with
+            these DE settings, ``benchmarks/miss_rate.py``).
         loss: ``"l1"`` (the paper's mean error length), ``"huber"`` or ``"cauchy"``
             (:mod:`handeye_jax._losses`); a robust loss limits the pull of outlier landmarks.
         loss_scale_mm: the robust loss's scale, mm; landmarks with an error above

@@ -7,7 +7,7 @@ from dataclasses import replace
 
 from .._core import Stages
 from .._jax import in_float64
-from ..calibration import CalibrationResult, all_warnings, fitted_stages
+from ..calibration import CalibrationResult, FitWarning, all_warnings, fitted_stages
 from ._diagnostics import diagnostics_of
 from ._scope import capture_scope
 
@@ -35,9 +35,10 @@ def diagnose(result: CalibrationResult, *, search: dict | None = None) -> Calibr
     results = Stages(result.stage1, result.stage2)
     diagnostics = diagnostics_of(stages, results, result.settings, obs, search)
     spaces = stages.map(lambda s: s.space)
-    warnings = all_warnings(obs.n_landmarks, spaces, results, search, None,
-                            [diagnostics["convention"]["warning"]])  # fmt: skip
+    convention = diagnostics.convention.warning
+    extra = [FitWarning(convention, "convention")] if convention else []
+    warnings = all_warnings(obs.n_landmarks, spaces, results, search, None, extra)
     timings = {**result.timings_s, "diagnostics": time.perf_counter() - t0}
     result = replace(result, diagnostics=diagnostics, warnings=warnings, timings_s=timings)
-    diagnostics["scope"] = capture_scope(result)  # where the calibration holds
-    return result
+    # Where the calibration holds: from the covariance the diagnostics just found.
+    return replace(result, diagnostics=replace(diagnostics, scope=capture_scope(result)))

@@ -9,34 +9,35 @@ seen from the first capture pose, and from one 50 mm higher and lower.
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._jax import in_float64
+from ..calibration import CalibrationResult, Scope
 from ..models import hand_command
-from ..problem import FIXED, put
+from ..problem import FIXED, Heights, WeakDirection, put
 
 #: The capture height changes, mm, at which :func:`capture_scope` gives the expected error.
 SCOPE_RISES_MM = (-50.0, 0.0, 50.0)
 
 
-def camera_tradeoffs(weak_directions: list[dict], camera: tuple[str, ...],
-                     units: dict[str, str]) -> list[dict]:  # fmt: skip
+def camera_tradeoffs(weak_directions: Sequence[WeakDirection], camera: tuple[str, ...],
+                     units: dict[str, str]) -> list[WeakDirection]:  # fmt: skip
     """The weak directions that move a camera-mount length and a camera-mount angle together
     (the shift/tilt trade-off of one picture at one depth)."""
     out = []
     for w in weak_directions:
-        kinds = {units[p] for p in w["params"] if p in camera}
+        kinds = {units[p] for p in w.params if p in camera}
         if {"mm", "deg"} <= kinds:
             out.append(w)
     return out
 
 
 @in_float64
-def capture_scope(result: Any) -> dict[str, Any] | None:
+def capture_scope(result: CalibrationResult) -> Scope | None:
     """The captures a result was fitted on, whether the camera mount's shift/tilt trade-off
     is left, and the expected (1σ, RMS over the first capture's views) hand-command error in
     x-y, mm, from the first capture pose moved by each of :data:`SCOPE_RISES_MM`.
@@ -45,15 +46,15 @@ def capture_scope(result: Any) -> dict[str, Any] | None:
     covariance (Gauss–Newton, x-y residuals) through the hand command of eq. (8); the views
     are moved with the capture (same base points, so depth and image point change with it).
     """
-    diag = (result.diagnostics or {}).get("stage1")
+    diag = None if result.diagnostics is None else result.diagnostics.stage1
     data = result.data
-    if data is None or not diag or not diag.get("precision"):
+    if data is None or diag is None or not diag.precision:
         return None
     model_cls = type(result.model)
     units = dict(zip(model_cls.param_names, model_cls.param_units, strict=True))
     status = result.stage1.status or {}
     free = tuple(n for n in model_cls.param_names if status.get(n, "free") != FIXED)
-    P = np.asarray(diag["precision"], dtype=float)
+    P = np.asarray(diag.precision, dtype=float)
     if P.shape != (len(free), len(free)):
         return None
     cov = np.linalg.pinv(P, hermitian=True)
@@ -88,54 +89,54 @@ def capture_scope(result: Any) -> dict[str, Any] | None:
         J = np.asarray(jax.jacfwd(command)(x0))
         var = np.einsum("ij,jk,ik->i", J, cov, J).reshape(-1, 2).sum(axis=1)
         expected[f"{rise:+g}"] = float(np.sqrt(np.mean(np.maximum(var, 0.0))))
-    trade = camera_tradeoffs(diag.get("weak_directions", []), model_cls.groups["camera"], units)
-    return {
-        "captures": len(caps),
-        "capture_heights_mm": [min(heights), max(heights)],
-        "hand_angles_deg": [min(angles), max(angles)],
-        "depth_mm": [float(np.nanmin(depth)), float(np.nanmax(depth))],
-        "capture_position_mm": [float(x) for x in first.hand_position_mm],
-        "camera_tradeoffs": [w["note"] for w in trade],
-        "expected_error_mm": expected,
-    }
+    trade = camera_tradeoffs(diag.weak_directions, model_cls.groups["camera"], units)
+    return Scope(
+        captures=len(caps),
+        capture_heights_mm=(min(heights), max(heights)),
+        hand_angles_deg=(min(angles), max(angles)),
+        depth_mm=(float(np.nanmin(depth)), float(np.nanmax(depth))),
+        capture_position_mm=tuple(float(x) for x in first.hand_position_mm),
+        camera_tradeoffs=tuple(w.note for w in trade),
+        expected_error_mm=expected,
+    )
 
 
-def scope_lines(scope: dict[str, Any] | None, heights: dict[str, float] | None) -> list[str]:
+def scope_lines(scope: Scope | None, heights: Heights | None) -> list[str]:
     """The summary's lines on where the calibration holds, and on heights."""
     lines = []
     if scope:
-        e = scope["expected_error_mm"]
+        e = scope.expected_error_mm
         err = (f"expected hand-command error (1σ, from the covariance) {e['+0']:.2f} mm there, "
                f"{e['+50']:.2f} mm from a capture 50 mm higher, {e['-50']:.2f} mm from one "
                "50 mm lower")  # fmt: skip
-        lo, hi = scope["capture_heights_mm"]
-        if scope["captures"] == 1:
-            x, y, z = scope["capture_position_mm"]
-            d0, d1 = scope["depth_mm"]
+        lo, hi = scope.capture_heights_mm
+        if scope.captures == 1:
+            x, y, z = scope.capture_position_mm
+            d0, d1 = scope.depth_mm
             lines.append(
                 f"scope: one capture: the calibration holds only for pictures taken from this "
                 f"capture pose (hand at ({x:.1f}, {y:.1f}, {z:.1f}) mm) of points at about this "
                 f"depth ({d0:.0f}-{d1:.0f} mm); {err}"
             )
         else:
-            a0, a1 = scope["hand_angles_deg"]
+            a0, a1 = scope.hand_angles_deg
             gone = ("the camera mount's shift/tilt trade-offs of a single picture (xc/βc, "
-                    "yc/αc) are gone" if not scope["camera_tradeoffs"] else
+                    "yc/αc) are gone" if not scope.camera_tradeoffs else
                     "a camera shift/tilt trade-off is left: " + "; ".join(
-                        scope["camera_tradeoffs"]))  # fmt: skip
+                        scope.camera_tradeoffs))  # fmt: skip
             lines.append(
-                f"scope: {scope['captures']} captures at hand heights {lo:.0f}-{hi:.0f} mm "
+                f"scope: {scope.captures} captures at hand heights {lo:.0f}-{hi:.0f} mm "
                 f"(spread {hi - lo:.0f} mm) and hand angles {a0:.0f} to {a1:.0f} deg: {gone}; "
                 f"{err} than the first"
             )
     if heights:
         lines.append(
-            f"heights: z_pen − z_camera = {heights['pen_minus_camera_mm']:.3f} ± "
-            f"{heights['pen_minus_camera_sigma_mm']:.3f} mm is determined (hand heights at "
-            f"{heights['n_touches']:.0f} touch rows, depths of {heights['n_views']:.0f} views); "
+            f"heights: z_pen − z_camera = {heights.pen_minus_camera_mm:.3f} ± "
+            f"{heights.pen_minus_camera_sigma_mm:.3f} mm is determined (hand heights at "
+            f"{heights.n_touches:.0f} touch rows, depths of {heights.n_views:.0f} views); "
             f"z_camera and z_pen alone are not (z_tablet + z_camera = "
-            f"{heights['tablet_plus_camera_mm']:.3f} mm); mean |z error| views "
-            f"{heights['f1z_mm']:.3f} mm, touches {heights['f2z_mm']:.3f} mm (stage 1's DE "
+            f"{heights.tablet_plus_camera_mm:.3f} mm); mean |z error| views "
+            f"{heights.f1z_mm:.3f} mm, touches {heights.f2z_mm:.3f} mm (stage 1's DE "
             "and LM values are F plus these two)"
         )
     elif scope:

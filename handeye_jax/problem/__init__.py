@@ -10,17 +10,19 @@ from .._core import lazy_exports
 # fmt: off
 _EXPORTS = {
     "_linearise": (
-        "analyse_jacobian", "error_jacobian", "jacobian_diagnostics", "std_of_precision",
+        "analyse_jacobian", "error_jacobian", "jacobian_diagnostics", "JacobianAnalysis",
+        "std_of_precision", "WeakDirection",
     ),
     "_losses": ("AbstractLoss", "CauchyLoss", "get_loss", "HuberLoss", "L1Loss", "LOSS_NAMES"),
     "_objective": (
         "AbstractBlock", "AbstractObjective", "chain_points", "ChainPoints", "data_objective",
         "errors_of", "fitness", "GaussianBlock", "GaussianObjective", "height_summary",
-        "HeightOffsets", "landmark_subset", "landmark_terms", "LengthBlock", "LossObjective",
-        "norms", "PriorObjective", "spread_landmarks", "SquaresBlock", "stage1_errors",
-        "Stage1Objective", "stage2_errors", "Stage2Objective", "StageErrors", "WeightedLengthBlock",
+        "HeightOffsets", "Heights", "landmark_subset", "landmark_terms", "LengthBlock",
+        "LossObjective", "norms", "PriorObjective", "spread_landmarks", "SquaresBlock",
+        "stage1_errors", "Stage1Objective", "stage2_errors", "Stage2Objective", "StageErrors",
+        "WeightedLengthBlock",
     ),
-    "_params": ("FIXED", "FREE", "ParameterSpace", "PRIOR", "Prior", "put", "resolve_names"),
+    "_params": ("FIXED", "FREE", "ParameterSpace", "Prior", "put", "resolve_names"),
 }
 # fmt: on
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

@@ -16,7 +16,7 @@ two parameters, e.g. ``theta_c1 + gamma_c``) is what the fit can report.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from dataclasses import dataclass
 
 import equinox as eqx
 import jax
@@ -32,6 +32,51 @@ WEAK_RATIO = 1e-2
 NULL_RATIO = 1e-7
 #: Parameters whose share of a unit direction (scaled) exceeds this are named in it.
 NAME_SHARE = 0.2
+
+
+@dataclass(frozen=True)
+class WeakDirection:
+    """A direction in which the data barely (or never) change the residuals.
+
+    Attributes:
+        relative_singular_value: its singular value over the largest (column-scaled).
+        params: the parameters it moves (each a share of at least :data:`NAME_SHARE`).
+        step: the step along it, in each parameter's unit (its largest component 1).
+        rms_change_mm: how much that step changes the 4n residuals, RMS, mm.
+        determined: for an undetermined pair of one unit, the combination that is determined
+            (``"theta_c1 + gamma_c"``), else ``None``.
+        note: the same in words.
+    """
+
+    relative_singular_value: float
+    params: tuple[str, ...]
+    step: dict[str, float]
+    rms_change_mm: float
+    determined: str | None
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class JacobianAnalysis:
+    """What the Jacobian of a stage's error vectors at its optimum says (see the module).
+
+    Attributes:
+        sigma_mm: the residual standard deviation, mm.
+        dof: the degrees of freedom left, ``4n − rank J``.
+        std: each parameter's standard deviation in its unit (with a prior, the
+            posterior's), ``None`` where the data do not determine it.
+        precision: the posterior inverse covariance, ``JᵀJ/σ²`` plus the prior's (what a
+            recalibration takes as its prior), rows in the free parameters' order.
+        singular_values: of the column-scaled Jacobian, largest first.
+        weak_directions: the weak and undetermined directions.
+    """
+
+    sigma_mm: float
+    dof: int
+    std: dict[str, float | None]
+    precision: tuple[tuple[float, ...], ...]
+    singular_values: tuple[float, ...]
+    weak_directions: tuple[WeakDirection, ...]
 
 
 def error_jacobian(
@@ -90,7 +135,7 @@ def analyse_jacobian(
     units: Sequence[str],
     depth_mm: np.ndarray | None = None,
     prior_precision: np.ndarray | None = None,
-) -> dict[str, Any]:
+) -> JacobianAnalysis:
     """Standard deviations, singular values and weak directions at an optimum.
 
     Args:
@@ -102,11 +147,7 @@ def analyse_jacobian(
             ``(d, d)`` (zero rows and columns for those without one), or ``None``.
 
     Returns:
-        A JSON-ready dict: ``sigma_mm`` (residual standard deviation), ``dof``, ``std``
-        (name → std in the parameter's unit, ``None`` when undetermined; with a prior, the
-        posterior's), ``precision`` (the posterior inverse covariance, ``JᵀJ/σ²`` plus the
-        prior's: what a recalibration takes as its prior), ``singular_values`` (of the scaled
-        Jacobian, largest first) and ``weak_directions``.
+        The :class:`JacobianAnalysis`.
     """
     errors = np.asarray(errors, dtype=float)
     J = np.asarray(jacobian, dtype=float)
@@ -114,8 +155,7 @@ def analyse_jacobian(
     if d == 0:  # every parameter held fixed: nothing to analyse
         dof = max(r, 1)
         sigma = float(np.sqrt(np.sum(errors**2) / dof))
-        return {"sigma_mm": sigma, "dof": dof, "std": {}, "precision": [],
-                "singular_values": [], "weak_directions": []}  # fmt: skip
+        return JacobianAnalysis(sigma, dof, {}, (), (), ())
     col = np.linalg.norm(J, axis=0)
     col = np.where(col > 0, col, 1.0)
     U, s, Vt = np.linalg.svd(J / col, full_matrices=False)
@@ -137,59 +177,52 @@ def analyse_jacobian(
         precision = precision + np.asarray(prior_precision, dtype=float)
         std_out = std_of_precision(precision, names)
 
-    weak = []
-    Js = J / col
     null_group = V[:, rel <= NULL_RATIO]
     weak_group = V[:, (rel > NULL_RATIO) & (rel < WEAK_RATIO)]
-    for v in [*_sparse_basis(null_group), *_sparse_basis(weak_group)]:
-        rel_k = float(np.linalg.norm(Js @ v) / s_max)
-        idx = [i for i in np.argsort(-np.abs(v)) if abs(v[i]) >= NAME_SHARE]
-        step = v / col  # the direction in parameter units
-        step = step / step[idx[0]]
-        idx = sorted(idx)
-        involved = [names[i] for i in idx]
-        entry: dict[str, Any] = {
-            "relative_singular_value": rel_k,
-            "params": involved,
-            "step": {names[i]: float(step[i]) for i in idx},
-            # RMS change of the 4n residuals for that step (largest component = 1 unit), mm.
-            "rms_change_mm": float(np.linalg.norm(J @ step) / np.sqrt(r)),
-            "determined": None,
-        }
-        step_text = ", ".join(f"{names[i]} {step[i]:+.3g}{_unit(units[i])}" for i in idx)
-        if rel_k <= NULL_RATIO:
-            if len(idx) == 2 and units[idx[0]] == units[idx[1]]:
-                a, b = step[idx[0]], step[idx[1]]
-                entry["determined"] = _combination(involved, np.array([1.0, -a / b]))
-                note = (
-                    f"{' and '.join(involved)} enter only through "
-                    f"{entry['determined']}: that is determined, each alone is not"
-                )
-            else:
-                note = f"not determined: moving ({step_text}) changes no residual"
-        else:
-            note = (
-                f"{' and '.join(involved)} trade off: the step ({step_text}) changes the "
-                f"residuals by only {entry['rms_change_mm']:.3g} mm RMS"
-            )
-            kinds = {units[i] for i in idx}
-            if depth_mm is not None and {"mm", "deg"} <= kinds:
-                dz = np.asarray(depth_mm, dtype=float)
-                note += (
-                    f"; all landmarks lie at nearly one depth ({dz.min():.1f}–{dz.max():.1f} mm), "
-                    "so a shift and a tilt move them alike"
-                )
-        entry["note"] = note
-        weak.append(entry)
+    scaled = (J, col, s_max)
+    weak = tuple(_weak_direction(v, scaled, names, units, depth_mm)
+                 for v in [*_sparse_basis(null_group), *_sparse_basis(weak_group)])  # fmt: skip
+    rows = tuple(tuple(row) for row in precision.tolist())
+    return JacobianAnalysis(sigma, dof, std_out, rows, tuple(float(v) for v in s), weak)
 
-    return {
-        "sigma_mm": sigma,
-        "dof": dof,
-        "std": std_out,
-        "precision": precision.tolist(),
-        "singular_values": [float(v) for v in s],
-        "weak_directions": weak,
-    }
+
+def _weak_direction(
+    v: np.ndarray,
+    scaled: tuple[np.ndarray, np.ndarray, float],
+    names: Sequence[str],
+    units: Sequence[str],
+    depth_mm: np.ndarray | None,
+) -> WeakDirection:
+    """The weak direction ``v`` of the column-scaled Jacobian (``scaled``: the Jacobian, its
+    column norms and its largest singular value), in parameter units and in words."""
+    J, col, s_max = scaled
+    rel_k = float(np.linalg.norm((J / col) @ v) / s_max)
+    idx = [i for i in np.argsort(-np.abs(v)) if abs(v[i]) >= NAME_SHARE]
+    step = v / col  # the direction in parameter units
+    step = step / step[idx[0]]
+    idx = sorted(idx)
+    involved = [names[i] for i in idx]
+    # RMS change of the 4n residuals for that step (largest component = 1 unit), mm.
+    rms = float(np.linalg.norm(J @ step) / np.sqrt(J.shape[0]))
+    step_text = ", ".join(f"{names[i]} {step[i]:+.3g}{_unit(units[i])}" for i in idx)
+    determined = None
+    if rel_k <= NULL_RATIO:
+        if len(idx) == 2 and units[idx[0]] == units[idx[1]]:
+            a, b = step[idx[0]], step[idx[1]]
+            determined = _combination(involved, np.array([1.0, -a / b]))
+            note = (f"{' and '.join(involved)} enter only through {determined}: that is "
+                    "determined, each alone is not")  # fmt: skip
+        else:
+            note = f"not determined: moving ({step_text}) changes no residual"
+    else:
+        note = (f"{' and '.join(involved)} trade off: the step ({step_text}) changes the "
+                f"residuals by only {rms:.3g} mm RMS")  # fmt: skip
+        if depth_mm is not None and {"mm", "deg"} <= {units[i] for i in idx}:
+            dz = np.asarray(depth_mm, dtype=float)
+            note += (f"; all landmarks lie at nearly one depth ({dz.min():.1f}–{dz.max():.1f} "
+                     "mm), so a shift and a tilt move them alike")  # fmt: skip
+    return WeakDirection(rel_k, tuple(involved), {names[i]: float(step[i]) for i in idx}, rms,
+                         determined, note)  # fmt: skip
 
 
 def std_of_precision(precision: np.ndarray, names: Sequence[str]) -> dict[str, float | None]:
@@ -213,7 +246,7 @@ def jacobian_diagnostics(
     names: Sequence[str],
     units: Sequence[str],
     depth_mm: np.ndarray | None = None,
-) -> dict[str, Any]:
+) -> JacobianAnalysis:
     """:func:`analyse_jacobian` of ``objective``'s error vectors at ``theta``."""
     e, J = eqx.filter_jit(error_jacobian)(objective, jnp.asarray(theta))
     return analyse_jacobian(np.asarray(e), np.asarray(J), names, units, depth_mm)

@@ -21,6 +21,8 @@ import functools
 import math
 import operator
 from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -109,14 +111,26 @@ class HeightOffsets(eqx.Module):
         return self.tablet_plus_pen_mm - self.tablet_plus_camera_mm
 
 
-def height_summary(model: AbstractModel, obs: Observations) -> dict[str, float] | None:
-    """What the hand's heights at the touches determine, for a result (``None`` without).
+@dataclass(frozen=True)
+class Heights:
+    """What the hand's heights at the touches determined, mm: ``z_p − z_c`` (what a height
+    command needs) and its standard error from the z scatter, ``z_t + z_c`` and ``z_t + z_p``,
+    the mean |z error| of the views and of the touches, and the rows behind each."""
 
-    ``pen_minus_camera_mm`` (``z_p − z_c``, what commanding a height needs),
-    ``tablet_plus_camera_mm`` and ``tablet_plus_pen_mm``, mm; ``f1z_mm``, ``f2z_mm`` the mean
-    |z error| of the views and of the touches; ``pen_minus_camera_sigma_mm`` its standard
-    error from the z scatter; ``n_views``, ``n_touches`` the rows behind each.
-    """
+    strict: ClassVar[bool] = True
+
+    pen_minus_camera_mm: float
+    tablet_plus_camera_mm: float
+    tablet_plus_pen_mm: float
+    pen_minus_camera_sigma_mm: float
+    f1z_mm: float
+    f2z_mm: float
+    n_views: int
+    n_touches: int
+
+
+def height_summary(model: AbstractModel, obs: Observations) -> Heights | None:
+    """What the hand's heights at the touches determine, for a result (``None`` without)."""
     if obs.hand_z_mm is None:
         return None
     points = chain_points(model, obs)
@@ -128,14 +142,13 @@ def height_summary(model: AbstractModel, obs: Observations) -> dict[str, float] 
     r2 = r2 - r2.mean()
     n1, n2 = r1.size, int(ok.sum())
     sigma = math.sqrt(float(np.mean(r1**2)) / n1 + float(np.mean(r2**2)) / n2)
-    return {
-        "pen_minus_camera_mm": float(h.pen_minus_camera_mm),
-        "tablet_plus_camera_mm": float(h.tablet_plus_camera_mm),
-        "tablet_plus_pen_mm": float(h.tablet_plus_pen_mm),
-        "pen_minus_camera_sigma_mm": sigma,
-        "f1z_mm": float(np.mean(np.abs(r1))), "f2z_mm": float(np.mean(np.abs(r2))),
-        "n_views": n1, "n_touches": n2,
-    }  # fmt: skip
+    return Heights(
+        pen_minus_camera_mm=float(h.pen_minus_camera_mm),
+        tablet_plus_camera_mm=float(h.tablet_plus_camera_mm),
+        tablet_plus_pen_mm=float(h.tablet_plus_pen_mm), pen_minus_camera_sigma_mm=sigma,
+        f1z_mm=float(np.mean(np.abs(r1))), f2z_mm=float(np.mean(np.abs(r2))),
+        n_views=n1, n_touches=n2,
+    )  # fmt: skip
 
 
 def _finite_mean(x: Float[Array, " n"]) -> Float[Array, ""]:

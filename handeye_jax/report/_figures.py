@@ -243,8 +243,8 @@ def fig_residuals(result: CalibrationResult):
     axes = fig.subplots(1, 2, sharey=True)
     for ax, s, name in zip(axes, (result.stage1, result.stage2), ("stage 1", "stage 2"),
                            strict=True):  # fmt: skip
-        e1 = np.array([r["image_vs_tablet_mm"] for r in s.residuals_mm])
-        e2 = np.array([r["hand_mm"] for r in s.residuals_mm])
+        e1 = np.array([r.image_vs_tablet_mm for r in s.residuals_mm])
+        e2 = np.array([r.hand_mm for r in s.residuals_mm])
         _bars(ax, [e1, e2], ["|image − tablet|", "|hand − target|"], ["C0", "C1"])
         ax.set_title(f"{name}\nf1 = {s.f1:.3f} mm, f2 = {s.f2:.3f} mm, F = {s.F:.3f} mm")
     fig.suptitle("residual of every landmark (in-sample)")
@@ -261,13 +261,13 @@ def fig_convergence(result: CalibrationResult):
     for ax, s, name in zip(axes, (result.stage1, result.stage2), ("stage 1", "stage 2"),
                            strict=True):  # fmt: skip
         c = s.convergence
-        best = np.asarray(c.get("best_F", []), dtype=float)
+        best = np.asarray(c.best_F_mm or [], dtype=float)
         if best.size:
             ax.plot(np.arange(1, best.size + 1), best, color="C0", label="best F")
-        med = np.asarray(c.get("median_F", []), dtype=float)
+        med = np.asarray(c.median_F_mm or [], dtype=float)
         if med.size:
             every = f"every {CHUNK_GENERATIONS} generations"
-            ax.plot(c["median_generation"], med, "o-", color="C1", ms=4,
+            ax.plot(c.median_generation, med, "o-", color="C1", ms=4,
                     label=f"median F of the population ({every})")  # fmt: skip
         ax.axhline(s.F, color="0.3", ls="--", lw=1, label=f"after LM polish: {s.F:.4f} mm")
         ax.set_yscale("log")
@@ -277,7 +277,8 @@ def fig_convergence(result: CalibrationResult):
         ax.yaxis.set_minor_formatter(LogFormatter(labelOnlyBase=False, minor_thresholds=(2, 0.7)))
         ax.set_xlabel("DE generation")
         ax.set_ylabel("F (mm)")
-        ax.set_title(f"{name}: {s.de.get('generations', '?')} generations")
+        generations = "?" if s.de.generations is None else s.de.generations
+        ax.set_title(f"{name}: {generations} generations")
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=9)
     fig.suptitle("differential evolution: convergence")
@@ -292,17 +293,18 @@ def fig_loo(result: CalibrationResult):
     legend_from = None
     for ax, key, s, name in zip(axes, ("stage1", "stage2"), (result.stage1, result.stage2),
                                 ("stage 1", "stages 1 + 2 (pipeline)"), strict=True):  # fmt: skip
-        loo = diag.get(key, {}).get("loo")
+        stage = None if diag is None else getattr(diag, key)
+        loo = None if stage is None else stage.loo
         if not loo:
             ax.text(0.5, 0.5, "no leave-one-out in this result", ha="center",
                     transform=ax.transAxes)  # fmt: skip
             ax.set_axis_off()
             continue
-        held = np.array([r["image_vs_tablet_mm"] + r["hand_mm"] for r in loo["held_out_mm"]])
-        ins = np.array([r["image_vs_tablet_mm"] + r["hand_mm"] for r in s.residuals_mm])
+        held = np.array([r.image_vs_tablet_mm + r.hand_mm for r in loo.held_out_mm])
+        ins = np.array([r.image_vs_tablet_mm + r.hand_mm for r in s.residuals_mm])
         _bars(ax, [ins, held], ["in-sample", "held out (refit without m)"], ["0.6", "C3"])
         ax.set_ylabel("|image − tablet| + |hand − target| (mm)")
-        ax.set_title(f"{name}\nheld-out F = {loo['F']:.3f} mm, in-sample F = {s.F:.3f} mm")
+        ax.set_title(f"{name}\nheld-out F = {loo.F_mm:.3f} mm, in-sample F = {s.F:.3f} mm")
         legend_from = ax
     fig.suptitle("leave-one-out: does the fit predict a landmark it has not seen?")
     if legend_from is not None:

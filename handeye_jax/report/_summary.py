@@ -2,7 +2,17 @@
 
 from __future__ import annotations
 
-from ..calibration import CalibrationResult, StageResult
+from collections.abc import Sequence
+
+from ..calibration import (
+    CalibrationResult,
+    ConventionCheck,
+    Diagnostics,
+    Mode,
+    PolishSummary,
+    StageDiagnostics,
+    StageResult,
+)
 from ..diagnostics import scope_lines
 from ..models import AffinePair
 
@@ -30,32 +40,32 @@ def _stage_lines(
     pol = s.polish
     de = s.de
     lm = "off"
-    if pol.get("ran"):
-        verdict = "accepted" if pol.get("accepted") else "rejected (did not lower F)"
-        lm = f"{verdict}, {pol.get('steps', 0)} steps, {minimised} {pol['F_before']:.6f} -> " + (
-            f"{pol['F_after']:.6f} mm"
+    if pol.ran:
+        verdict = "accepted" if pol.accepted else "rejected (did not lower F)"
+        lm = f"{verdict}, {pol.steps or 0} steps, {minimised} {pol.F_before_mm:.6f} -> " + (
+            f"{pol.F_after_mm:.6f} mm"
         )
-    if "generations" not in de:
+    if de.generations is None:
         lines.append("  DE: none (nothing to search: the fit starts from the previous result)")
     else:
-        if de["converged"]:
+        if de.converged:
             stop = "stopped: population converged"
         elif early_stop:
             stop = "stopped: generation limit reached before the population converged"
         else:
             stop = "all generations run (early stop off)"
-        searched = de.get("searched")
+        searched = de.searched
         over = f" over {', '.join(searched)}" if searched and len(searched) < len(names) else ""
         lines.append(
-            f"  DE{over}: {de['generations']} generations, {de['evaluations']:,} evaluations, "
-            f"{minimised} = {de['F']:.6f} mm; {stop}"
+            f"  DE{over}: {de.generations} generations, {de.evaluations:,} evaluations, "
+            f"{minimised} = {de.F_mm:.6f} mm; {stop}"
         )
     lines.append(f"  LM polish: {lm}")
     found = found_by_line(pol)
     if found:
         lines.append(found)
     lines.append("  parameters" + (" (± one standard deviation):" if std else ":"))
-    prior_of = {p["param"]: p for p in (s.prior or {}).get("pulls", [])}
+    prior_of = {p.param: p for p in (s.prior.pulls if s.prior is not None else ())}
     for name, unit in zip(names, units, strict=True):
         status = s.status.get(name, "free")
         shown = std is not None and status != "fixed"
@@ -64,37 +74,37 @@ def _stage_lines(
             value += f"  fixed ({s.fixed_source.get(name, 'given')})"
         elif status == "prior" and name in prior_of:
             p = prior_of[name]
-            sig = "" if p["sigma"] is None else f" ± {p['sigma']:.3g}"
-            value += f"  prior {p['mean']:.5g}{sig}, pull {p['pull']:+.1f} sigma"
+            sig = "" if p.sigma is None else f" ± {p.sigma:.3g}"
+            value += f"  prior {p.mean:.5g}{sig}, pull {p.pull:+.1f} sigma"
         lines.append(f"    {name:<9} {value}".rstrip())
-    if s.prior:
-        scale = s.prior["data_scale_mm"]
-        line = f"  prior: from {s.prior['source']}; data scale s = {scale:.3g} mm"
-        if s.prior.get("data_sigma_mm"):
+    if s.prior is not None:
+        scale = s.prior.data_scale_mm
+        line = f"  prior: from {s.prior.source}; data scale s = {scale:.3g} mm"
+        if s.prior.data_sigma_mm:
             line += (f"; the data weighed as Gaussian errors of its fit's noise, "
-                     f"{s.prior['data_sigma_mm']:.3g} mm per component")  # fmt: skip
+                     f"{s.prior.data_sigma_mm:.3g} mm per component")  # fmt: skip
         lines.append(line)
     lines.append("  residuals per landmark, mm:")
     lines.append("    m   |image - tablet|   |hand - target|")
     for r in s.residuals_mm:
-        lines.append(f"    {r['m']:<3} {r['image_vs_tablet_mm']:>16.4f} {r['hand_mm']:>17.4f}")
+        lines.append(f"    {r.m:<3} {r.image_vs_tablet_mm:>16.4f} {r.hand_mm:>17.4f}")
     return lines
 
 
-def found_by_line(polish: dict) -> str:
+def found_by_line(polish: PolishSummary) -> str:
     """One line: which search found the stage's optimum, and how many restarts reached it."""
-    how = polish.get("found_by")
+    how = polish.found_by
     if not how:  # results written before the restarts
         return ""
     line = f"  optimum found by: {how}"
-    rs = polish.get("restarts")
+    rs = polish.restarts
     if rs:
-        where = f" on {rs['landmarks']} landmarks" if rs.get("landmarks") else ""
-        line += (f"; {rs['reached_result']} of {rs['starts']} LM restarts{where} ended within "
+        where = f" on {rs.landmarks} landmarks" if rs.landmarks else ""
+        line += (f"; {rs.reached_result} of {rs.starts} LM restarts{where} ended within "
                  "1e-4 mm of it")  # fmt: skip
-    replaced = polish.get("replaced_F")
+    replaced = polish.replaced_F_mm
     if replaced:
-        F = polish.get("F_after", replaced[-1])
+        F = polish.F_after_mm if polish.F_after_mm is not None else replaced[-1]
         line += (f"; it replaced the fit's first optimum (F = "
                  f"{', then '.join(f'{f:.6f}' for f in replaced)} mm, "
                  f"{replaced[0] - F:.2g} mm above it)")  # fmt: skip
@@ -112,48 +122,48 @@ def format_summary(result: CalibrationResult) -> str:
         + ("" if settings.early_stop else " (no early stop)"),
     ]
     recal = result.recalibration
-    if recal:
-        others = ("held at its values" if recal.get("others") == "fixed"
+    if recal is not None:
+        others = ("held at its values" if recal.others == "fixed"
                   else "given its posterior as their prior")  # fmt: skip
-        lines.append(f"recalibrated from {recal['previous']}: refitted "
-                     f"{', '.join(recal['refit'])}; the other parameters {others}")  # fmt: skip
+        lines.append(f"recalibrated from {recal.previous}: refitted "
+                     f"{', '.join(recal.refit)}; the other parameters {others}")  # fmt: skip
     lines.append("")
     early_stop = settings.early_stop
     diag = result.diagnostics
     rows = result.data is not None and not result.data.is_simple()
+    std1 = diag.stage1.std if diag is not None and diag.stage1 is not None else None
+    std2 = diag.stage2.std if diag is not None and diag.stage2 is not None else None
     lines += _stage_lines(
-        "stage 1", result.stage1, model_cls.param_names, model_cls.param_units, early_stop,
-        diag.get("stage1", {}).get("std") if diag else None,
-    )  # fmt: skip
+        "stage 1", result.stage1, model_cls.param_names, model_cls.param_units, early_stop, std1
+    )
     twin = result.sign_twin
-    if twin:
-        found = ", ".join(f"{k} = {v:+.4f}" for k, v in twin["found"].items())
+    if twin is not None:
+        found = ", ".join(f"{k} = {v:+.4f}" for k, v in twin.found.items())
         lines.append(
             f"  sign twin found: {found}; the mirror twin (both signs flipped) has "
-            f"F = {twin['F_flipped']:.6f} mm"
+            f"F = {twin.F_flipped_mm:.6f} mm"
         )
-    if diag:
+    if diag is not None:
         lines += diagnostic_lines(
             diag, "stage1", dict(zip(model_cls.param_names, model_cls.param_units, strict=True)),
             rows,
         )  # fmt: skip
-    lines += scope_lines((diag or {}).get("scope"), result.heights)
+    lines += scope_lines(None if diag is None else diag.scope, result.heights)
     lines.append("")
     lines += _stage_lines(
-        "stage 2", result.stage2, AffinePair.param_names, AffinePair.param_units, early_stop,
-        diag.get("stage2", {}).get("std") if diag else None,
-    )  # fmt: skip
+        "stage 2", result.stage2, AffinePair.param_names, AffinePair.param_units, early_stop, std2
+    )
     c1, c2 = result.centres_mm
     lines.append(
         f"  centres of rotation (landmark {result.centre_index}): A1 ({c1[0]:.3f}, {c1[1]:.3f}) mm,"
         f" A2 ({c2[0]:.3f}, {c2[1]:.3f}) mm"
     )
-    if diag:
+    if diag is not None:
         lines += diagnostic_lines(
             diag, "stage2", dict(zip(AffinePair.param_names, AffinePair.param_units, strict=True)),
             rows,
         )  # fmt: skip
-        lines += convention_lines(diag.get("convention", {}))
+        lines += convention_lines(diag.convention)
     for w in result.warnings:
         lines.append(f"warning: {w}")
     t = result.timings_s
@@ -168,80 +178,78 @@ def format_summary(result: CalibrationResult) -> str:
     return "\n".join(lines)
 
 
-def _modes_line(label: str, modes: list[dict], units: dict[str, str]) -> list[str]:
+def _modes_line(label: str, modes: Sequence[Mode], units: dict[str, str]) -> list[str]:
     if not modes:
         return []
     out = [f"  {label}: {len(modes)}"]
     for m in modes:
-        if "differs_from_fit" in m:
+        if m.differs_from_fit is not None:
             diff = ", ".join(
-                f"{n} {d:+.3g}{_unit(units.get(n, '1'))}" for n, d in m["differs_from_fit"].items()
+                f"{n} {d:+.3g}{_unit(units.get(n, '1'))}" for n, d in m.differs_from_fit.items()
             )
             what = f"differs from the fit by {diff}" if diff else "the fit (within 1 % of range)"
         else:  # older results compared with the population's best member
-            diff = ", ".join(f"{n} {d:+.3g}" for n, d in m["differs_from_best"].items())
+            diff = ", ".join(f"{n} {d:+.3g}" for n, d in (m.differs_from_best or {}).items())
             what = f"differs from the best by {diff}" if diff else "the best"
-        twin = " (the sign twin)" if m.get("sign_twin") else ""
-        out.append(f"    F = {m['F']:.6f} mm, {m['members']} member(s): {what}{twin}")
+        twin = " (the sign twin)" if m.sign_twin else ""
+        out.append(f"    F = {m.F_mm:.6f} mm, {m.members} member(s): {what}{twin}")
     return out
 
 
 def diagnostic_lines(
-    diag: dict, stage: str, units: dict[str, str], rows: bool = False
+    diag: Diagnostics, stage: str, units: dict[str, str], rows: bool = False
 ) -> list[str]:
     """The diagnostics of one stage: weak directions, optima, bounds, LOO, outliers.
 
     ``units`` maps the stage's parameter names to their units; ``rows``: the data came from
     several captures, and each m is a row (a view paired with a touch), not a landmark.
     """
-    d = diag.get(stage)
-    if not d:
+    d: StageDiagnostics | None = getattr(diag, stage)
+    if d is None:
         return []
-    lines = [f"  diagnostics (residual std {d['sigma_mm']:.4f} mm, {d['dof']} dof):"]
-    sv = d.get("singular_values", [])
+    lines = [f"  diagnostics (residual std {d.sigma_mm:.4f} mm, {d.dof} dof):"]
+    sv = d.singular_values
     if sv and sv[0] > 0:
         rel = " ".join(f"{v / sv[0]:.2g}" for v in sv)
         lines.append(
             f"  singular values of the column-scaled Jacobian, relative to the largest: {rel}"
         )
-    weak = d.get("weak_directions", [])
+    weak = d.weak_directions
     if weak:
         lines.append("  weak directions (singular value relative to the largest):")
         for w in weak:
-            lines.append(f"    {w['relative_singular_value']:.1e}: {w['note']}")
+            lines.append(f"    {w.relative_singular_value:.1e}: {w.note}")
     else:
         lines.append("  weak directions: none (every parameter is determined by the data)")
-    lines += _modes_line("distinct optima in the final DE population", d.get("modes", []), units)
-    lines += _modes_line(
-        "local optima of the multi-start LM refits", d.get("local_optima", []), units
-    )
-    hits = d.get("bound_hits", [])
+    lines += _modes_line("distinct optima in the final DE population", d.modes, units)
+    lines += _modes_line("local optima of the multi-start LM refits", d.local_optima or (), units)
+    hits = d.bound_hits
     lines.append(
         "  on a search-range bound: "
-        + (", ".join(f"{h['param']} = {h['value']:.4g}{_unit(h['unit'])} ({h['side']} bound; "
-                     f"widen to [{h['widen_to'][0]:g}, {h['widen_to'][1]:g}]{_unit(h['unit'])})"
+        + (", ".join(f"{h.param} = {h.value:.4g}{_unit(h.unit)} ({h.side} bound; "
+                     f"widen to [{h.widen_to[0]:g}, {h.widen_to[1]:g}]{_unit(h.unit)})"
                      for h in hits)
            or "none")
     )  # fmt: skip
-    loo = d.get("loo")
-    if loo:
+    loo = d.loo
+    if loo is not None:
         what = "stage 1 refitted" if stage == "stage1" else "stages 1 and 2 refitted"
         unit = "row m (one view and its touch)" if rows else "landmark m"
         lines.append(
             f"  leave-one-out ({what} without {unit}, m predicted): held-out F = "
-            f"{loo['F']:.4f} mm (f1 = {loo['f1']:.4f}, f2 = {loo['f2']:.4f} mm); in-sample "
-            f"F = {loo['in_sample_F']:.4f} mm"
+            f"{loo.F_mm:.4f} mm (f1 = {loo.f1_mm:.4f}, f2 = {loo.f2_mm:.4f} mm); in-sample "
+            f"F = {loo.in_sample_F_mm:.4f} mm"
         )
-        method = d.get("loo_method", "")
+        method = d.loo_method or ""
         if method and not method.startswith("exact"):
             lines.append(f"    refits approximated: {method}")
         per = "  ".join(
-            f"{r['m']}: {r['image_vs_tablet_mm']:.2f}/{r['hand_mm']:.2f}"
-            for r in loo["held_out_mm"]
+            f"{r.m}: {r.image_vs_tablet_mm:.2f}/{r.hand_mm:.2f}" for r in loo.held_out_mm
         )
         lines.append(f"    held out |image - tablet|/|hand - target| mm, m: {per}")
-    out = d.get("outliers", [])
-    threshold = diag.get("outlier_threshold_mm", float("nan"))
+    out = d.outliers
+    threshold = diag.outlier_threshold_mm
+    threshold = float("nan") if threshold is None else threshold
     lines.append(
         f"  outlier landmarks (an error > {threshold:g} mm): "
         + (", ".join(f"m = {m}" for m in out) if out else "none")
@@ -249,21 +257,18 @@ def diagnostic_lines(
     return lines
 
 
-def convention_lines(conv: dict) -> list[str]:
+def convention_lines(conv: ConventionCheck | None) -> list[str]:
     """The hand-angle convention check, one line per convention."""
-    if not conv:
+    if conv is None:
         return []
-    dec = conv["declared"]
+    dec = conv.declared
     lines = [
         f"convention check (F1st refitted under each hand-angle convention; declared "
-        f"zero = {dec['zero_deg']:g} deg, sign = {dec['sign']:+d}): "
-        + ("passed" if conv["passed"] else "FAILED")
+        f"zero = {dec.zero_deg:g} deg, sign = {dec.sign:+d}): "
+        + ("passed" if conv.passed else "FAILED")
     ]
-    for c in sorted(conv["fits"], key=lambda c: c["F"]):
-        mark = (
-            "  <- declared" if (c["zero_deg"], c["sign"]) == (dec["zero_deg"], dec["sign"]) else ""
-        )
-        lines.append(
-            f"    zero {c['zero_deg']:>5g} deg, sign {c['sign']:+d}: F1st = {c['F']:.4f} mm{mark}"
-        )
+    for c in sorted(conv.fits, key=lambda c: c.F_mm):
+        mark = "  <- declared" if (c.zero_deg, c.sign) == (dec.zero_deg, dec.sign) else ""
+        fit = f"zero {c.zero_deg:>5g} deg, sign {c.sign:+d}: F1st = {c.F_mm:.4f} mm"
+        lines.append(f"    {fit}{mark}")
     return lines

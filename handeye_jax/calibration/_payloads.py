@@ -1,0 +1,335 @@
+"""The parts of a result, typed: what each stage's search did, its prior, the sign twin, the
+hand heights, the warnings, and the diagnostics (written by ``diagnostics/``, carried here
+because the result's file holds them).
+
+Each is a frozen dataclass whose fields name their units; its JSON form, written and read
+back checked, is described by its fields (:mod:`handeye_jax._core._schema`), so the result
+file's schema is these classes and the top-level table of :mod:`._result_io`. Where a JSON
+key is the paper's symbol (``F``, ``f1``) the field says ``_mm`` and maps to it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar, Literal
+
+from .._core import Reader, count, length, spec
+from ..problem import JacobianAnalysis
+
+# -- one stage's search ------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Residual:
+    """One landmark's (or row's) error vectors and lengths of both terms at a fit, mm."""
+
+    strict: ClassVar[bool] = True
+
+    m: int
+    image_vs_tablet_xy_mm: tuple[float, float]
+    image_vs_tablet_mm: float = spec(check=length)
+    hand_xy_mm: tuple[float, float] = spec()
+    hand_mm: float = spec(check=length)
+
+
+@dataclass(frozen=True)
+class DESummary:
+    """What DE did in a stage: the parameters it searched and, if it ran, the value at its
+    best member (the whole objective's, mm), its generations and evaluations, and whether its
+    population converged."""
+
+    searched: tuple[str, ...] | None = spec(omit="none", default=None)
+    F_mm: float | None = spec("F", omit="none", default=None)
+    generations: int | None = spec(check=count, omit="none", default=None)
+    evaluations: int | None = spec(check=count, omit="none", default=None)
+    converged: bool | None = spec(omit="none", default=None)
+
+
+@dataclass(frozen=True)
+class RestartSummary:
+    """The LM restarts of a stage: how many, how many from the DE population's other optima,
+    the lowest value one reached (mm), how many ended within 1e-4 mm of the result, and on how
+    many landmarks they searched when fewer than all."""
+
+    starts: int = spec(check=count)
+    from_population: int = spec(check=count)
+    best_F_mm: float = spec("best_F")
+    reached_result: int = spec(check=count)
+    landmarks: int | None = spec(check=count, omit="none", default=None)
+
+
+@dataclass(frozen=True)
+class PolishSummary:
+    """The LM polish of a stage and which search found its optimum.
+
+    Attributes:
+        ran: LM ran (settings.polish).
+        accepted: the optimum is lower than DE's best (``F_before_mm``).
+        F_before_mm, F_after_mm: the value minimised at DE's best and at the optimum, mm.
+        steps, solver_converged: the polish from DE's best: iterations, its own stop rule held.
+        restarts: the LM restarts.
+        found_by: which search found the optimum.
+        replaced_F_mm: the optima a multi-start refit replaced, mm.
+        pinned: the parameters LM left on a bound (the first results' field).
+    """
+
+    ran: bool | None = spec(omit="none", default=None)
+    accepted: bool | None = spec(omit="none", default=None)
+    F_before_mm: float | None = spec("F_before", omit="none", default=None)
+    steps: int | None = spec(check=count, omit="none", default=None)
+    solver_converged: bool | None = spec(omit="none", default=None)
+    restarts: RestartSummary | None = spec(omit="none", default=None)
+    F_after_mm: float | None = spec("F_after", omit="none", default=None)
+    found_by: str | None = spec(omit="none", default=None)
+    replaced_F_mm: tuple[float, ...] = spec("replaced_F", omit="empty", default=())
+    pinned: tuple[str, ...] | None = spec(omit="none", default=None)
+
+
+@dataclass(frozen=True)
+class Convergence:
+    """DE's best value after each generation and the population's median after each chunk of
+    generations, mm, with the generations the medians were taken at."""
+
+    best_F_mm: tuple[float, ...] | None = spec("best_F", omit="none", default=None)
+    median_F_mm: tuple[float, ...] | None = spec("median_F", omit="none", default=None)
+    median_generation: tuple[int, ...] | None = spec(omit="none", default=None)
+
+    def checked(self, r: Reader, where: str) -> Convergence:
+        gens = self.median_generation
+        if gens is None:
+            if self.median_F_mm is None:
+                return self
+            # The first results recorded the median every generation.
+            return Convergence(self.best_F_mm, self.median_F_mm,
+                               tuple(range(1, len(self.median_F_mm) + 1)))  # fmt: skip
+        for i, g in enumerate(gens):
+            if g < 1:
+                r.fail(f"{where}.median_generation[{i}]", f"must be at least 1 (got {g})")
+        if self.median_F_mm is not None and len(gens) != len(self.median_F_mm):
+            r.fail(f"{where}.median_generation", f"must have one generation per median_F "
+                   f"({len(self.median_F_mm)}) (got {len(gens)})")  # fmt: skip
+        return self
+
+
+# -- a prior and the sign twin -----------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Pull:
+    """How far the data pulled one prior parameter: its prior mean and σ, the fitted value
+    and its posterior σ (each in the parameter's unit; σ ``None``: unbounded or
+    undetermined), Baarda's w-test ``pull`` and the marginal one, in σ."""
+
+    param: str
+    mean: float
+    sigma: float | None
+    value: float
+    posterior_sigma: float | None
+    pull: float
+    marginal_pull: float | None = spec(omit="none", default=None)
+
+
+@dataclass(frozen=True)
+class PriorReport:
+    """A stage's prior (its source, the parameters it covers, their mean and precision, the
+    data scale and noise σ of the fit it came from, mm) and each parameter's pull."""
+
+    source: str
+    names: tuple[str, ...]
+    mean: tuple[float, ...]
+    precision: tuple[tuple[float, ...], ...]
+    data_scale_mm: float
+    pulls: tuple[Pull, ...] = ()
+    data_sigma_mm: float | None = spec(omit="none", default=None)
+
+
+@dataclass(frozen=True)
+class SignTwin:
+    """The sign twin of a stage-1 fit: the parameters whose joint sign flip mirrors the tablet
+    through its plane, their values found, and F (mm) there and at the flip."""
+
+    params: tuple[str, ...]
+    found: dict[str, float]
+    F_found_mm: float = spec("F_found")
+    F_flipped_mm: float = spec("F_flipped")
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class Recalibration:
+    """Where a recalibration started: the previous result, what was refitted, and how the
+    other parameters entered (``"prior"``: its posterior; ``"fixed"``: held)."""
+
+    previous: str
+    refit: tuple[str, ...]
+    others: Literal["prior", "fixed"]
+
+
+@dataclass(frozen=True, eq=False)
+class FitWarning:
+    """One thing a user should know about a result, as one line of text.
+
+    ``kind`` says what it is about (``"fit"``: F is no rig's; ``"residuals"``: none left
+    over; ``"bound"``: a parameter on its search bound; ``"prior"``: the data pull a prior
+    parameter; ``"convention"``: another hand-angle convention fits better; ``"file"``: read
+    back from a result file, which keeps the text alone), ``param`` the parameter, if one.
+    Two warnings are equal when their texts are: a file keeps the text alone.
+    """
+
+    text: str
+    kind: Literal["fit", "residuals", "bound", "prior", "convention", "file"] = "file"
+    param: str | None = None
+
+    def __str__(self) -> str:
+        return self.text
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, FitWarning) and other.text == self.text
+
+    def __hash__(self) -> int:
+        return hash(self.text)
+
+    def to_json(self) -> str:
+        return self.text
+
+    @classmethod
+    def from_json(cls, r: Reader, x: object, where: str) -> FitWarning:
+        if not isinstance(x, str):
+            r.fail(where, f"must be a string (got {type(x).__name__})")
+        return cls(x)
+
+
+# -- the diagnostics ---------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Mode:
+    """One distinct optimum of a population or of the multi-start refits: its best value
+    (mm), how many members it holds, how its best member differs from the fit, whether it is
+    the fit's sign twin, and its parameters."""
+
+    F_mm: float = spec("F")
+    members: int = spec(check=count)
+    differs_from_fit: dict[str, float] | None = spec(omit="none", default=None)
+    # Older results compared each optimum with the population's best member.
+    differs_from_best: dict[str, float] | None = spec(omit="none", default=None)
+    sign_twin: bool = False
+    params: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class BoundHit:
+    """A parameter on a bound of its search range, and a wider range to try (its unit)."""
+
+    param: str
+    value: float
+    unit: str
+    side: Literal["lower", "upper"]
+    range: tuple[float, float]
+    widen_to: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """A landmark's (or row's) held-out error lengths, mm: each term's, after a refit
+    without it."""
+
+    strict: ClassVar[bool] = True
+
+    m: int
+    image_vs_tablet_mm: float = spec(check=length)
+    hand_mm: float = spec(check=length)
+
+
+@dataclass(frozen=True)
+class LeaveOneOut:
+    """Leave-one-out: each landmark's held-out errors, their means (the held-out f1, f2 and
+    F) and the fit's in-sample F, mm."""
+
+    strict: ClassVar[bool] = True
+
+    held_out_mm: tuple[HeldOut, ...]
+    f1_mm: float = spec("f1", check=length)
+    f2_mm: float = spec("f2", check=length)
+    F_mm: float = spec("F", check=length)
+    in_sample_F_mm: float = spec("in_sample_F", check=length)
+
+
+@dataclass(frozen=True)
+class StageDiagnostics(JacobianAnalysis):
+    """A stage's diagnostics: the Jacobian's analysis at the fit (σ, standard deviations,
+    precision, singular values, weak directions), the free parameters, the optima in the final
+    DE population, the parameters on a bound, leave-one-out and how it was computed, the
+    outlier landmarks and (stage 1) the optima of the multi-start refits."""
+
+    free: tuple[str, ...] = ()
+    modes: tuple[Mode, ...] = ()
+    bound_hits: tuple[BoundHit, ...] = ()
+    loo: LeaveOneOut | None = spec(omit="none", default=None)
+    loo_method: str | None = spec(omit="none", default=None)
+    outliers: tuple[int, ...] = ()
+    local_optima: tuple[Mode, ...] | None = spec(omit="none", default=None)
+
+
+@dataclass(frozen=True)
+class Convention:
+    """A hand-angle convention ``φ = zero + sign·θh``."""
+
+    zero_deg: float
+    sign: int
+
+
+@dataclass(frozen=True)
+class ConventionFit(Convention):
+    """A convention and the lowest F1st a refit under it reached, mm."""
+
+    F_mm: float = spec("F")
+
+
+@dataclass(frozen=True)
+class ConventionCheck:
+    """Stage 1 refitted under each hand-angle convention: the declared one, each one's F1st,
+    whether the declared one passed, the warning if it did not, and how it was checked."""
+
+    declared: Convention
+    fits: tuple[ConventionFit, ...]
+    passed: bool
+    warning: str | None
+    method: str = ""
+
+
+@dataclass(frozen=True)
+class Scope:
+    """Where a calibration holds: its captures (how many, their hand heights and angles, the
+    landmarks' depths, the first capture's position), the camera mount's shift/tilt
+    trade-offs left, and the expected hand-command error (1σ, mm) from the first capture pose
+    moved up or down (keys: the move, ``"+50"``), all in mm and deg."""
+
+    captures: int
+    capture_heights_mm: tuple[float, float]
+    hand_angles_deg: tuple[float, float]
+    depth_mm: tuple[float, float]
+    capture_position_mm: tuple[float, float, float]
+    camera_tradeoffs: tuple[str, ...]
+    expected_error_mm: dict[str, float]
+
+
+@dataclass(frozen=True)
+class LossInfo:
+    """The loss a fit used and its scale, mm."""
+
+    name: str
+    scale_mm: float
+
+
+@dataclass(frozen=True)
+class Diagnostics:
+    """What a result can and cannot tell (:func:`handeye_jax.diagnose`): the loss, the
+    outlier threshold (mm), each stage's diagnostics, the convention check and the scope."""
+
+    loss: LossInfo | None = spec(omit="none", default=None)
+    outlier_threshold_mm: float | None = spec(omit="none", default=None)
+    stage1: StageDiagnostics | None = spec(omit="none", default=None)
+    stage2: StageDiagnostics | None = spec(omit="none", default=None)
+    convention: ConventionCheck | None = spec(omit="none", default=None)
+    scope: Scope | None = None
