@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._jax import in_float64
+from .._jax import fast_compile, in_float64
 from ..calibration import CalibrationResult, Scope
 from ..models import hand_command
 from ..problem import FIXED, Heights, WeakDirection, put
@@ -73,20 +73,14 @@ def capture_scope(result: CalibrationResult) -> Scope | None:
     rig = result.rig
     c = np.array([float(rig.cx_px), float(rig.cy_px)])
     x0 = jnp.asarray([float(getattr(result.model, n)) for n in free])
+    views = (jnp.asarray(theta), jnp.asarray([first.hand_angle_deg]))
     expected = {}
     for rise in SCOPE_RISES_MM:
         d2 = d + rise  # the hand points down: a capture `rise` higher sees them that much deeper
         uv2 = c + (uv - c) * (d / d2)[:, None]
         position = first.hand_position_mm + np.array([0.0, 0.0, rise])
-
-        def command(x, uv2=uv2, d2=d2, position=position):
-            return hand_command(
-                put(result.model, free, x), rig, jnp.asarray(uv2), jnp.asarray(d2),
-                jnp.asarray(theta), capture_position_mm=jnp.asarray(position)[None],
-                capture_hand_angle_deg=jnp.asarray([first.hand_angle_deg]),
-            ).reshape(-1)  # fmt: skip
-
-        J = np.asarray(jax.jacfwd(command)(x0))
+        seen_from = (jnp.asarray(uv2), jnp.asarray(d2), jnp.asarray(position)[None])
+        J = np.asarray(_command_jacobian(put(result.model, free, x0), free, rig, seen_from, views))
         var = np.einsum("ij,jk,ik->i", J, cov, J).reshape(-1, 2).sum(axis=1)
         expected[f"{rise:+g}"] = float(np.sqrt(np.mean(np.maximum(var, 0.0))))
     trade = camera_tradeoffs(diag.weak_directions, model_cls.groups["camera"], units)
@@ -99,6 +93,23 @@ def capture_scope(result: CalibrationResult) -> Scope | None:
         camera_tradeoffs=tuple(w.note for w in trade),
         expected_error_mm=expected,
     )
+
+
+@fast_compile
+def _command_jacobian(model, free: tuple[str, ...], rig, seen_from, views):
+    """The Jacobian of eq. (8)'s hand commands, x-y flattened, in ``model``'s ``free``
+    parameters: for views ``seen_from`` (image points px, depths mm, capture position mm) at
+    ``views`` (touch hand angles, capture hand angle; deg). One program for every rise."""
+    uv, depth, position = seen_from
+    theta, capture_angle = views
+    x0 = jnp.stack([jnp.asarray(getattr(model, n)) for n in free])
+
+    def command(x):
+        return hand_command(put(model, free, x), rig, uv, depth, theta,
+                            capture_position_mm=position,
+                            capture_hand_angle_deg=capture_angle).reshape(-1)  # fmt: skip
+
+    return jax.jacfwd(command)(x0)
 
 
 def scope_lines(scope: Scope | None, heights: Heights | None) -> list[str]:
