@@ -12,11 +12,12 @@ Every figure but the predictor's is the wall time of a fresh process, median of 
 ``--before TREE`` runs the same commands on another source tree (e.g. the main checkout) in
 turn with this one, so that the machine's drift hits both alike and their ratio holds.
 
-Then one more cold and warm ``calibrate`` per tree, instrumented in its own process, says
-where the seconds go: the import, each stage's DE and LM polish, the diagnostics and the
-output; in each, the seconds JAX spent tracing, lowering to MLIR and compiling (or fetching
-from the cache) and the number of programs, from ``jax.monitoring``'s events. What is left is
-computation and Python.
+The cold and warm ``calibrate`` runs are instrumented in their own processes, to say where
+the seconds go: the import, each stage's DE and LM polish, the diagnostics and the output; in
+each, the seconds JAX spent tracing, lowering to MLIR and compiling (or fetching from the
+cache) and the number of programs, from ``jax.monitoring``'s events. What is left is
+computation and Python. For the cold run, the same per program (as JAX names it: a
+``multiply`` is one operation run on its own, outside any compiled program).
 
 Last, in this process, the NumPy ``Predictor`` on 10,000 points (target 20 µs per point).
 """
@@ -57,9 +58,10 @@ import jax, jax.monitoring
 import handeye_jax.calibration._calibrate as cal
 import handeye_jax.diagnostics as diagnostics
 t_import = time.perf_counter() - t0
-events = []  # (end time, kind, seconds)
+events = []  # (end time, kind, seconds, program)
 jax.monitoring.register_event_duration_secs_listener(
-    lambda name, secs, **kw: events.append((time.perf_counter(), name, secs)))
+    lambda name, secs, **kw: events.append((time.perf_counter(), name, secs,
+                                            str(kw.get("fun_name", "?")))))
 spans = []  # (label, start, end)
 fit_stage, diagnose = cal.fit_stage, diagnostics.diagnose
 def timed_fit_stage(*args, **kwargs):
@@ -86,11 +88,20 @@ parts = {}
 for label, a, b in spans:
     part = {"wall": (b - a) if label != "import" else t_import, "programs": 0,
             "tracing": 0.0, "lowering": 0.0, "compiling": 0.0}
-    for t, name, secs in events:
+    for t, name, secs, _ in events:
         if a < t <= b and name in EVENTS:
             part[EVENTS[name]] += secs
             part["programs"] += EVENTS[name] == "compiling"
     parts[label] = part
+programs = {}  # per program, as JAX names it: its seconds of each kind, and compilations
+for _, name, secs, fun in events:
+    fun = fun[4:-1] if fun.startswith("jit(") else fun  # tracing names it without jit(...)
+    if name in EVENTS:
+        row = programs.setdefault(fun, {"tracing": 0.0, "lowering": 0.0, "compiling": 0.0,
+                                        "compiled": 0})
+        row[EVENTS[name]] += secs
+        row["compiled"] += EVENTS[name] == "compiling"
+parts["programs"] = programs
 json.dump(parts, open(sys.argv[1], "w"))
 sys.stdout.flush()
 os._exit(0)  # as the console script does (handeye_jax.cli.run): no teardown of XLA
@@ -193,6 +204,26 @@ def _table(walls: dict[str, dict[str, list[float]]]) -> None:
         print(line)
 
 
+def _programs_table(name: str, cold: list[dict]) -> None:
+    """The cold runs' seconds per program (median over the runs), the largest first."""
+    rows = cold[0]["programs"]
+    keys = ("tracing", "lowering", "compiling", "compiled")
+    med = {fun: {k: statistics.median(r["programs"].get(fun, {}).get(k, 0) for r in cold)
+                 for k in keys} for fun in rows}  # fmt: skip
+    print(f"\n{name}, cold: seconds per program, median over the runs\n")
+    print("| program | compiled | tracing | lowering | compiling |")
+    print("|---|---|---|---|---|")
+    order = sorted(med, key=lambda f: -(med[f]["tracing"] + med[f]["lowering"]
+                                        + med[f]["compiling"]))  # fmt: skip
+    for fun in order:
+        m = med[fun]
+        print(f"| {fun} | {m['compiled']:.0f} | {m['tracing']:.2f} | {m['lowering']:.2f} | "
+              f"{m['compiling']:.2f} |")  # fmt: skip
+    total = {k: sum(m[k] for m in med.values()) for k in keys}
+    print(f"| all | {total['compiled']:.0f} | {total['tracing']:.2f} | {total['lowering']:.2f} "
+          f"| {total['compiling']:.2f} |")  # fmt: skip
+
+
 def _parts_table(name: str, runs: dict[str, list[dict]]) -> None:
     print(f"\n{name}: seconds per part of the instrumented calibrations, median over the runs "
           "(compiling: XLA's compilation, or on a cache hit its fetch; rest: computation and "
@@ -245,6 +276,7 @@ def main(argv: list[str] | None = None) -> None:
     _table(walls)
     for name, p in parts.items():
         _parts_table(name, p)
+        _programs_table(name, p["cold"])
     print(
         f"\nNumPy Predictor, in this process: {us:.3f} µs per point for {n} points "
         f"(target {PREDICTOR_TARGET_US:g} µs; {us / PREDICTOR_TARGET_US:.4f} of it)"

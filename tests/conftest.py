@@ -1,3 +1,6 @@
+"""The suite's shared fixtures: one calibration of the paper's data per test process,
+reused by every file that needs a result (``paper_result_file``, ``paper_result``)."""
+
 import os
 from pathlib import Path
 
@@ -21,3 +24,23 @@ def _float64():
     """Tests run in float64 the same way users do: scoped, not by flipping global config."""
     with jax.enable_x64(True):
         yield
+
+
+@pytest.fixture(scope="session")
+def paper_result_file(tmp_path_factory) -> Path:
+    """The paper's data calibrated as the command line does it (the tests' budget, with
+    diagnostics), once per test process: the result file. Read it; do not change it."""
+    from handeye_jax.cli import main
+    from tests.common import FAST, PAPER
+
+    out = tmp_path_factory.mktemp("session") / "paper.json"
+    assert main(["calibrate", str(PAPER), "--out", str(out), *FAST]) == 0
+    return out
+
+
+@pytest.fixture(scope="session")
+def paper_result(paper_result_file):
+    """The session's paper calibration, read back from its file."""
+    from handeye_jax import load_result
+
+    return load_result(paper_result_file)

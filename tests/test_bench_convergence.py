@@ -2,7 +2,11 @@
 
 import re
 
+import pytest
+
 from tests.test_benchmarks import run_in_process
+
+pytestmark = pytest.mark.slow  # subprocesses and whole scripts
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 

@@ -11,12 +11,14 @@ from unittest import mock
 
 import pytest
 
+pytestmark = pytest.mark.slow  # subprocesses and whole scripts
+
 BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
 
 
 def _run(script, *args):
     """``python benchmarks/SCRIPT ARGS`` in a fresh process: for the benchmarks that need one
-    (first_call times fresh processes; de_overhead sets XLA's flags before JAX starts)."""
+    (startup times fresh processes; de_overhead sets XLA's flags before JAX starts)."""
     p = subprocess.run([sys.executable, str(BENCH / script), *args], capture_output=True,
                        text=True, timeout=600)  # fmt: skip
     assert p.returncode == 0, p.stderr[-3000:]
@@ -66,13 +68,6 @@ def test_miss_rate_finds_de_and_lm_missing_twin_1_and_the_defaults_not():
 def test_reproduce_paper_runs(seeds):
     out = run_in_process("reproduce_paper.py", *seeds, "--population", "60", "--generations", "80")
     assert out.count("| seed 1 |") == 3
-
-
-def test_first_call_reports_cold_and_warm():
-    out = _run("first_call.py", "--quick", "--no-diagnostics")
-    assert "| cold |" in out and "| warm |" in out
-    # the per-program table parsed JAX's compile log: the DE loop and the LM polish are in it
-    assert "| _chunk_scan | 2 |" in out and "| _lm | 2 |" in out and "| all |" in out
 
 
 def test_de_overhead_times_every_ablation_and_reads_xla_ir():
@@ -149,4 +144,7 @@ def test_startup_times_every_command_and_the_parts_of_a_calibration():
     for kind in ("cold", "warm"):
         for part in ("import", "stage1_de", "stage1_polish", "stage2_polish", "whole process"):
             assert re.search(rf"^\| {kind} \| {part} \| \d+\.\d\d \| ", out, re.M), (kind, part)
+    # the cold run's programs: the DE loop and the LM polish of both stages are in it
+    assert re.search(r"^\| _chunk_scan \| 2 \| ", out, re.M)
+    assert re.search(r"^\| _lm \| 2 \| ", out, re.M) and "| all |" in out
     assert re.search(r"NumPy Predictor, in this process: \d+\.\d+ µs per point", out)

@@ -5,24 +5,18 @@ import os
 import re
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from handeye_jax import load_result
 from handeye_jax.cli import main
-
-ROOT = Path(__file__).resolve().parents[1]
-PAPER = ROOT / "data" / "paper2023.toml"
-FAST = ["--population", "200", "--generations", "400", "--quiet"]
+from tests.common import FAST, PAPER, ROOT
 
 
-@pytest.fixture(scope="module")
-def result_file(tmp_path_factory):
-    out = tmp_path_factory.mktemp("cal") / "result.json"
-    assert main(["calibrate", str(PAPER), "--out", str(out), *FAST]) == 0
-    return out
+@pytest.fixture
+def result_file(paper_result_file):
+    return paper_result_file
 
 
 def test_calibrate_writes_a_loadable_result(result_file, capsys):
@@ -280,18 +274,21 @@ def test_too_few_landmarks(tmp_path, capsys):
     assert "landmarks" in err and "at least" in err and len(err.strip().splitlines()) == 1
 
 
-def test_compilation_cache_goes_where_asked_and_can_be_turned_off(tmp_path):
+def test_compilation_cache_goes_where_asked_and_can_be_turned_off(tmp_path, paper_result_file):
+    # Two commands that compile programs of their own, quicker than a calibration: report (a
+    # stored program of its own) and export (JAX's, to check the frames).
+    cli = [sys.executable, "-m", "handeye_jax.cli"]
     cache = tmp_path / "xla-cache"
-    base = [sys.executable, "-m", "handeye_jax.cli", "calibrate", str(PAPER), "--quiet",
-            "--population", "40", "--generations", "5", "--no-diagnostics"]  # fmt: skip
     env = dict(os.environ, HANDEYE_JAX_CACHE_DIR=str(cache))
-    p = subprocess.run(base, capture_output=True, text=True, env=env)
+    report = [*cli, "report", str(paper_result_file), "--out", str(tmp_path / "figures")]
+    p = subprocess.run(report, capture_output=True, text=True, env=env)
     assert p.returncode == 0, p.stderr[-2000:]
     assert cache.is_dir() and any(cache.iterdir())
     assert any((cache / "programs").glob("*.program"))  # jax.export's programs, beside XLA's
     home = tmp_path / "home"
     env = dict(os.environ, HANDEYE_JAX_CACHE_DIR="off", HOME=str(home), XDG_CACHE_HOME="")
-    p = subprocess.run(base, capture_output=True, text=True, env=env)
+    export = [*cli, "export", str(paper_result_file), "--format", "json"]
+    p = subprocess.run(export, capture_output=True, text=True, env=env)
     assert p.returncode == 0, p.stderr[-2000:]
     assert not (home / ".cache" / "handeye-jax").exists()
 
@@ -372,6 +369,7 @@ def _ctrl_c_when(tmp_path, python_flags, pattern):
     return p.returncode, stdout.decode(), err, lines, out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("moment", CTRL_C_MOMENTS)
 def test_ctrl_c_at_any_moment_exits_130_and_keeps_the_out_file(tmp_path, moment):
     rc, _, err, lines, out = _ctrl_c_when(tmp_path, *CTRL_C_MOMENTS[moment])

@@ -273,6 +273,7 @@ print(applied, again)
 """
 
 
+@pytest.mark.slow
 def test_vectorising_small_loops_keeps_the_de_bit_for_bit(tmp_path):
     """The LLVM option changes which loops use SIMD, not the numbers; it applies only before
     JAX's first computation, never over the user's own ``xla_backend_extra_options``, and

@@ -54,11 +54,11 @@ from handeye_jax.optim import (
     minimise_batch,
     residuals_and_jacobian,
 )
-from tests.test_cli import PAPER
+from tests.common import FAST_SETTINGS, PAPER
 from tests.test_synthetic import TRUTH
 
 # The CLI tests' budget: the same compiled programs serve every fit in this file.
-FAST = Settings(population=200, generations=400)
+FAST = FAST_SETTINGS
 RIG = Rig(617.7, 617.7, 316.5, 242.3, [320.0, -70.0, 290.0], 90.0, -1.0)
 ANGLES = 22.5 * np.arange(9)
 
@@ -66,11 +66,6 @@ ANGLES = 22.5 * np.arange(9)
 def _synthetic(zero=90.0, sign=-1.0, truth=TRUTH["htm"]):
     rig = Rig(617.7, 617.7, 316.5, 242.3, [320.0, -70.0, 290.0], zero, sign)
     return synthesize_dataset(HTMModel.from_dict(truth), rig, snake_grid_px(), ANGLES)
-
-
-@pytest.fixture(scope="module")
-def paper_result():
-    return diagnose(calibrate(load_dataset(PAPER), FAST))
 
 
 def _noisy_grid(kx: int, ky: int, seed: int = 0):
@@ -212,6 +207,7 @@ def _best_refit_F(result) -> float:
     return min(m.F_mm for m in result.diagnostics.stage1.local_optima)
 
 
+@pytest.mark.slow
 def test_fit_is_no_worse_than_any_refit_and_off_the_bound(twin1):
     r = diagnose(calibrate(twin1))
     assert r.stage1.F <= _best_refit_F(r) + 1e-9
@@ -236,6 +232,7 @@ def test_restarts_are_bounded_in_settings_and_in_result_files(paper_result, tmp_
         load_result(p)
 
 
+@pytest.mark.slow
 def test_a_refit_lower_than_the_fit_becomes_the_result(twin1):
     """DE and its polish stay in the DE's basin (xc on its bound), and one restart misses the
     lower one; the fit's multi-start refits find it, and it is calibrate's result, stage 2
@@ -281,6 +278,7 @@ def test_leave_one_out_matches_an_explicit_refit(paper_result):
     assert got.hand_mm == pytest.approx(want[1], abs=2e-3)
 
 
+@pytest.mark.slow
 def test_many_landmarks_restart_on_a_subset_and_leave_one_out_by_one_newton_step():
     """Above 64 landmarks the restarts search on 64 and leave-one-out is one Newton step
     from the fit per landmark (refits for those it moves far); on 70 landmarks that agrees
@@ -309,6 +307,7 @@ def test_many_landmarks_restart_on_a_subset_and_leave_one_out_by_one_newton_step
     assert "refits approximated: one Newton step" in format_summary(r)
 
 
+@pytest.mark.slow
 def test_diagnostics_memory_is_linear_in_landmarks():
     """Issue 16, item 5: leave-one-out by n refits of n landmarks held n Jacobians of 4n × d
     (150 MB at 600 landmarks, 60 GB at 10,000). Linear: a few MB."""
@@ -358,6 +357,7 @@ def test_published_data_passes_with_its_declared_convention(paper_result):
     assert min(f for k, f in fits.items() if k != (90.0, -1)) > 2 * fits[(90.0, -1)]
 
 
+@pytest.mark.slow
 def test_a_wrong_declared_convention_is_named():
     made = _synthetic(zero=0.0, sign=1.0)
     wrong = made.replace(hand_angle_zero_deg=90.0, hand_angle_sign=-1)
@@ -421,6 +421,7 @@ def twin_clean_and_touched():
     return clean, clean.replace(hand_xy_mm=hand)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("loss", "scale_mm"), ROBUST_CASES)
 def test_robust_fit_flags_a_touch_5mm_off_and_keeps_the_others(
     twin_clean_and_touched, loss, scale_mm
@@ -435,9 +436,7 @@ def test_robust_fit_flags_a_touch_5mm_off_and_keeps_the_others(
 
     def F_others(r):
         keep = [x for x in r.stage1.residuals_mm if x.m != m]
-        return np.mean([x.image_vs_tablet_mm for x in keep]) + np.mean(
-            [x.hand_mm for x in keep]
-        )
+        return np.mean([x.image_vs_tablet_mm for x in keep]) + np.mean([x.hand_mm for x in keep])
 
     assert r_bad.diagnostics.stage1.outliers == (m,)
     assert r_clean.diagnostics.stage1.outliers == ()

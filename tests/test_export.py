@@ -201,7 +201,7 @@ def _paper_case() -> Case:
 
 
 @pytest.fixture(scope="module")
-def result_file(tmp_path_factory) -> Path:
+def case_file(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("export") / "paper.result.json"
     save_result(_paper_case().result(), path)
     return path
@@ -212,14 +212,14 @@ PTS = (np.array([[119.0, 105.0], [338.0, 244.0], [554.0, 381.0]]),
 
 
 @pytest.mark.parametrize("fmt", FORMATS)
-def test_cli_export_writes_each_format_and_warns_of_zeros(tmp_path, result_file, capsys, fmt):
+def test_cli_export_writes_each_format_and_warns_of_zeros(tmp_path, case_file, capsys, fmt):
     out = tmp_path / f"out{SUFFIX[fmt]}"
-    args = ["export", str(result_file), "--format", fmt, "--out", str(out),
+    args = ["export", str(case_file), "--format", fmt, "--out", str(out),
             "--parent-link", NAMES["parent"], "--camera-frame", NAMES["camera"],
             "--pen-frame", NAMES["pen"]]  # fmt: skip
     assert main(args) == 0
     io = capsys.readouterr()
-    frames = Predictor.from_result(result_file).frames
+    frames = Predictor.from_result(case_file).frames
     zeros = zero_filled(frames, fmt)
     if zeros:  # one line naming them, and the file says so beside the numbers
         assert io.err == (f"handeye-jax: warning: {', '.join(zeros)} not determined by the "
@@ -235,9 +235,9 @@ def test_cli_export_writes_each_format_and_warns_of_zeros(tmp_path, result_file,
     assert capsys.readouterr().out == out.read_text()
 
 
-def test_json_and_yaml_say_null_never_zero(result_file, tmp_path, capsys):
+def test_json_and_yaml_say_null_never_zero(case_file, tmp_path, capsys):
     for fmt, load in (("json", json.loads), ("yaml", yaml.safe_load)):
-        assert main(["export", str(result_file), "--format", fmt]) == 0
+        assert main(["export", str(case_file), "--format", fmt]) == 0
         doc = load(capsys.readouterr().out)
         for key, vec in (("T_hand_camera", "t"), ("T_base_tablet", "t"),
                          ("pen_tip", "t_hand_pen")):  # fmt: skip
@@ -250,9 +250,9 @@ def test_json_and_yaml_say_null_never_zero(result_file, tmp_path, capsys):
         assert doc["hand_angle"]["zero_deg"] == 90.0 and doc["hand_angle"]["sign"] == -1
 
 
-def test_generated_module_runs_without_jax(result_file, tmp_path):
+def test_generated_module_runs_without_jax(case_file, tmp_path):
     path = tmp_path / "handeye_calibration.py"
-    assert main(["export", str(result_file), "--format", "python", "--out", str(path)]) == 0
+    assert main(["export", str(case_file), "--format", "python", "--out", str(path)]) == 0
     p = run_without_jax(
         """
         import importlib.util, numpy as np
@@ -265,20 +265,20 @@ def test_generated_module_runs_without_jax(result_file, tmp_path):
         str(path), json.dumps([a.tolist() for a in PTS]),
     )  # fmt: skip
     assert p.returncode == 0, p.stderr
-    want = Predictor.from_result(result_file).hand_command(*PTS)
+    want = Predictor.from_result(case_file).hand_command(*PTS)
     np.testing.assert_array_equal(json.loads(p.stdout), want)
 
 
-def test_cli_export_refuses_bad_names_and_edited_frames(result_file, tmp_path, capsys):
+def test_cli_export_refuses_bad_names_and_edited_frames(case_file, tmp_path, capsys):
     out = tmp_path / "x.urdf"
     with pytest.raises(SystemExit) as e:
-        main(["export", str(result_file), "--format", "urdf", "--parent-link", 'a"/><x'])
+        main(["export", str(case_file), "--format", "urdf", "--parent-link", 'a"/><x'])
     assert e.value.code == 2
     assert "not a valid link or frame name" in capsys.readouterr().err
-    code = main(["export", str(result_file), "--format", "urdf", "--camera-frame", "tool0",
+    code = main(["export", str(case_file), "--format", "urdf", "--camera-frame", "tool0",
                  "--out", str(out)])  # fmt: skip
     assert code == 2 and not out.exists()
-    doc = json.loads(result_file.read_text())
+    doc = json.loads(case_file.read_text())
     doc["frames"]["T_hand_camera"]["R"] = np.eye(3).tolist()
     edited = tmp_path / "edited.json"
     edited.write_text(json.dumps(doc))
@@ -290,7 +290,7 @@ def test_cli_export_refuses_bad_names_and_edited_frames(result_file, tmp_path, c
     edited.write_text(json.dumps(doc))
     assert main(["export", str(edited), "--format", "json", "--out", str(out)]) == 0
     again = Frames.from_dict(json.loads(out.read_text()))
-    np.testing.assert_array_equal(again.R_hand_camera, Predictor.from_result(result_file)
+    np.testing.assert_array_equal(again.R_hand_camera, Predictor.from_result(case_file)
                                   .frames.R_hand_camera)  # fmt: skip
 
 

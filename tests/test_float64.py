@@ -5,7 +5,10 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
 
+
+@pytest.mark.slow
 def test_import_does_not_flip_x64_and_api_is_float64_anyway():
     code = textwrap.dedent(
         """

@@ -141,6 +141,7 @@ def fitted(request):
     return model, rig, ds, calibrate(ds, Settings(model=model, seed=0, generations=400))
 
 
+@pytest.mark.slow
 def test_noise_free_captures_are_recovered(fitted):
     """F < 1e-6 mm; z_p − z_c recovered; commands (x, y, z) to 1e-6 mm for points off the
     tablet plane seen from a capture pose no fit used; the NumPy predictor agrees to 1e-9."""
@@ -300,6 +301,7 @@ def test_predict_command_reads_capture_columns_and_writes_hand_z(fitted, tmp_pat
     assert np.abs(got - want).max() < 2e-6
 
 
+@pytest.mark.slow
 def test_summary_says_where_the_calibration_holds():
     """One capture: the camera shift/tilt trade-off is reported and the covariance expects a
     much larger error from a capture 50 mm away; three captures: the trade-off is gone and

@@ -31,11 +31,12 @@ RIG = Rig(617.7, 617.7, 316.5, 242.3, [320.0, -70.0, 290.0], 90.0, -1.0)
 
 def _paper_like_obs():
     from handeye_jax import load_dataset
-    from tests.test_paper import PAPER
+    from tests.common import PAPER
 
     return load_dataset(PAPER).observations()
 
 
+@pytest.mark.slow
 @settings(max_examples=15, deadline=None)
 @given(st.sampled_from(sorted(model_registry())), st.integers(0, 2**31 - 1))
 def test_vmapped_objective_equals_each_member(name, seed):
@@ -69,7 +70,7 @@ def test_squared_residuals_sum_to_f(seed):
 def test_an_objective_on_some_landmarks_is_the_objective_of_those_landmarks(seed, k):
     """What the restarts search on many landmarks: the same objective, fewer landmarks."""
     from handeye_jax import load_dataset
-    from tests.test_paper import PAPER
+    from tests.common import PAPER
 
     rng = np.random.default_rng(seed)
     ds = load_dataset(PAPER)

@@ -14,18 +14,16 @@ import pytest
 from handeye_jax import PRESETS, InputError, draw_truth, simulate, write_twin
 from handeye_jax._core import _atomic
 from handeye_jax.cli import main
-from tests.test_cli import FAST, PAPER
+from tests.common import FAST, PAPER
 
 # The folder the command line takes calibrate from.
 CALIBRATE = importlib.import_module("handeye_jax.calibration")
 UNWRITABLE = ["/sys", "/proc", "FILE"]  # folders no one can write in; FILE: a regular file
 
 
-@pytest.fixture(scope="module")
-def result_file(tmp_path_factory):
-    out = tmp_path_factory.mktemp("res") / "result.json"
-    assert main(["calibrate", str(PAPER), "--out", str(out), *FAST]) == 0
-    return out
+@pytest.fixture
+def result_file(paper_result_file):
+    return paper_result_file
 
 
 @pytest.fixture(scope="module")

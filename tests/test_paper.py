@@ -75,6 +75,7 @@ def htm_results(paper):
     return {seed: calibrate(paper, Settings(model="htm", seed=seed)) for seed in range(1, 6)}
 
 
+@pytest.mark.slow
 def test_htm_calibration_reproduces_tables_7_and_10(htm_results):
     r = htm_results[1]
     assert r.stage1.F <= 1.675
@@ -86,6 +87,7 @@ def test_htm_calibration_reproduces_tables_7_and_10(htm_results):
     assert not r.warnings
 
 
+@pytest.mark.slow
 def test_all_seeds_reach_the_same_optimum(htm_results):
     F1 = [r.stage1.F for r in htm_results.values()]
     F2 = [r.stage2.F for r in htm_results.values()]
@@ -98,12 +100,14 @@ def test_all_seeds_reach_the_same_optimum(htm_results):
         assert twin.found["alpha_t"] == r.stage1.params["alpha_t"]
 
 
+@pytest.mark.slow
 def test_same_seed_is_bit_for_bit_identical(paper, htm_results):
     again = calibrate(paper, Settings(model="htm", seed=3))
     assert again.stage1.params == htm_results[3].stage1.params
     assert again.stage2.params == htm_results[3].stage2.params
 
 
+@pytest.mark.slow
 def test_polish_only_kept_when_it_lowers_f(htm_results):
     for r in htm_results.values():
         for s in (r.stage1, r.stage2):
@@ -114,6 +118,7 @@ def test_polish_only_kept_when_it_lowers_f(htm_results):
                 assert s.F == pytest.approx(s.polish.F_before_mm, abs=1e-12)
 
 
+@pytest.mark.slow
 def test_dh_calibration_stays_in_table6_ranges_and_warns_at_the_bound(paper):
     r = calibrate(paper, Settings(model="dh", seed=1))
     lo, hi = DHModel.search_bounds()
@@ -123,6 +128,7 @@ def test_dh_calibration_stays_in_table6_ranges_and_warns_at_the_bound(paper):
     assert any(w.startswith("a_c1") and "[search]" in w for w in map(str, r.warnings))
 
 
+@pytest.mark.slow
 def test_dh_with_a_widened_range_reaches_the_papers_fitness(paper):
     """The paper's DH optimum (7.10) lies outside Table 6's a_c1 range; widening it finds it."""
     wide = paper.replace(search={"a_c1": (-20.0, 100.0)})

@@ -58,7 +58,7 @@ def _fixed_case() -> Case:
 
 
 @pytest.fixture(scope="module")
-def result_file(tmp_path_factory, case) -> Path:
+def case_file(tmp_path_factory, case) -> Path:
     path = tmp_path_factory.mktemp("predictor") / "result.json"
     save_result(case.result(), path)
     return path
@@ -98,7 +98,7 @@ def test_from_result_file_matches_the_loaded_result(tmp_path_factory, case, pts,
     np.testing.assert_allclose(got, want, rtol=0, atol=TOL_MM)
 
 
-def test_predictor_works_with_jax_not_importable(result_file):
+def test_predictor_works_with_jax_not_importable(case_file):
     p = run_without_jax(
         """
         import numpy as np
@@ -115,13 +115,13 @@ def test_predictor_works_with_jax_not_importable(result_file):
             missing = str(e)
         print(json.dumps({"out": out, "heavy": heavy, "missing": missing}))
         """,
-        str(result_file), json.dumps([a.tolist() for a in PAPER_POINTS]),
+        str(case_file), json.dumps([a.tolist() for a in PAPER_POINTS]),
     )  # fmt: skip
     assert p.returncode == 0, p.stderr
     doc = json.loads(p.stdout)
     assert doc["heavy"] == []
     assert "needs JAX" in doc["missing"]
-    pred = Predictor.from_result(result_file)
+    pred = Predictor.from_result(case_file)
     for stage in (1, 2):
         want = pred.hand_command(*PAPER_POINTS, stage=stage)
         np.testing.assert_array_equal(doc["out"][str(stage)], want)
@@ -280,8 +280,8 @@ def _mutations(doc: dict) -> list[tuple[str, callable, str]]:
     ]  # fmt: skip
 
 
-def test_bad_frames_give_one_line_naming_file_and_field(tmp_path, result_file):
-    doc = json.loads(result_file.read_text())
+def test_bad_frames_give_one_line_naming_file_and_field(tmp_path, case_file):
+    doc = json.loads(case_file.read_text())
     for field, mutate, words in _mutations(doc):
         d = json.loads(json.dumps(doc))
         mutate(d)
@@ -294,8 +294,8 @@ def test_bad_frames_give_one_line_naming_file_and_field(tmp_path, result_file):
         assert words in msg and "\n" not in msg, msg
 
 
-def test_bad_files_give_one_line_naming_the_file(tmp_path, result_file):
-    doc = json.loads(result_file.read_text())
+def test_bad_files_give_one_line_naming_the_file(tmp_path, case_file):
+    doc = json.loads(case_file.read_text())
     old = dict(doc)
     del old["frames"]
     cases_ = {
@@ -320,24 +320,24 @@ def test_bad_files_give_one_line_naming_the_file(tmp_path, result_file):
         Predictor.from_result(big)
 
 
-def test_cli_predict_uses_the_frames_and_reads_older_results(tmp_path, result_file, capsys):
+def test_cli_predict_uses_the_frames_and_reads_older_results(tmp_path, case_file, capsys):
     csv = tmp_path / "points.csv"
     csv.write_text("u,v,depth,hand_angle\n" + "".join(
         f"{u},{v},{d},{a}\n" for (u, v), d, a in zip(*PAPER_POINTS, strict=True)))  # fmt: skip
-    assert main(["predict", str(result_file), str(csv)]) == 0
+    assert main(["predict", str(case_file), str(csv)]) == 0
     with_frames = capsys.readouterr().out
-    want = Predictor.from_result(result_file).hand_command(*PAPER_POINTS)
+    want = Predictor.from_result(case_file).hand_command(*PAPER_POINTS)
     rows = [line.split(",")[-2:] for line in with_frames.strip().splitlines()[1:]]
     np.testing.assert_allclose(np.array(rows, dtype=float), want, atol=1e-6)
     # an older result, without frames: the JAX side computes them from the parameters
-    doc = json.loads(result_file.read_text())
+    doc = json.loads(case_file.read_text())
     del doc["frames"]
     old = tmp_path / "old.json"
     old.write_text(json.dumps(doc))
     assert main(["predict", str(old), str(csv)]) == 0
     assert capsys.readouterr().out == with_frames
     # frames that disagree with the parameters: refused, not silently one or the other
-    doc = json.loads(result_file.read_text())
+    doc = json.loads(case_file.read_text())
     doc["frames"]["pen_tip"]["t_hand_pen"]["mm"][0] += 0.5
     edited = tmp_path / "edited.json"
     edited.write_text(json.dumps(doc))
@@ -349,7 +349,7 @@ def test_cli_predict_uses_the_frames_and_reads_older_results(tmp_path, result_fi
         load_frames(edited)
 
 
-def test_cli_predict_runs_without_jax_on_a_result_as_written(tmp_path, result_file):
+def test_cli_predict_runs_without_jax_on_a_result_as_written(tmp_path, case_file):
     """The CLI's predict reads a result file as calibrate wrote it with NumPy alone (JAX,
     OpenCV, matplotlib and jaxtyping not even importable), and gives the JAX path's numbers."""
     csv = tmp_path / "points.csv"
@@ -362,23 +362,23 @@ def test_cli_predict_runs_without_jax_on_a_result_as_written(tmp_path, result_fi
         print(json.dumps({"code": code, "heavy": heavy}), file=sys.stderr)
         """
     for stage in (1, 2):
-        p = run_without_jax(code, "predict", str(result_file), str(csv), "--stage", str(stage))
+        p = run_without_jax(code, "predict", str(case_file), str(csv), "--stage", str(stage))
         assert p.returncode == 0, p.stderr
         assert json.loads(p.stderr.splitlines()[-1]) == {"code": 0, "heavy": []}
         rows = [line.split(",")[-2:] for line in p.stdout.strip().splitlines()[1:]]
-        checked = Predictor.from_frames(load_frames(result_file))  # JAX's check of the frames
+        checked = Predictor.from_frames(load_frames(case_file))  # JAX's check of the frames
         want = checked.hand_command(*PAPER_POINTS, stage=stage)
         np.testing.assert_allclose(np.array(rows, dtype=float), want, rtol=0, atol=1e-6)  # µm
 
 
-def test_only_a_file_as_written_skips_the_check_of_its_frames(tmp_path, result_file):
+def test_only_a_file_as_written_skips_the_check_of_its_frames(tmp_path, case_file):
     """``stored_frames`` trusts the frames while the content digest matches (indentation does
     not matter); any edit, of the frames or of anything else, sends the file to the check."""
     from handeye_jax.robot import stored_frames
 
-    doc = json.loads(result_file.read_text())
+    doc = json.loads(case_file.read_text())
     assert re.fullmatch(r"[0-9a-f]{64}", doc["content_sha256"])
-    assert stored_frames(result_file) is not None
+    assert stored_frames(case_file) is not None
     variants = {"reindented": (lambda d: None, True),
                 "frames": (lambda d: d["frames"]["pen_tip"]["t_hand_pen"]["mm"].__setitem__(
                     0, d["frames"]["pen_tip"]["t_hand_pen"]["mm"][0] + 1e-6), False),
@@ -387,7 +387,7 @@ def test_only_a_file_as_written_skips_the_check_of_its_frames(tmp_path, result_f
                 "digest": (lambda d: d.__setitem__("content_sha256", "0" * 64), False),
                 "no digest": (lambda d: d.pop("content_sha256"), False)}  # fmt: skip
     for name, (edit, trusted) in variants.items():
-        d = json.loads(result_file.read_text())
+        d = json.loads(case_file.read_text())
         edit(d)
         path = tmp_path / f"{name}.json"
         path.write_text(json.dumps(d, indent=4))
@@ -413,7 +413,7 @@ class _Robot:
         self.moves.append((np.asarray(position_mm, dtype=float), float(hand_angle_deg)))
 
 
-def test_the_readme_pick_loop_touches_what_the_predictor_says(result_file):
+def test_the_readme_pick_loop_touches_what_the_predictor_says(case_file):
     """The README's "Use it on the robot" examples run as written, the pick loop with a fake
     robot and camera: it captures from the calibration's pose and goes to each command."""
     readme = (ROOT / "README.md").read_text()
@@ -423,7 +423,7 @@ def test_the_readme_pick_loop_touches_what_the_predictor_says(result_file):
     import handeye_jax as hj
 
     ns = {"hj": hj}
-    code = "\n".join(blocks).replace('"paper.result.json"', repr(str(result_file)))
+    code = "\n".join(blocks).replace('"paper.result.json"', repr(str(case_file)))
     exec(compile(code, "README.md", "exec"), ns)
     assert ns["xy_mm"].shape == (1, 2)
     uv, depth, angle = PAPER_POINTS

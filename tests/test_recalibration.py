@@ -162,6 +162,7 @@ def _touching_mm(result, folder: Path) -> tuple[float, float]:
     return rows[0].mean_mm, rows[1].mean_mm
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fix", [False, True])
 def test_recalibrate_on_four_touches_end_to_end(rig, capsys, fix):
     out = rig / f"recal-{fix}.json"
@@ -226,6 +227,7 @@ def test_recalibrate_refuses_bad_requests_in_one_line(rig, capsys, args, needles
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_too_few_landmarks_for_a_fit_from_scratch_suggest_a_prior(rig, capsys):
     capsys.readouterr()
     assert main(["calibrate", str(rig / "new2.toml"), *FAST]) == 2
@@ -242,6 +244,7 @@ def test_too_few_landmarks_for_a_fit_from_scratch_suggest_a_prior(rig, capsys):
     one_line(capsys, "new1.toml: landmarks: stage 1 has 12 free parameters but only 11 residuals")
 
 
+@pytest.mark.slow
 def test_a_fit_with_no_residuals_to_spare_warns(rig):
     three = subset(load_dataset(rig / "new" / "dataset.toml"), (0, 2, 6))
     r = calibrate(three, Settings(**BUDGET))
@@ -253,6 +256,7 @@ def test_a_fit_with_no_residuals_to_spare_warns(rig):
 # -- priors right and wrong ------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_a_prior_wrong_by_five_sigma_is_flagged_naming_the_parameter(rig):
     """The pen changed and, unannounced, the tablet moved 5 prior sigmas along x: a
     recalibration of the pen names xt in a warning with how many sigma the data pull it; the
@@ -367,6 +371,7 @@ _HELD = _exact(np.random.default_rng(0).uniform(*_TRUE.landmark_area_px(), (12, 
                np.random.default_rng(1).uniform(0.0, 180.0, 12))  # fmt: skip
 
 
+@pytest.mark.slow
 @settings(max_examples=3, deadline=None)
 @given(st.sampled_from(HTMModel.param_names))
 def test_fixing_a_parameter_at_its_truth_recovers_the_rest(name):
@@ -389,6 +394,7 @@ def test_fixing_a_parameter_at_its_truth_recovers_the_rest(name):
 # -- a third model ---------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_a_model_defined_in_a_test_recalibrates_its_pen():
     """YawOnlyModel (tests/test_objective.py) declares its groups and nothing else: moving its
     pen in noise-free data, a refit of the pen on three touches from the old fit finds it."""

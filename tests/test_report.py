@@ -12,16 +12,14 @@ from handeye_jax import load_result
 from handeye_jax._core import REPORT_FIGURES as FIGURES
 from handeye_jax._core import REPORT_FORMATS as FORMATS
 from handeye_jax.cli import main
-from tests.test_cli import FAST, PAPER
+from tests.common import FAST, PAPER
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
-@pytest.fixture(scope="module")
-def result_file(tmp_path_factory):
-    out = tmp_path_factory.mktemp("rep") / "paper.json"
-    assert main(["calibrate", str(PAPER), "--out", str(out), *FAST]) == 0
-    return out
+@pytest.fixture
+def result_file(paper_result_file):
+    return paper_result_file
 
 
 def _check_figures(folder):

@@ -34,6 +34,7 @@ def _true_commands(truth, rig, tab_px, angles):
     return ds, ds.hand_xy_mm
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", ["htm", "dh"])
 @pytest.mark.parametrize("zero,sign", CONVENTIONS)
 def test_noise_free_data_is_recovered(model, zero, sign):
