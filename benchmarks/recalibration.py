@@ -203,6 +203,7 @@ def without_noise(result):
     precisions alone): a recalibration from it weighs the new data by the paper's mean
     lengths and its pulls estimate σ from the new residuals, as before the Gaussian data
     term."""
+
     def precision_alone(stage: str) -> StageDiagnostics:  # σ 0: "no noise stated"
         rows = tuple(map(tuple, result.posterior(stage).precision.tolist()))
         return StageDiagnostics(sigma_mm=0.0, dof=0, std={}, precision=rows, singular_values=(),
