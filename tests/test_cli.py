@@ -14,7 +14,7 @@ from handeye_jax.cli import main
 from tests.common import FAST, PAPER, ROOT
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def result_file(paper_result_file):
     return paper_result_file
 

@@ -21,7 +21,7 @@ CALIBRATE = importlib.import_module("handeye_jax.calibration")
 UNWRITABLE = ["/sys", "/proc", "FILE"]  # folders no one can write in; FILE: a regular file
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def result_file(paper_result_file):
     return paper_result_file
 

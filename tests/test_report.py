@@ -17,7 +17,7 @@ from tests.common import FAST, PAPER
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def result_file(paper_result_file):
     return paper_result_file
 

@@ -266,7 +266,8 @@ def test_first_results_load_and_draw(good_doc, tmp_path):
     p = tmp_path / "first.json"
     p.write_text(json.dumps(doc))
     r = load_result(p)
-    assert r.stage1.convergence.median_generation == tuple(range(1, len(c["best_F"]) + 1))
+    generations = len(doc["stage1"]["convergence"]["best_F"])
+    assert r.stage1.convergence.median_generation == tuple(range(1, generations + 1))
     fig_convergence(r)
 
 
