@@ -208,16 +208,13 @@ if TYPE_CHECKING:
     from .calibration._result_frames import compute_frames
     from .calibration._result_io import load_frames, load_result, save_result
     from .calibration._settings import Settings
+    from .data._convert import convert_to_v2
     from .data._dataset import Camera, Capture, Dataset
-    from .data._dataset_io import (
-        convert_to_v2,
-        dataset_to_toml,
-        load_dataset,
-        save_dataset,
-        update_dataset,
-    )
+    from .data._edit import update_dataset
     from .data._layouts import snake_grid_px
     from .data._observations import Observations
+    from .data._read import load_dataset
+    from .data._write import dataset_to_toml, save_dataset
     from .diagnostics._diagnose import diagnose
     from .diagnostics._scope import capture_scope
     from .models import (

@@ -18,17 +18,19 @@ import tomli_w
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from handeye_jax import Camera, Dataset, InputError, ParameterSpace
-from handeye_jax._core import _atomic as atomic_mod
-from handeye_jax.calibration._calibrate import check_determined
-from handeye_jax.data._dataset_io import (
-    FORMAT_V1,
+import handeye_jax._core._atomic as atomic_mod
+from handeye_jax import (
+    Camera,
+    Dataset,
+    InputError,
+    ParameterSpace,
     dataset_to_toml,
-    known_search_names,
     load_dataset,
     save_dataset,
     update_dataset,
 )
+from handeye_jax.calibration._calibrate import check_determined
+from handeye_jax.data import FORMAT_V1, known_search_names
 from handeye_jax.models import AffinePair, model_registry
 
 PAPER = Path(__file__).resolve().parent.parent / "data" / "paper2023.toml"

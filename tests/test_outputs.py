@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
+import handeye_jax._core._atomic as _atomic
 from handeye_jax import PRESETS, InputError, draw_truth, simulate, write_twin
-from handeye_jax._core import _atomic
 from handeye_jax.cli import main
 from tests.common import FAST, PAPER
 

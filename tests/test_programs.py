@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from handeye_jax._jax import _xla
+import handeye_jax._jax._xla as _xla
 from handeye_jax.optim import Box, DifferentialEvolution, LevenbergMarquardt, minimise
 
 TRACES = {"n": 0}

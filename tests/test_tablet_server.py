@@ -638,7 +638,7 @@ def test_an_unwritable_default_trials_file_is_refused_before_serving(
 def test_a_dataset_whose_folder_cannot_be_written_is_refused_before_serving(
     tmp_path, monkeypatch, capsys, no_bind
 ):
-    from handeye_jax._core import _atomic
+    import handeye_jax._core._atomic as _atomic
 
     folder = tmp_path / "rig"
     folder.mkdir()

@@ -10,15 +10,15 @@ from .._core import lazy_exports
 # What the layers above may use, by module; each loads on first use (PEP 562).
 # fmt: off
 _EXPORTS = {
+    "_convert": ("convert_path", "convert_to_v2"),
     "_dataset": ("Camera", "Capture", "check_distinct", "check_population", "Dataset"),
-    "_dataset_io": (
-        "backup_path", "check_tablet_px", "convert_path", "convert_to_v2", "dataset_from_document",
-        "dataset_to_document", "dataset_to_toml", "FORMAT_V2", "load_dataset", "save_dataset",
-        "update_dataset",
-    ),
+    "_edit": ("update_dataset",),
     "_layouts": ("snake_grid_px",),
     "_observations": ("Observations",),
     "_points": ("csv_number", "points_csv_text", "read_capture_columns", "read_points_csv"),
+    "_read": ("check_tablet_px", "dataset_from_document", "known_search_names", "load_dataset"),
+    "_tables": ("FORMAT_V1", "FORMAT_V2"),
+    "_write": ("backup_path", "dataset_to_document", "dataset_to_toml", "save_dataset"),
 }
 # fmt: on
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

@@ -3,7 +3,8 @@
 What one calibration run measured (the paper's Tables 2 and 3, or more): the landmarks drawn on
 the tablet; one or more *captures*, each a picture taken from a hand pose that sees some of the
 landmarks; and the *touches*, each the hand pose at which the pen touched a landmark. The file
-formats (``handeye-jax.dataset/1`` and ``/2``) are read and written by :mod:`._dataset_io`.
+formats (``handeye-jax.dataset/1`` and ``/2``) are read by :mod:`._read` and written by
+:mod:`._write`.
 """
 
 from __future__ import annotations
