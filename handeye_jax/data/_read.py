@@ -162,61 +162,21 @@ def _parse_v1(r: Reader, doc: dict, path: Path | None) -> Dataset:
 def _parse_v2(r: Reader, doc: dict, path: Path | None) -> Dataset:
     r.table(doc, "", _TOP_V2, ("search",))
     common = _common(r, doc, path)
-    camera = common["camera"]
     marks = _array_of_tables(r, doc, "landmarks", MAX_LANDMARKS)
     tablet = [_read_table(r, m, f"landmarks[{i}]", LANDMARK_V2)["tablet_px"]
               for i, m in enumerate(marks)]  # fmt: skip
     _distinct(r, tablet, path)
     n = len(tablet)
-    captures = []
-    seen: set[int] = set()
-    for c, cap in enumerate(_array_of_tables(r, doc, "captures", MAX_CAPTURES)):
-        where = f"captures[{c}]"
-        pose = _read_table(r, cap, where, CAPTURE_V2, ("landmarks", *_keys(CAPTURE_VIEWS)))
-        for key in ("landmarks", *_keys(CAPTURE_VIEWS)):
-            if key not in cap:
-                r.fail(join_key(where, key), "missing")
-        idx = cap["landmarks"]
-        if not isinstance(idx, list) or not all(isinstance(m, int) and not isinstance(m, bool)
-                                                for m in idx):  # fmt: skip
-            r.fail(f"{where}.landmarks", f"must be an array of landmark indices (got "
-                   f"{describe(idx)})")  # fmt: skip
-        for j, m in enumerate(idx):
-            if not 0 <= m < n:
-                r.fail(f"{where}.landmarks[{j}]", f"must be a landmark index, 0 to {n - 1} "
-                       f"(got {m})")  # fmt: skip
-            if m in idx[:j]:
-                r.fail(f"{where}.landmarks[{j}]", f"landmark {m} is listed twice in one capture")
-        k = len(idx)
-        views = {}
-        for f in CAPTURE_VIEWS:
-            rows = cap[f.key]
-            if not isinstance(rows, list) or len(rows) != k:
-                r.fail(f"{where}.{f.key}", f"must be an array of {k}, one per entry of "
-                       f"landmarks (got {describe(rows)})")  # fmt: skip
-            views[f.key] = [f.read(r, v, f"{where}.{f.key}[{j}]") for j, v in enumerate(rows)]
-        for j, uv in enumerate(views["image_px"]):
-            _check_ray(r, uv, camera, f"{where}.image_px[{j}]")
-        seen.update(idx)
-        captures.append(Capture(pose["hand_position"], pose["hand_angle"], idx,
-                                np.reshape(views["image_px"], (k, 2)), views["depth"]))  # fmt: skip
+    tables = _array_of_tables(r, doc, "captures", MAX_CAPTURES)
+    captures = [_capture_v2(r, cap, f"captures[{c}]", n, common["camera"])
+                for c, cap in enumerate(tables)]  # fmt: skip
+    seen = {int(m) for cap in captures for m in cap.landmarks}
     touches = _array_of_tables(r, doc, "touches", MAX_LANDMARKS * 10, least=0)
     rows: dict[str, list] = {"landmark": [], **{f.key: [] for f in TOUCH_V2}}
     for i, t in enumerate(touches):
-        where = f"touches[{i}]"
-        row = _read_table(r, t, where, TOUCH_V2, ("landmark",))
-        if "landmark" not in t:
-            r.fail(f"{where}.landmark", "missing")
-        m = t["landmark"]
-        if isinstance(m, bool) or not isinstance(m, int) or not 0 <= m < n:
-            r.fail(f"{where}.landmark", f"must be a landmark index, 0 to {n - 1} (got "
-                   f"{describe(m)})")  # fmt: skip
-        if m not in seen:
-            r.fail(f"{where}.landmark", f"landmark {m} is in no capture: a touch needs a "
-                   "picture of what it touched")  # fmt: skip
-        rows["landmark"].append(m)
-        for f in TOUCH_V2:
-            rows[f.key].append(row.get(f.key, math.nan))
+        row = _touch_v2(r, t, f"touches[{i}]", n, seen)
+        for key, value in row.items():
+            rows[key].append(value)
     t = len(touches)
     return Dataset(
         **common, tablet_px=tablet, captures=captures, touch_landmark=rows["landmark"],
@@ -224,6 +184,53 @@ def _parse_v2(r: Reader, doc: dict, path: Path | None) -> Dataset:
         hand_angle_deg=rows["hand_angle"],
         touch_error_px=np.reshape(rows["touch_error_px"], (t, 2)), version=2,
     )  # fmt: skip
+
+
+def _capture_v2(r: Reader, cap: Any, where: str, n: int, camera: Camera) -> Capture:
+    """One ``[[captures]]`` table of a version-2 file, of ``n`` landmarks."""
+    pose = _read_table(r, cap, where, CAPTURE_V2, ("landmarks", *_keys(CAPTURE_VIEWS)))
+    for key in ("landmarks", *_keys(CAPTURE_VIEWS)):
+        if key not in cap:
+            r.fail(join_key(where, key), "missing")
+    idx = cap["landmarks"]
+    if not isinstance(idx, list) or not all(isinstance(m, int) and not isinstance(m, bool)
+                                            for m in idx):  # fmt: skip
+        r.fail(f"{where}.landmarks", f"must be an array of landmark indices (got "
+               f"{describe(idx)})")  # fmt: skip
+    for j, m in enumerate(idx):
+        if not 0 <= m < n:
+            r.fail(f"{where}.landmarks[{j}]", f"must be a landmark index, 0 to {n - 1} "
+                   f"(got {m})")  # fmt: skip
+        if m in idx[:j]:
+            r.fail(f"{where}.landmarks[{j}]", f"landmark {m} is listed twice in one capture")
+    k = len(idx)
+    views = {}
+    for f in CAPTURE_VIEWS:
+        rows = cap[f.key]
+        if not isinstance(rows, list) or len(rows) != k:
+            r.fail(f"{where}.{f.key}", f"must be an array of {k}, one per entry of "
+                   f"landmarks (got {describe(rows)})")  # fmt: skip
+        views[f.key] = [f.read(r, v, f"{where}.{f.key}[{j}]") for j, v in enumerate(rows)]
+    for j, uv in enumerate(views["image_px"]):
+        _check_ray(r, uv, camera, f"{where}.image_px[{j}]")
+    return Capture(pose["hand_position"], pose["hand_angle"], idx,
+                   np.reshape(views["image_px"], (k, 2)), views["depth"])  # fmt: skip
+
+
+def _touch_v2(r: Reader, t: Any, where: str, n: int, seen: set[int]) -> dict[str, Any]:
+    """One ``[[touches]]`` table of a version-2 file: its landmark and fields (NaN where an
+    optional one is left out); ``seen``: the landmarks some capture sees."""
+    row = _read_table(r, t, where, TOUCH_V2, ("landmark",))
+    if "landmark" not in t:
+        r.fail(f"{where}.landmark", "missing")
+    m = t["landmark"]
+    if isinstance(m, bool) or not isinstance(m, int) or not 0 <= m < n:
+        r.fail(f"{where}.landmark", f"must be a landmark index, 0 to {n - 1} (got "
+               f"{describe(m)})")  # fmt: skip
+    if m not in seen:
+        r.fail(f"{where}.landmark", f"landmark {m} is in no capture: a touch needs a "
+               "picture of what it touched")  # fmt: skip
+    return {"landmark": m, **{f.key: row.get(f.key, math.nan) for f in TOUCH_V2}}
 
 
 def dataset_from_document(doc: Any, path: str | Path | None, where: str = "") -> Dataset:
