@@ -320,7 +320,7 @@ def main() -> None:
     ap.add_argument("--starts", type=int, default=256, help="multi-start count M")
     ap.add_argument("--jac", choices=("bwd", "fwd"), default="bwd",
                     help="Jacobian mode of multi-start LM")  # fmt: skip
-    ap.add_argument("--out-dir", type=Path, default=Path(__file__).resolve().parent)
+    ap.add_argument("--out-dir", type=Path, default=Path(__file__).resolve().parent / "results")
     ap.add_argument("--quick", action="store_true", help="N 40, G 60, k 5, M 8, one seed")
     args = ap.parse_args()
     if args.quick:

@@ -53,7 +53,7 @@ from handeye_jax import (  # noqa: E402
     Stage1Objective,  # noqa: E402
     load_dataset,
 )
-from handeye_jax._jax._xla import loop_compiler_options  # noqa: E402
+from handeye_jax._jax import loop_compiler_options  # noqa: E402
 from handeye_jax.optim import _de as de  # noqa: E402
 from handeye_jax.optim import _rng  # noqa: E402
 

@@ -43,7 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from handeye_jax import HTMModel, Stage1Objective, load_dataset
-from handeye_jax._jax._xla import loop_compiler_options
+from handeye_jax._jax import loop_compiler_options
 from handeye_jax.optim import Box, DifferentialEvolution, minimise
 from handeye_jax.optim import _de as de
 

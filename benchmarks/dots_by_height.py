@@ -20,7 +20,7 @@ import dataclasses
 import numpy as np
 
 from handeye_jax import PRESETS, draw_truth
-from handeye_jax.twin._render import render_capture
+from handeye_jax.twin import render_capture
 from handeye_jax.vision import find_blobs
 
 

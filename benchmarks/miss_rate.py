@@ -58,7 +58,7 @@ from handeye_jax.optim import (
     minimise_starts,
 )
 
-CACHE = Path(__file__).resolve().parent / "miss_rate_reference.json"
+CACHE = Path(__file__).resolve().parent / "results" / "miss_rate_reference.json"
 REFERENCE = ("DE N=5000 G=3000 tol=1e-6 + LM; LM from 256 Latin-hypercube starts, best 8 "
              "polished")  # fmt: skip
 # (settings, run the diagnostics step after calibrate).

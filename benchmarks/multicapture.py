@@ -16,7 +16,7 @@
    calibrated from its first capture alone (the paper's acquisition: no hand heights), and
    the oracle (true parameters, same measurements). Stage 1 and stage 2 side by side.
 3. A figure: held-out x-y error against the capture's height above the first, for one
-   capture and for three (``benchmarks/multicapture.png``).
+   capture and for three (``benchmarks/results/multicapture.png``).
 
 Prints Markdown and writes it to ``benchmarks/RESULTS.md`` under its heading.
 """
@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from handeye_jax import (
+    PRESETS,
     Heldout,
     Rig,
     Settings,
@@ -40,18 +41,18 @@ from handeye_jax import (
     draw_truth,
     evaluate_points,
     get_model,
+    simulate,
     snake_grid_px,
     synthesize_captures,
     vectorise_small_loops,
 )
-from handeye_jax.twin._simulate import PRESETS, heldout_targets, simulate
-from handeye_jax.twin._synthetic import seen_from, true_command
+from handeye_jax.twin import heldout_targets, seen_from, true_command
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from twin_study import write_section  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "RESULTS.md"
-FIGURE = Path(__file__).resolve().parent / "multicapture.png"
+FIGURE = Path(__file__).resolve().parent / "results" / "multicapture.png"
 HEADING = "## Several captures: held out from any capture pose (issue 18)"
 #: Capture rises of the figure's held-out targets, mm above the first capture.
 FIGURE_RISES_MM = (-40.0, 0.0, 30.0, 60.0, 90.0, 120.0)

@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from handeye_jax import snake_grid_px
-from handeye_jax.vision._detect import match_blobs
+from handeye_jax.vision import match_blobs
 
 
 def main() -> None:

@@ -76,7 +76,7 @@ from handeye_jax import (
     simulate,
     vectorise_small_loops,
 )
-from handeye_jax.calibration._calibrate import POLISH, PULL_FLAG
+from handeye_jax.calibration import POLISH, PULL_FLAG
 from handeye_jax.optim import Box, minimise
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -235,7 +235,7 @@ def main(argv=None) -> None:
                     help="calibrate without the diagnostics")  # fmt: skip
     ap.add_argument("--no-warm", action="store_true", help="only the first calibration")
     ap.add_argument("--before", type=Path, help="scaling_calibration.json of another checkout")
-    ap.add_argument("--out-dir", type=Path, default=Path(__file__).resolve().parent)
+    ap.add_argument("--out-dir", type=Path, default=Path(__file__).resolve().parent / "results")
     ap.add_argument(
         "--quick",
         action="store_true",

@@ -16,7 +16,7 @@ from handeye_jax import snake_grid_px
 from handeye_jax.cli import main
 from handeye_jax.twin import PRESETS, encode_png, simulate
 from handeye_jax.twin._render import DepthSensing, Imaging, render_capture, render_depth
-from handeye_jax.vision._detect import match_blobs
+from handeye_jax.vision import match_blobs
 
 SEED = 7
 RISE_MM = 60.0  # the second capture: 60 mm above and 15 mm beside the first

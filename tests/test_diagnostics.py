@@ -30,6 +30,7 @@ from handeye_jax import (
     diagnose,
     draw_truth,
     errors_of,
+    fit_correction,
     fitness,
     format_summary,
     get_loss,
@@ -43,7 +44,7 @@ from handeye_jax import (
 )
 from handeye_jax._core import Stages, to_document
 from handeye_jax.calibration import CONVENTIONS, Convention, FittedStage, LossInfo, Population
-from handeye_jax.calibration._calibrate import RESTART_LANDMARKS, fit_correction
+from handeye_jax.calibration._calibrate import RESTART_LANDMARKS
 from handeye_jax.diagnostics._diagnostics import OUTLIER_FACTOR, population_modes
 from handeye_jax.diagnostics._refits import EXACT_LOO_LANDMARKS, refits
 from handeye_jax.models import AffinePair

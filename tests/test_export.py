@@ -22,8 +22,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from handeye_jax import Frames, Predictor, draw_truth, save_result
-from handeye_jax.calibration._result_frames import UNDETERMINED, compute_frames
+from handeye_jax import Frames, Predictor, compute_frames, draw_truth, save_result
+from handeye_jax.calibration._result_frames import UNDETERMINED
 from handeye_jax.cli import main
 from handeye_jax.robot import FORMATS, Affine, export_text, zero_filled
 

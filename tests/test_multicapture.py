@@ -25,7 +25,7 @@ from handeye_jax import (
     synthesize_dataset,
 )
 from handeye_jax.data import read_capture_columns, read_points_csv
-from handeye_jax.twin._synthetic import seen_from, true_command
+from handeye_jax.twin import seen_from, true_command
 
 TRUTH = {
     "htm": dict(xc=-3.0, yc=35.0, alpha_c=-1.5, beta_c=2.0, gamma_c=4.0, xt=150.0, yt=40.0,

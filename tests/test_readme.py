@@ -90,3 +90,28 @@ def test_one_stage_to_deploy_and_predict_and_the_page_default_to_it():
 def test_the_suite_time_is_stated_with_its_conditions():
     m = re.search(r"The suite took (.*?)\.\n", SETUP, flags=re.S)
     assert m and re.search(r"\d+(\.\d+)? min", m.group(1)) and "core" in m.group(1)
+
+
+def _first_paragraph(path: Path) -> str:
+    import ast
+
+    doc = ast.get_docstring(ast.parse(path.read_text()))
+    text = " ".join(doc.split("\n\n")[0].split())
+    text = re.sub(r":\w+:`~?([^`]+)`", r"`\1`", text)  # Sphinx roles as Markdown code
+    return text.replace("``", "`")
+
+
+def test_the_layout_says_what_each_folder_says_of_itself():
+    """The README's "Layout": one paragraph per layer, the first of its own docstring, in the
+    layers' order."""
+    from tests.test_layers import LAYERS
+
+    text = (ROOT / "README.md").read_text()
+    block = text.split("<!-- folders:")[1].split("<!-- end folders -->")[0]
+    want = []
+    for layer in LAYERS[:-1]:  # the root's own __init__ is the API, not a folder
+        name = f"{layer}.py" if layer == "geometry" else f"{layer}/"
+        path = ROOT / "handeye_jax" / (name if layer == "geometry" else f"{layer}/__init__.py")
+        want.append(f"**`{name}`** {_first_paragraph(path)}")
+    got = [" ".join(p.split()) for p in block.split("-->", 1)[1].strip().split("\n\n")]
+    assert got == want

@@ -14,20 +14,25 @@ from hypothesis import strategies as st
 from handeye_jax import (
     PRESETS,
     Dataset,
+    Heldout,
     HTMModel,
     InputError,
     Settings,
     Stage1Objective,
+    draw_truth,
+    evaluate,
     load_dataset,
+    load_heldout,
     load_result,
+    load_truth,
     save_dataset,
     simulate,
     synthesize_dataset,
     write_twin,
 )
 from handeye_jax.cli import main
-from handeye_jax.twin._evaluate import Heldout, evaluate, landing_tablet_px, load_heldout
-from handeye_jax.twin._truth import RANGES, draw_truth, load_truth
+from handeye_jax.twin._evaluate import landing_tablet_px
+from handeye_jax.twin._truth import RANGES
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = ["--population", "200", "--generations", "400", "--quiet"]

@@ -9,7 +9,10 @@ from .._core import lazy_exports
 # fmt: off
 _EXPORTS = {
     "_x64": ("float64", "in_float64"),
-    "_xla": ("fast_compile", "hot_loop", "store_programs", "vectorise_small_loops"),
+    "_xla": (
+        "fast_compile", "hot_loop", "loop_compiler_options", "store_programs",
+        "vectorise_small_loops",
+    ),
 }
 # fmt: on
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

@@ -13,8 +13,8 @@ _EXPORTS = {
     "_calibrate": (
         "all_warnings", "bound_hits", "calibrate", "convention_index", "CONVENTIONS", "fit",
         "fit_correction", "fit_stage", "fitted_stages", "FittedStage", "full_plan", "Plan",
-        "Population", "recalibrate", "recalibration_plan", "REFIT_STARTS", "StageFit",
-        "uniform_starts",
+        "POLISH", "Population", "PULL_FLAG", "recalibrate", "recalibration_plan", "REFIT_STARTS",
+        "StageFit", "uniform_starts",
     ),
     "_payloads": (
         "Convention", "ConventionCheck", "ConventionFit", "Convergence", "DESummary", "Diagnostics",

@@ -1,6 +1,8 @@
-"""Pluggable models. A new model is a final :class:`AbstractModel` subclass with a unique
-``name``, its parameters' units, ranges and groups: defined anywhere (a private module here,
-or the user's own code), it is found by :func:`model_registry` once its class exists."""
+"""The transform chain: pluggable models of the camera mount, tablet pose and pen (HTM, DH),
+the stage-2 correction, the known :class:`Rig` they run on, and the hand command they give
+(eqs. 8 and 25). A new model is a final :class:`AbstractModel` subclass with a unique
+``name``, its parameters' units, ranges and groups, found by :func:`model_registry` once its
+class exists (in a private module here or in the user's own code)."""
 
 from __future__ import annotations
 

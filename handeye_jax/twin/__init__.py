@@ -13,11 +13,12 @@ _EXPORTS = {
         "evaluate", "evaluate_points", "evaluate_twin", "format_evaluation", "Heldout",
         "load_heldout", "PointErrors", "TouchingError",
     ),
+    "_render": ("render_capture",),
     "_simulate": (
-        "check_twin_folder", "encode_png", "NoisePreset", "PRESETS", "simulate",
+        "check_twin_folder", "encode_png", "heldout_targets", "NoisePreset", "PRESETS", "simulate",
         "simulate_captures", "Twin", "write_twin",
     ),
-    "_synthetic": ("synthesize_captures", "synthesize_dataset"),
+    "_synthetic": ("seen_from", "synthesize_captures", "synthesize_dataset", "true_command"),
     "_truth": ("change_truth", "draw_truth", "load_truth", "TwinTruth"),
 }
 # fmt: on

@@ -11,7 +11,8 @@ _EXPORTS = {
     "_captures": ("plan_captures",),
     "_detect": (
         "BlobCountError", "depth_at", "detect_landmarks", "Detection", "DetectSettings",
-        "fill_capture", "fill_dataset", "find_blobs", "order_blobs", "overlay_image", "read_image",
+        "fill_capture", "fill_dataset", "find_blobs", "match_blobs", "order_blobs", "overlay_image",
+        "read_image",
     ),
 }
 # fmt: on
