@@ -63,26 +63,8 @@ def capture_scope(result: CalibrationResult) -> Scope | None:
     heights = [float(c.hand_position_mm[2]) for c in caps]
     angles = [float(c.hand_angle_deg) for c in caps]
     depth = np.concatenate([c.depth_mm for c in caps])
-    # The first capture's views of touched landmarks, with the touch's hand angle.
-    angle_of = {int(m): float(a) for m, a in zip(data.touch_landmark, data.hand_angle_deg,
-                                                 strict=True)}  # fmt: skip
-    seen = [k for k, m in enumerate(first.landmarks) if int(m) in angle_of]
-    uv = first.image_px[seen]
-    d = first.depth_mm[seen]
-    theta = np.array([angle_of[int(first.landmarks[k])] for k in seen])
-    rig = result.rig
-    c = np.array([float(rig.cx_px), float(rig.cy_px)])
-    x0 = jnp.asarray([float(getattr(result.model, n)) for n in free])
-    views = (jnp.asarray(theta), jnp.asarray([first.hand_angle_deg]))
-    expected = {}
-    for rise in SCOPE_RISES_MM:
-        d2 = d + rise  # the hand points down: a capture `rise` higher sees them that much deeper
-        uv2 = c + (uv - c) * (d / d2)[:, None]
-        position = first.hand_position_mm + np.array([0.0, 0.0, rise])
-        seen_from = (jnp.asarray(uv2), jnp.asarray(d2), jnp.asarray(position)[None])
-        J = np.asarray(_command_jacobian(put(result.model, free, x0), free, rig, seen_from, views))
-        var = np.einsum("ij,jk,ik->i", J, cov, J).reshape(-1, 2).sum(axis=1)
-        expected[f"{rise:+g}"] = float(np.sqrt(np.mean(np.maximum(var, 0.0))))
+    model = put(result.model, free, jnp.asarray([float(getattr(result.model, n)) for n in free]))
+    expected = _expected_errors(model, free, result.rig, data, cov)
     trade = camera_tradeoffs(diag.weak_directions, model_cls.groups["camera"], units)
     return Scope(
         captures=len(caps),
@@ -93,6 +75,31 @@ def capture_scope(result: CalibrationResult) -> Scope | None:
         camera_tradeoffs=tuple(w.note for w in trade),
         expected_error_mm=expected,
     )
+
+
+def _expected_errors(model, free: tuple[str, ...], rig, data, cov: np.ndarray) -> dict[str, float]:
+    """The expected hand-command error (1σ, RMS over the first capture's views of touched
+    landmarks, x-y), mm, from the first capture pose moved by each of :data:`SCOPE_RISES_MM`,
+    for the stage-1 covariance ``cov`` of ``free``."""
+    first = data.captures[0]
+    # The first capture's views of touched landmarks, with the touch's hand angle.
+    angle_of = {int(m): float(a) for m, a in zip(data.touch_landmark, data.hand_angle_deg,
+                                                 strict=True)}  # fmt: skip
+    seen = [k for k, m in enumerate(first.landmarks) if int(m) in angle_of]
+    uv, d = first.image_px[seen], first.depth_mm[seen]
+    theta = np.array([angle_of[int(first.landmarks[k])] for k in seen])
+    c = np.array([float(rig.cx_px), float(rig.cy_px)])
+    views = (jnp.asarray(theta), jnp.asarray([first.hand_angle_deg]))
+    expected = {}
+    for rise in SCOPE_RISES_MM:
+        d2 = d + rise  # the hand points down: a capture `rise` higher sees them that much deeper
+        uv2 = c + (uv - c) * (d / d2)[:, None]
+        position = first.hand_position_mm + np.array([0.0, 0.0, rise])
+        seen_from = (jnp.asarray(uv2), jnp.asarray(d2), jnp.asarray(position)[None])
+        J = np.asarray(_command_jacobian(model, free, rig, seen_from, views))
+        var = np.einsum("ij,jk,ik->i", J, cov, J).reshape(-1, 2).sum(axis=1)
+        expected[f"{rise:+g}"] = float(np.sqrt(np.mean(np.maximum(var, 0.0))))
+    return expected
 
 
 @fast_compile

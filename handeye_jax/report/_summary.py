@@ -29,54 +29,15 @@ def _value(v: float, std: float | None, unit: str, has_std: bool) -> str:
 
 
 def _stage_lines(
-    title: str, s: StageResult, names, units, early_stop: bool, std: dict | None = None
+    title: str, s: StageResult, cls, early_stop: bool, std: dict | None = None
 ) -> list[str]:
+    """A stage's fit: F and its terms, DE, the LM polish, the parameters and the residuals."""
     head = f"{title}: F = {s.F:.6f} mm  (f1 = {s.f1:.6f} mm, f2 = {s.f2:.6f} mm)"
-    # With a prior, DE and LM minimise the MAP objective (data term + prior term), not F.
-    minimised = "F" if s.prior_F is None else "MAP objective"
     if s.prior_F is not None:
         head += f"; prior term of the MAP objective {s.prior_F:.6f} mm"
-    lines = [head]
-    pol = s.polish
-    de = s.de
-    lm = "off"
-    if pol.ran:
-        verdict = "accepted" if pol.accepted else "rejected (did not lower F)"
-        lm = f"{verdict}, {pol.steps or 0} steps, {minimised} {pol.F_before_mm:.6f} -> " + (
-            f"{pol.F_after_mm:.6f} mm"
-        )
-    if de.generations is None:
-        lines.append("  DE: none (nothing to search: the fit starts from the previous result)")
-    else:
-        if de.converged:
-            stop = "stopped: population converged"
-        elif early_stop:
-            stop = "stopped: generation limit reached before the population converged"
-        else:
-            stop = "all generations run (early stop off)"
-        searched = de.searched
-        over = f" over {', '.join(searched)}" if searched and len(searched) < len(names) else ""
-        lines.append(
-            f"  DE{over}: {de.generations} generations, {de.evaluations:,} evaluations, "
-            f"{minimised} = {de.F_mm:.6f} mm; {stop}"
-        )
-    lines.append(f"  LM polish: {lm}")
-    found = found_by_line(pol)
-    if found:
-        lines.append(found)
+    lines = [head, *_search_lines(s, len(cls.param_names), early_stop)]
     lines.append("  parameters" + (" (± one standard deviation):" if std else ":"))
-    prior_of = {p.param: p for p in (s.prior.pulls if s.prior is not None else ())}
-    for name, unit in zip(names, units, strict=True):
-        status = s.status.get(name, "free")
-        shown = std is not None and status != "fixed"
-        value = _value(s.params[name], (std or {}).get(name), unit, shown)
-        if status == "fixed":
-            value += f"  fixed ({s.fixed_source.get(name, 'given')})"
-        elif status == "prior" and name in prior_of:
-            p = prior_of[name]
-            sig = "" if p.sigma is None else f" ± {p.sigma:.3g}"
-            value += f"  prior {p.mean:.5g}{sig}, pull {p.pull:+.1f} sigma"
-        lines.append(f"    {name:<9} {value}".rstrip())
+    lines += _parameter_lines(s, cls, std)
     if s.prior is not None:
         scale = s.prior.data_scale_mm
         line = f"  prior: from {s.prior.source}; data scale s = {scale:.3g} mm"
@@ -88,6 +49,55 @@ def _stage_lines(
     lines.append("    m   |image - tablet|   |hand - target|")
     for r in s.residuals_mm:
         lines.append(f"    {r.m:<3} {r.image_vs_tablet_mm:>16.4f} {r.hand_mm:>17.4f}")
+    return lines
+
+
+def _search_lines(s: StageResult, n_params: int, early_stop: bool) -> list[str]:
+    """What DE and the LM polish did, and which search found the optimum."""
+    # With a prior, DE and LM minimise the MAP objective (data term + prior term), not F.
+    minimised = "F" if s.prior_F is None else "MAP objective"
+    pol, de = s.polish, s.de
+    lm = "off"
+    if pol.ran:
+        verdict = "accepted" if pol.accepted else "rejected (did not lower F)"
+        lm = f"{verdict}, {pol.steps or 0} steps, {minimised} {pol.F_before_mm:.6f} -> " + (
+            f"{pol.F_after_mm:.6f} mm"
+        )
+    if de.generations is None:
+        lines = ["  DE: none (nothing to search: the fit starts from the previous result)"]
+    else:
+        if de.converged:
+            stop = "stopped: population converged"
+        elif early_stop:
+            stop = "stopped: generation limit reached before the population converged"
+        else:
+            stop = "all generations run (early stop off)"
+        searched = de.searched
+        over = f" over {', '.join(searched)}" if searched and len(searched) < n_params else ""
+        lines = [
+            f"  DE{over}: {de.generations} generations, {de.evaluations:,} evaluations, "
+            f"{minimised} = {de.F_mm:.6f} mm; {stop}"
+        ]
+    lines.append(f"  LM polish: {lm}")
+    found = found_by_line(pol)
+    return [*lines, found] if found else lines
+
+
+def _parameter_lines(s: StageResult, cls, std: dict | None) -> list[str]:
+    """Each parameter: value ± σ in its unit, or where a fixed one came from, or its prior."""
+    prior_of = {p.param: p for p in (s.prior.pulls if s.prior is not None else ())}
+    lines = []
+    for name, unit in zip(cls.param_names, cls.param_units, strict=True):
+        status = s.status.get(name, "free")
+        shown = std is not None and status != "fixed"
+        value = _value(s.params[name], (std or {}).get(name), unit, shown)
+        if status == "fixed":
+            value += f"  fixed ({s.fixed_source.get(name, 'given')})"
+        elif status == "prior" and name in prior_of:
+            p = prior_of[name]
+            sig = "" if p.sigma is None else f" ± {p.sigma:.3g}"
+            value += f"  prior {p.mean:.5g}{sig}, pull {p.pull:+.1f} sigma"
+        lines.append(f"    {name:<9} {value}".rstrip())
     return lines
 
 
@@ -113,7 +123,25 @@ def found_by_line(polish: PolishSummary) -> str:
 
 def format_summary(result: CalibrationResult) -> str:
     """A few dozen lines: parameters, f1 / f2 / F per stage, residuals, twin, warnings, time."""
-    model_cls = type(result.model)
+    lines = _head(result)
+    lines += _stage1_block(result)
+    lines.append("")
+    lines += _stage2_block(result)
+    lines += [f"warning: {w}" for w in result.warnings]
+    t = result.timings_s
+    lines.append("")
+    lines.append(
+        f"time: {t['total']:.2f} s (stage 1: DE {t['stage1_de']:.2f} s, LM "
+        f"{t['stage1_polish']:.2f} s; stage 2: DE {t['stage2_de']:.2f} s, LM "
+        f"{t['stage2_polish']:.2f} s"
+        + (f"; diagnostics {t['diagnostics']:.2f} s" if "diagnostics" in t else "")
+        + "; includes JIT compilation)"
+    )
+    return "\n".join(lines)
+
+
+def _head(result: CalibrationResult) -> list[str]:
+    """The settings' line, and where a recalibration started."""
     settings = result.settings
     lines = [
         f"handeye-jax calibration of {result.dataset_name!r}: model {result.model_name}, "
@@ -127,15 +155,15 @@ def format_summary(result: CalibrationResult) -> str:
                   else "given its posterior as their prior")  # fmt: skip
         lines.append(f"recalibrated from {recal.previous}: refitted "
                      f"{', '.join(recal.refit)}; the other parameters {others}")  # fmt: skip
-    lines.append("")
-    early_stop = settings.early_stop
+    return [*lines, ""]
+
+
+def _stage1_block(result: CalibrationResult) -> list[str]:
+    """Stage 1: its fit, the sign twin, its diagnostics, the scope and the heights."""
+    model_cls = type(result.model)
     diag = result.diagnostics
-    rows = result.data is not None and not result.data.is_simple()
-    std1 = diag.stage1.std if diag is not None and diag.stage1 is not None else None
-    std2 = diag.stage2.std if diag is not None and diag.stage2 is not None else None
-    lines += _stage_lines(
-        "stage 1", result.stage1, model_cls.param_names, model_cls.param_units, early_stop, std1
-    )
+    std = diag.stage1.std if diag is not None and diag.stage1 is not None else None
+    lines = _stage_lines("stage 1", result.stage1, model_cls, result.settings.early_stop, std)
     twin = result.sign_twin
     if twin is not None:
         found = ", ".join(f"{k} = {v:+.4f}" for k, v in twin.found.items())
@@ -144,38 +172,33 @@ def format_summary(result: CalibrationResult) -> str:
             f"F = {twin.F_flipped_mm:.6f} mm"
         )
     if diag is not None:
-        lines += diagnostic_lines(
-            diag, "stage1", dict(zip(model_cls.param_names, model_cls.param_units, strict=True)),
-            rows,
-        )  # fmt: skip
-    lines += scope_lines(None if diag is None else diag.scope, result.heights)
-    lines.append("")
-    lines += _stage_lines(
-        "stage 2", result.stage2, AffinePair.param_names, AffinePair.param_units, early_stop, std2
-    )
+        lines += diagnostic_lines(diag, "stage1", _units(model_cls), _by_rows(result))
+    return lines + scope_lines(None if diag is None else diag.scope, result.heights)
+
+
+def _stage2_block(result: CalibrationResult) -> list[str]:
+    """Stage 2: its fit, the centres of rotation, its diagnostics and the convention check."""
+    diag = result.diagnostics
+    std = diag.stage2.std if diag is not None and diag.stage2 is not None else None
+    lines = _stage_lines("stage 2", result.stage2, AffinePair, result.settings.early_stop, std)
     c1, c2 = result.centres_mm
     lines.append(
         f"  centres of rotation (landmark {result.centre_index}): A1 ({c1[0]:.3f}, {c1[1]:.3f}) mm,"
         f" A2 ({c2[0]:.3f}, {c2[1]:.3f}) mm"
     )
     if diag is not None:
-        lines += diagnostic_lines(
-            diag, "stage2", dict(zip(AffinePair.param_names, AffinePair.param_units, strict=True)),
-            rows,
-        )  # fmt: skip
+        lines += diagnostic_lines(diag, "stage2", _units(AffinePair), _by_rows(result))
         lines += convention_lines(diag.convention)
-    for w in result.warnings:
-        lines.append(f"warning: {w}")
-    t = result.timings_s
-    lines.append("")
-    lines.append(
-        f"time: {t['total']:.2f} s (stage 1: DE {t['stage1_de']:.2f} s, LM "
-        f"{t['stage1_polish']:.2f} s; stage 2: DE {t['stage2_de']:.2f} s, LM "
-        f"{t['stage2_polish']:.2f} s"
-        + (f"; diagnostics {t['diagnostics']:.2f} s" if "diagnostics" in t else "")
-        + "; includes JIT compilation)"
-    )
-    return "\n".join(lines)
+    return lines
+
+
+def _units(cls) -> dict[str, str]:
+    return dict(zip(cls.param_names, cls.param_units, strict=True))
+
+
+def _by_rows(result: CalibrationResult) -> bool:
+    """The data came from several captures: each m is a row (a view and its touch)."""
+    return result.data is not None and not result.data.is_simple()
 
 
 def _modes_line(label: str, modes: Sequence[Mode], units: dict[str, str]) -> list[str]:

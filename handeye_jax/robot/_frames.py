@@ -276,25 +276,7 @@ class Frames:
         for k, unit in UNITS.items():
             if units[k] != unit:
                 r.fail(at(f"units.{k}"), f"must be {unit!r} (got {units[k]!r:.40})")
-        listed = r.table_list(d["undetermined"], at("undetermined"))
-        undetermined = []
-        for i, e in enumerate(listed):
-            e = r.table(e, at(f"undetermined[{i}]"), ("component", "reason"))
-            undetermined.append(e["component"])
-        T_hc = r.table(d["T_hand_camera"], at("T_hand_camera"), ("R", "t"), ("maps",))
-        T_bt = r.table(d["T_base_tablet"], at("T_base_tablet"), ("R", "t"), ("maps",))
-        pen = r.table(d["pen_tip"], at("pen_tip"), ("t_hand_pen",), ("maps",))
-        translations = {
-            "t_hand_camera_mm": (T_hc["t"], at("T_hand_camera.t")),
-            "t_base_tablet_mm": (T_bt["t"], at("T_base_tablet.t")),
-            "t_hand_pen_mm": (pen["t_hand_pen"], at("pen_tip.t_hand_pen")),
-        }
-        values = {}
-        for name, (t, w) in translations.items():
-            values[name] = r.translation(t, w, name, undetermined)
-        extra = sorted(set(undetermined) - {f"{t}.{a}" for t in TRANSLATIONS for a in AXIS_NAMES})
-        if extra:
-            r.fail(at("undetermined"), f"unknown component {extra[0]!r:.60}")
+        undetermined, T_hc, T_bt, values = _read_translations(r, d, at)
         cam = r.table(d["camera_px"], at("camera_px"), ("fx", "fy", "cx", "cy"))
         for k in ("fx", "fy"):
             r.number(cam[k], at(f"camera_px.{k}"), MAX_PX, minimum=1.0)
@@ -305,16 +287,7 @@ class Frames:
         cap = r.table(d["capture"], at("capture"), ("hand_position_mm", "hand_angle_deg"),
                       ("note",))  # fmt: skip
         s2 = r.table(d["stage2"], at("stage2"), ("A1", "A2", "centres_mm"), ("rule",))
-        affines = []
-        for k in ("A1", "A2"):
-            a = r.table(s2[k], at(f"stage2.{k}"), AFFINE_KEYS)
-            for key in AFFINE_KEYS:
-                w = at(f"stage2.{k}.{key}")
-                if key.startswith("S"):
-                    r.number(a[key], w, 1e3, positive=True)
-                else:
-                    r.number(a[key], w, MAX_DEG if key == "theta_deg" else MAX_MM)
-            affines.append(Affine(*(float(a[key]) for key in AFFINE_KEYS)))
+        affines = [_read_affine(r, s2[k], at(f"stage2.{k}")) for k in ("A1", "A2")]
         height = None
         if "heights" in d:
             hd = r.table(d["heights"], at("heights"), ("pen_minus_camera_mm",), ("rule",))
@@ -345,6 +318,41 @@ class Frames:
             model=d["model"],
             pen_minus_camera_z_mm=height,
         )  # fmt: skip
+
+
+def _read_translations(r: _Check, d: dict, at) -> tuple[list[str], dict, dict, dict]:
+    """The undetermined components, the two transforms' tables and the three translations
+    (mm, NaN where undetermined) of a frames document, checked."""
+    listed = r.table_list(d["undetermined"], at("undetermined"))
+    undetermined = []
+    for i, e in enumerate(listed):
+        e = r.table(e, at(f"undetermined[{i}]"), ("component", "reason"))
+        undetermined.append(e["component"])
+    T_hc = r.table(d["T_hand_camera"], at("T_hand_camera"), ("R", "t"), ("maps",))
+    T_bt = r.table(d["T_base_tablet"], at("T_base_tablet"), ("R", "t"), ("maps",))
+    pen = r.table(d["pen_tip"], at("pen_tip"), ("t_hand_pen",), ("maps",))
+    translations = {
+        "t_hand_camera_mm": (T_hc["t"], at("T_hand_camera.t")),
+        "t_base_tablet_mm": (T_bt["t"], at("T_base_tablet.t")),
+        "t_hand_pen_mm": (pen["t_hand_pen"], at("pen_tip.t_hand_pen")),
+    }
+    values = {name: r.translation(t, w, name, undetermined)
+              for name, (t, w) in translations.items()}  # fmt: skip
+    extra = sorted(set(undetermined) - {f"{t}.{a}" for t in TRANSLATIONS for a in AXIS_NAMES})
+    if extra:
+        r.fail(at("undetermined"), f"unknown component {extra[0]!r:.60}")
+    return undetermined, T_hc, T_bt, values
+
+
+def _read_affine(r: _Check, doc: Any, where: str) -> Affine:
+    """One of stage 2's maps (mm, deg, scale factors > 0), checked."""
+    a = r.table(doc, where, AFFINE_KEYS)
+    for key in AFFINE_KEYS:
+        if key.startswith("S"):
+            r.number(a[key], f"{where}.{key}", 1e3, positive=True)
+        else:
+            r.number(a[key], f"{where}.{key}", MAX_DEG if key == "theta_deg" else MAX_MM)
+    return Affine(*(float(a[key]) for key in AFFINE_KEYS))
 
 
 def _describe(x: Any) -> str:

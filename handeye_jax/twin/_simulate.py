@@ -191,48 +191,69 @@ def simulate(
     rng_image, rng_depth, rng_touch, rng_held = np.random.default_rng(seed).spawn(4)
     capture = render_capture(truth, preset.imaging, rng_image)
     depth = render_depth(truth, preset.depth, rng_depth)
-    rig, model, mm = truth.rig(), truth.htm(), truth.mm_per_tablet_px
-
-    # Where the pen really touched: the operator's error, in tablet px (exact, not rounded).
-    n = len(truth.landmarks_tablet_px)
-    touch_px = rng_touch.normal(0.0, preset.touch_sigma_mm, (n, 2)) / mm
-    exact_ds = synthesize_dataset(
-        model, rig, truth.landmarks_tablet_px, truth.landmarks_hand_angle_deg,
-        ppi=truth.ppi, scale=truth.scale, touch_error_px=touch_px,
-        tablet_height_mm=truth.tablet_height_mm, camera_z_mm=truth.camera_z_mm,
-        name=f"twin-seed{seed}-{preset.name}",
-    )  # fmt: skip
+    exact_ds, touch_px = _touched(truth, preset, seed, rng_touch)
     hand_xy = exact_ds.hand_xy_mm
     if preset.hand_round_mm:
         hand_xy = np.round(hand_xy / preset.hand_round_mm) * preset.hand_round_mm
     if exact:
         image_px, depth_mm = exact_ds.image_px, exact_ds.depth_mm
     else:
-        blobs = find_blobs(capture, detect_settings)
-        if len(blobs.image_px) != n:
-            hint = "; try exact=True (simulate --exact) or larger dots (--dot-px)"
-            raise BlobCountError("capture.png (simulated)", blobs, n, hint)
-        image_px = blobs.image_px[order_blobs(blobs.image_px, truth.landmarks_tablet_px)]
-        depth_mm = depth_at(depth, image_px, detect_settings.depth_window_px)
+        image_px, depth_mm = _detected(truth, capture, depth, detect_settings)
     dataset = exact_ds.replace(
         image_px=image_px, depth_mm=depth_mm, hand_xy_mm=hand_xy,
         touch_error_px=np.round(touch_px),  # the tablet reports whole px
     )  # fmt: skip
-
-    lo, hi = truth.landmark_area_px()
-    held_px = rng_held.uniform(lo, hi, (n_heldout, 2))
-    held_angle = rng_held.uniform(0.0, 180.0, n_heldout)
-    held_true_px, _ = truth.project(held_px)
-    held_image_px = held_true_px + rng_held.normal(0.0, 1.0, held_true_px.shape) * (
-        preset.target_sigma_px
-    )
-    held_depth = depth_at(depth, held_image_px, detect_settings.depth_window_px)
+    held = _heldout(truth, preset.target_sigma_px, (depth, detect_settings), rng_held, n_heldout)
     return Twin(
         truth=truth, preset=preset, dataset=dataset, capture=capture, depth=depth,
         landmarks_image_px=exact_ds.image_px, landmarks_depth_mm=exact_ds.depth_mm,
-        heldout_tablet_px=held_px, heldout_hand_angle_deg=held_angle,
-        heldout_image_px=held_image_px, heldout_depth_mm=held_depth,
+        heldout_tablet_px=held[0], heldout_hand_angle_deg=held[1],
+        heldout_image_px=held[2], heldout_depth_mm=held[3],
     )  # fmt: skip
+
+
+def _heldout(truth: TwinTruth, sigma_px: float, depth_reading: tuple, rng: np.random.Generator,
+             n: int) -> tuple[np.ndarray, ...]:  # fmt: skip
+    """``n`` held-out targets uniform over the landmarks' area on the display: their tablet
+    px, hand angles (deg), image points seen with ``sigma_px`` of noise (px) and depths read
+    from the depth image (``depth_reading``: the image and the detector's settings), mm."""
+    depth, settings = depth_reading
+    lo, hi = truth.landmark_area_px()
+    held_px = rng.uniform(lo, hi, (n, 2))
+    held_angle = rng.uniform(0.0, 180.0, n)
+    held_true_px, _ = truth.project(held_px)
+    held_image_px = held_true_px + rng.normal(0.0, 1.0, held_true_px.shape) * sigma_px
+    return held_px, held_angle, held_image_px, depth_at(depth, held_image_px,
+                                                         settings.depth_window_px)  # fmt: skip
+
+
+def _touched(truth: TwinTruth, preset: NoisePreset, seed: int,
+             rng: np.random.Generator) -> tuple[Dataset, np.ndarray]:  # fmt: skip
+    """The exact dataset of the truth's single capture, the pen touching where the operator's
+    error (drawn from ``rng``) put it, and that error, tablet px (exact, not rounded)."""
+    rig, model, mm = truth.rig(), truth.htm(), truth.mm_per_tablet_px
+    n = len(truth.landmarks_tablet_px)
+    touch_px = rng.normal(0.0, preset.touch_sigma_mm, (n, 2)) / mm
+    exact = synthesize_dataset(
+        model, rig, truth.landmarks_tablet_px, truth.landmarks_hand_angle_deg,
+        ppi=truth.ppi, scale=truth.scale, touch_error_px=touch_px,
+        tablet_height_mm=truth.tablet_height_mm, camera_z_mm=truth.camera_z_mm,
+        name=f"twin-seed{seed}-{preset.name}",
+    )  # fmt: skip
+    return exact, touch_px
+
+
+def _detected(truth: TwinTruth, capture: np.ndarray, depth: np.ndarray,
+              settings: DetectSettings) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """The landmarks found in the rendered picture, in landmark order, px, and their depths
+    read from the rendered depth image, mm; :class:`BlobCountError` if not one per landmark."""
+    n = len(truth.landmarks_tablet_px)
+    blobs = find_blobs(capture, settings)
+    if len(blobs.image_px) != n:
+        hint = "; try exact=True (simulate --exact) or larger dots (--dot-px)"
+        raise BlobCountError("capture.png (simulated)", blobs, n, hint)
+    image_px = blobs.image_px[order_blobs(blobs.image_px, truth.landmarks_tablet_px)]
+    return image_px, depth_at(depth, image_px, settings.depth_window_px)
 
 
 def draw_capture_poses(

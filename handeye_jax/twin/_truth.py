@@ -377,6 +377,47 @@ def load_truth(path: str | Path) -> TwinTruth:
         r.fail("format", f"expected {FORMAT!r} (got {describe(doc.get('format'))})")
     keys = ("format", *TwinTruth.__dataclass_fields__)
     r.table(doc, "", keys, optional=("seed", "capture_hand_angle_deg", "pen_z_mm"))
+    size, camera = _picture(r, doc)
+    m = r.table(doc["model"], "model", HTMModel.param_names)
+    model = {k: r.number(m[k], f"model.{k}", limit=MAX_MM) for k in HTMModel.param_names}
+    tab, angles = _landmarks(r, doc)
+    sign = r.number(doc["hand_angle_sign"], "hand_angle_sign")
+    if sign not in (1.0, -1.0):
+        r.fail("hand_angle_sign", f"must be 1 or -1 (got {sign})")
+    ppi = r.number(doc["ppi"], "ppi", True, 1e5, minimum=1)
+    scale = r.number(doc["scale"], "scale", True, 100, minimum=0.01)
+    check_tablet_px(ppi, scale, path, "scale")
+    seed = doc.get("seed")
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
+        r.fail("seed", f"must be an integer or null (got {describe(seed)})")
+    truth = TwinTruth(
+        image_size_px=size, camera_px=camera,
+        lens_blur_px=r.number(doc["lens_blur_px"], "lens_blur_px", positive=True,
+                              limit=MAX_LENS_BLUR_PX),
+        model=model,
+        camera_z_mm=r.number(doc["camera_z_mm"], "camera_z_mm", limit=MAX_MM),
+        tablet_height_mm=r.number(doc["tablet_height_mm"], "tablet_height_mm", limit=MAX_MM),
+        capture_position_mm=tuple(
+            r.vector(doc["capture_position_mm"], "capture_position_mm", 3, MAX_MM)
+        ),
+        ppi=ppi, scale=scale,
+        display_px=tuple(r.vector(doc["display_px"], "display_px", 2, MAX_PX)),
+        dot_px=r.number(doc["dot_px"], "dot_px", positive=True, limit=MAX_DOT_PX),
+        hand_angle_zero_deg=r.number(doc["hand_angle_zero_deg"], "hand_angle_zero_deg",
+                                     limit=MAX_DEG),
+        hand_angle_sign=int(sign), landmarks_tablet_px=np.array(tab),
+        landmarks_hand_angle_deg=np.array(angles), seed=seed,
+        capture_hand_angle_deg=None if doc.get("capture_hand_angle_deg") is None else
+        r.number(doc["capture_hand_angle_deg"], "capture_hand_angle_deg", limit=MAX_DEG),
+        pen_z_mm=r.number(doc.get("pen_z_mm", 0.0), "pen_z_mm", limit=MAX_MM),
+    )  # fmt: skip
+    if not _in_view(truth, truth.landmarks_tablet_px):
+        r.fail("", f"some landmark is not in the picture (or within {MARGIN_PX:g} px of its edge)")
+    return truth
+
+
+def _picture(r: Reader, doc: dict) -> tuple[tuple[int, int], dict[str, float]]:
+    """A truth's picture size (px) and intrinsics (px), checked."""
     size = r.vector(doc["image_size_px"], "image_size_px", 2, 1e5)
     if any(s < 8 or s != int(s) for s in size):
         r.fail("image_size_px", f"must be two whole numbers >= 8 (got {size})")
@@ -388,8 +429,11 @@ def load_truth(path: str | Path) -> TwinTruth:
     camera = {
         k: r.number(cam[k], f"camera_px.{k}", k in focal, MAX_PX, focal.get(k), "px") for k in cam
     }
-    m = r.table(doc["model"], "model", HTMModel.param_names)
-    model = {k: r.number(m[k], f"model.{k}", limit=MAX_MM) for k in HTMModel.param_names}
+    return (int(size[0]), int(size[1])), camera
+
+
+def _landmarks(r: Reader, doc: dict) -> tuple[list, list[float]]:
+    """A truth's landmark layout (tablet px) and touch hand angles (deg), checked."""
     layout = doc["landmarks_tablet_px"]
     if not isinstance(layout, list) or not 4 <= len(layout) <= MAX_LANDMARKS:
         r.fail("landmarks_tablet_px", f"must be 4 to {MAX_LANDMARKS:,} [x, y] (got "
@@ -401,42 +445,4 @@ def load_truth(path: str | Path) -> TwinTruth:
     angles = [
         r.number(a, f"landmarks_hand_angle_deg[{i}]", limit=MAX_DEG) for i, a in enumerate(angles)
     ]
-    sign = r.number(doc["hand_angle_sign"], "hand_angle_sign")
-    if sign not in (1.0, -1.0):
-        r.fail("hand_angle_sign", f"must be 1 or -1 (got {sign})")
-    ppi = r.number(doc["ppi"], "ppi", True, 1e5, minimum=1)
-    scale = r.number(doc["scale"], "scale", True, 100, minimum=0.01)
-    check_tablet_px(ppi, scale, path, "scale")
-    seed = doc.get("seed")
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
-        r.fail("seed", f"must be an integer or null (got {describe(seed)})")
-    truth = TwinTruth(
-        image_size_px=(int(size[0]), int(size[1])),
-        camera_px=camera,
-        lens_blur_px=r.number(
-            doc["lens_blur_px"], "lens_blur_px", positive=True, limit=MAX_LENS_BLUR_PX
-        ),
-        model=model,
-        camera_z_mm=r.number(doc["camera_z_mm"], "camera_z_mm", limit=MAX_MM),
-        tablet_height_mm=r.number(doc["tablet_height_mm"], "tablet_height_mm", limit=MAX_MM),
-        capture_position_mm=tuple(
-            r.vector(doc["capture_position_mm"], "capture_position_mm", 3, MAX_MM)
-        ),
-        ppi=ppi,
-        scale=scale,
-        display_px=tuple(r.vector(doc["display_px"], "display_px", 2, MAX_PX)),
-        dot_px=r.number(doc["dot_px"], "dot_px", positive=True, limit=MAX_DOT_PX),
-        hand_angle_zero_deg=r.number(
-            doc["hand_angle_zero_deg"], "hand_angle_zero_deg", limit=MAX_DEG
-        ),
-        hand_angle_sign=int(sign),
-        landmarks_tablet_px=np.array(tab),
-        landmarks_hand_angle_deg=np.array(angles),
-        seed=seed,
-        capture_hand_angle_deg=None if doc.get("capture_hand_angle_deg") is None else
-        r.number(doc["capture_hand_angle_deg"], "capture_hand_angle_deg", limit=MAX_DEG),
-        pen_z_mm=r.number(doc.get("pen_z_mm", 0.0), "pen_z_mm", limit=MAX_MM),
-    )  # fmt: skip
-    if not _in_view(truth, truth.landmarks_tablet_px):
-        r.fail("", f"some landmark is not in the picture (or within {MARGIN_PX:g} px of its edge)")
-    return truth
+    return tab, angles
