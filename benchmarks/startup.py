@@ -55,7 +55,7 @@ import json, os, sys, time
 t0 = time.perf_counter()
 import handeye_jax.cli as cli
 import jax, jax.monitoring
-import handeye_jax.calibration._calibrate as cal
+import handeye_jax.calibration._pipeline as cal
 import handeye_jax.diagnostics as diagnostics
 t_import = time.perf_counter() - t0
 events = []  # (end time, kind, seconds, program)

@@ -176,17 +176,6 @@ if TYPE_CHECKING:
     from ._core._errors import InputError
     from ._jax._x64 import float64
     from ._jax._xla import store_programs, vectorise_small_loops
-    from .calibration._calibrate import (
-        Plan,
-        StageFit,
-        calibrate,
-        fit,
-        fit_correction,
-        fit_stage,
-        full_plan,
-        recalibrate,
-        recalibration_plan,
-    )
     from .calibration._payloads import (
         ConventionCheck,
         Convergence,
@@ -204,10 +193,13 @@ if TYPE_CHECKING:
         SignTwin,
         StageDiagnostics,
     )
+    from .calibration._pipeline import calibrate, fit, fit_correction, recalibrate
+    from .calibration._plans import Plan, full_plan, recalibration_plan
     from .calibration._result import CalibrationResult, StageResult
     from .calibration._result_frames import compute_frames
     from .calibration._result_io import load_frames, load_result, save_result
     from .calibration._settings import Settings
+    from .calibration._stage import StageFit, fit_stage
     from .data._convert import convert_to_v2
     from .data._dataset import Camera, Capture, Dataset
     from .data._edit import update_dataset

@@ -157,9 +157,7 @@ def test_a_fit_that_is_not_finite_stops_with_one_line_and_writes_nothing(
     import dataclasses
     import importlib
 
-    cal = importlib.import_module(
-        "handeye_jax.calibration._calibrate"
-    )  # the package exports a function of that name
+    cal = importlib.import_module("handeye_jax.calibration._stage_result")
     fit = cal._stage_result  # the real fit, then its F made NaN: what absurd data would give
     monkeypatch.setattr(cal, "_stage_result", lambda *a: dataclasses.replace(fit(*a), F=np.nan))
     out = tmp_path / "r.json"

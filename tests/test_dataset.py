@@ -29,7 +29,7 @@ from handeye_jax import (
     save_dataset,
     update_dataset,
 )
-from handeye_jax.calibration._calibrate import check_determined
+from handeye_jax.calibration import check_determined
 from handeye_jax.data import FORMAT_V1, known_search_names
 from handeye_jax.models import AffinePair, model_registry
 

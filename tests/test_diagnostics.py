@@ -43,8 +43,14 @@ from handeye_jax import (
     synthesize_dataset,
 )
 from handeye_jax._core import Stages, to_document
-from handeye_jax.calibration import CONVENTIONS, Convention, FittedStage, LossInfo, Population
-from handeye_jax.calibration._calibrate import RESTART_LANDMARKS
+from handeye_jax.calibration import (
+    CONVENTIONS,
+    RESTART_LANDMARKS,
+    Convention,
+    FittedStage,
+    LossInfo,
+    Population,
+)
 from handeye_jax.diagnostics._diagnostics import OUTLIER_FACTOR, population_modes
 from handeye_jax.diagnostics._refits import EXACT_LOO_LANDMARKS, refits
 from handeye_jax.models import AffinePair

@@ -296,7 +296,7 @@ def test_every_parameter_free_and_no_prior_is_the_papers_objective(seed):
     template = HTMModel.from_vector(jnp.asarray(rng.uniform(lo, hi)))  # its values do not matter
     space = ParameterSpace.all_free(template)
     assert space.free == HTMModel.param_names and space.prior is None
-    from handeye_jax.calibration._calibrate import with_prior
+    from handeye_jax.calibration import with_prior
 
     objective = with_prior(Stage1Objective(space.template, _OBS, space.free), space, 9)
     F, f1, f2 = fitness(stage1_errors(chain_points(HTMModel.from_vector(jnp.asarray(theta)), _OBS)))

@@ -10,21 +10,21 @@ from .._core import lazy_exports
 # What the layers above may use, by module; each loads on first use (PEP 562).
 # fmt: off
 _EXPORTS = {
-    "_calibrate": (
-        "all_warnings", "bound_hits", "calibrate", "convention_index", "CONVENTIONS", "fit",
-        "fit_correction", "fit_stage", "fitted_stages", "FittedStage", "full_plan", "Plan",
-        "POLISH", "Population", "PULL_FLAG", "recalibrate", "recalibration_plan", "REFIT_STARTS",
-        "StageFit", "uniform_starts",
-    ),
+    "_fitted": ("fitted_stages", "FittedStage"),
     "_payloads": (
         "Convention", "ConventionCheck", "ConventionFit", "Convergence", "DESummary", "Diagnostics",
         "FitWarning", "HeldOut", "LeaveOneOut", "LossInfo", "Mode", "PolishSummary", "PriorReport",
         "Pull", "Recalibration", "Residual", "Scope", "SignTwin", "StageDiagnostics",
     ),
+    "_pipeline": ("calibrate", "fit", "fit_correction", "recalibrate", "RESTART_LANDMARKS"),
+    "_plans": ("full_plan", "Plan", "recalibration_plan"),
     "_result": ("CalibrationResult", "StageResult"),
     "_result_frames": ("compute_frames",),
     "_result_io": ("load_frames", "load_result", "result_to_json", "save_result"),
     "_settings": ("Settings",),
+    "_stage": ("fit_stage", "POLISH", "Population", "StageFit", "with_prior"),
+    "_starts": ("convention_index", "CONVENTIONS", "REFIT_STARTS", "uniform_starts"),
+    "_warnings": ("all_warnings", "bound_hits", "check_determined", "PULL_FLAG"),
 }
 # fmt: on
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)
