@@ -1,11 +1,13 @@
-"""``handeye-jax export``: a calibration for URDF, ROS 2, OpenCV, a NumPy module, JSON or YAML."""
+"""``handeye-jax predict`` and ``export``: what the robot's PC runs. Hand commands for image
+points (NumPy only, for a result file as it was written), and a calibration for URDF, ROS 2,
+OpenCV, a NumPy module, JSON or YAML."""
 
 from __future__ import annotations
 
 import argparse
 import sys
 
-from .._core import check_output, write_output
+from .._core import write_output
 
 # constants only: the formats import their libraries on use
 from ..robot import (
@@ -18,8 +20,8 @@ from ..robot import (
     export_text,
     zero_filled,
 )
-
-PROG = "handeye-jax"
+from ._runtime import start_jax
+from ._types import PROG, output_path, whole_number
 
 
 def _name(text: str) -> str:
@@ -30,7 +32,7 @@ def _name(text: str) -> str:
     return text
 
 
-def add_export_command(sub) -> None:
+def add_export_command(sub: argparse._SubParsersAction) -> None:
     """Add ``export`` to the command line's subcommands ``sub``."""
     p = sub.add_parser(
         "export",
@@ -68,7 +70,7 @@ def add_export_command(sub) -> None:
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
-    out = None if args.out is None else check_output(args.out, "--out", [args.result])
+    out = output_path(args.out, "--out", [args.result])
     names = (args.parent_link, args.camera_frame, args.pen_frame)
     if len(set(names)) != 3:
         print(f"{PROG}: error: --parent-link, --camera-frame and --pen-frame must differ "
@@ -92,3 +94,53 @@ def _cmd_export(args: argparse.Namespace) -> int:
         write_output(out, text, "--out")
         print(f"{args.fmt} export written to {out}")
     return 0
+
+
+def _cmd_predict(args: argparse.Namespace) -> int:
+    from ..data import points_csv_text, read_capture_columns, read_points_csv
+    from ..robot import Predictor, stored_frames
+
+    out = output_path(args.out, "--out", [args.result, args.points])
+    frames = stored_frames(args.result)  # NumPy only: no JAX for a file as it was written
+    if frames is None:  # older or edited: validated, its frames checked against its parameters
+        start_jax()
+        from ..calibration import load_frames
+
+        frames = load_frames(args.result)
+    predictor = Predictor.from_frames(frames)
+    header, rows, values = read_points_csv(args.points)
+    position, angle = read_capture_columns(args.points, header, rows)
+    hand_xy = predictor.hand_command(values[:, :2], values[:, 2], values[:, 3], stage=args.stage,
+                                     capture_position_mm=position, capture_hand_angle_deg=angle,
+                                     axes=predictor.axes)  # fmt: skip
+    text = points_csv_text(header, rows, hand_xy)
+    if out is None:
+        sys.stdout.write(text)
+    else:
+        write_output(out, text, "--out")
+        print(f"{len(rows)} hand commands (stage {args.stage}, mm) written to {out}")
+    return 0
+
+
+def add_predict_command(sub: argparse._SubParsersAction) -> None:
+    """Add ``predict`` to the command line's subcommands ``sub``."""
+    pre = sub.add_parser(
+        "predict",
+        help="hand commands for image points",
+        description="Read a CSV with header u,v,depth,hand_angle (px, px, mm, deg) and write it "
+        "back with hand_x,hand_y (mm, robot base frame) added: where to send the hand so "
+        "that the pen touches each point; and hand_z (mm) when the calibration's touches "
+        "recorded the hand's heights. Optional columns capture_x,capture_y,capture_z (mm) "
+        "and capture_angle (deg): the hand pose each point's picture was taken from "
+        "(default: the calibration's first capture).",
+    )
+    pre.add_argument("result", help="result file from 'calibrate --out'")
+    pre.add_argument("points", help="CSV with header u,v,depth,hand_angle")
+    pre.add_argument(
+        "--out", metavar="OUT.csv", help="write the CSV here (default: standard output)"
+    )
+    pre.add_argument(
+        "--stage", type=whole_number, choices=(1, 2), default=2,
+        help="2: eq. (25) with the affine correction (default); 1: eq. (8), model only",
+    )  # fmt: skip
+    pre.set_defaults(func=_cmd_predict, jax=False)  # only for files it must check (see there)

@@ -1,0 +1,144 @@
+"""``handeye-jax calibrate``: a dataset fitted, or refitted from an earlier result, and its
+summary printed (thin over :mod:`handeye_jax.calibration`)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from .._core import InputError, write_output
+from ._types import (
+    MODELS,
+    generations,
+    output_path,
+    population,
+    positive_mm,
+    restarts,
+    seed,
+)
+
+
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from ..calibration import Settings, calibrate, load_result, recalibrate, result_to_json
+    from ..data import load_dataset
+    from ..diagnostics import diagnose
+    from ..report import format_summary
+
+    out = output_path(args.out, "--out", [args.dataset, args.prior])
+    if (args.refit or args.fix) and not args.prior:
+        raise InputError(None, "--refit" if args.refit else "--fix",
+                         "needs --prior OLD.result.json, the result to start from")  # fmt: skip
+    if args.prior and not args.refit:
+        raise InputError(None, "--refit", "name what changed: camera, tablet, pen or parameters")
+    previous = load_result(args.prior) if args.prior else None
+    model = args.model or (previous.model_name if previous else Settings().model)
+    if previous is not None and model != previous.model_name:
+        raise InputError(args.prior, "model",
+                         f"is {previous.model_name!r}; --model says {model!r}")  # fmt: skip
+    dataset = load_dataset(args.dataset)
+    settings = Settings(
+        model=model,
+        seed=args.seed,
+        population=args.population,
+        generations=args.generations,
+        early_stop=not args.no_early_stop,
+        restarts=args.restarts,
+        loss=args.loss,
+        loss_scale_mm=args.loss_scale_mm,
+    )
+    if previous is None:
+        result = calibrate(dataset, settings, progress=not args.quiet)
+    else:
+        from ..models import get_model
+        from ..problem import resolve_names
+
+        refit = tuple(g.strip() for g in args.refit.split(",") if g.strip())
+        try:
+            resolve_names(get_model(model), refit)
+        except ValueError as e:
+            raise InputError(None, "--refit", str(e)) from None
+        result = recalibrate(dataset, previous, refit, settings, fix=args.fix,
+                             source=Path(args.prior).name, progress=not args.quiet)  # fmt: skip
+    if not args.no_diagnostics:
+        result = diagnose(result, search=dataset.search)
+    print(format_summary(result))
+    if out is not None:
+        write_output(out, result_to_json(result), "--out")
+        print(f"result written to {out}")
+    return 0
+
+
+def add_calibrate_command(sub: argparse._SubParsersAction) -> None:
+    """Add ``calibrate`` to the command line's subcommands ``sub``."""
+    from ..calibration import Settings
+
+    d = Settings()
+    cal = sub.add_parser(
+        "calibrate",
+        help="fit the model (stage 1) and the affine correction (stage 2) to a dataset",
+        description="Fit a dataset by DE + Levenberg-Marquardt in two stages. The paper's own "
+        "settings are --population 10000 --generations 10000 --no-early-stop.",
+    )
+    cal.add_argument("dataset", help="dataset file (handeye-jax.dataset TOML; mm, deg, px)")
+    cal.add_argument(
+        "--model", choices=MODELS, default=None,
+        help=f"the transform chain: htm, six-DoF transforms (eqs. 1-8); dh, the "
+        f"Denavit-Hartenberg variant (eqs. 12-16) (default: {d.model}, or --prior's)",
+    )  # fmt: skip
+    cal.add_argument("--seed", type=seed, default=d.seed, help="PRNG seed")
+    cal.add_argument(
+        "--population", type=population, default=d.population,
+        help="DE population N, both stages",
+    )  # fmt: skip
+    cal.add_argument(
+        "--generations", type=generations, default=d.generations,
+        help="most DE generations G, both stages",
+    )  # fmt: skip
+    cal.add_argument(
+        "--no-early-stop", action="store_true",
+        help="run all generations instead of stopping when the population has converged",
+    )  # fmt: skip
+    cal.add_argument(
+        "--loss", choices=("l1", "huber", "cauchy"), default=d.loss,
+        help="l1: the paper's mean error length (default); huber / cauchy: robust to outliers",
+    )  # fmt: skip
+    cal.add_argument(
+        "--loss-scale-mm", type=positive_mm, default=d.loss_scale_mm, metavar="MM",
+        help="robust loss scale, mm; errors above 3x it are flagged",
+    )  # fmt: skip
+    cal.add_argument(
+        "--restarts", type=restarts, default=d.restarts,
+        help="LM restarts per stage besides the best DE member (other optima of the final "
+        "population, then Latin-hypercube starts); 0 runs none",
+    )  # fmt: skip
+    _add_prior_options(cal)
+    cal.add_argument(
+        "--no-diagnostics", action="store_true",
+        help="skip uncertainty, leave-one-out and convention check (about a second faster)",
+    )  # fmt: skip
+    cal.add_argument(
+        "--out", metavar="RESULT.json",
+        help="write the result (JSON) here (default: print the summary only)",
+    )  # fmt: skip
+    cal.add_argument("--quiet", action="store_true", help="no progress bars on stderr")
+    cal.set_defaults(func=_cmd_calibrate, imports=("calibration.calibrate", "data.load_dataset",
+                                                    "diagnostics.diagnose"))  # fmt: skip
+
+
+def _add_prior_options(cal: argparse.ArgumentParser) -> None:
+    """``--prior``, ``--refit`` and ``--fix``: a recalibration."""
+    cal.add_argument(
+        "--prior", metavar="OLD.result.json",
+        help="recalibrate from this earlier result of the same rig (default: none, calibrate "
+        "from scratch): the parameters not in --refit take its posterior as their prior",
+    )  # fmt: skip
+    cal.add_argument(
+        "--refit", metavar="GROUPS",
+        help="with --prior: what changed, comma-separated groups (camera, tablet, pen) or "
+        "parameter names, searched afresh (default: none)",
+    )  # fmt: skip
+    cal.add_argument(
+        "--fix", action="store_true",
+        help="with --prior: hold the parameters not in --refit at its values instead of "
+        "giving them its posterior as a prior",
+    )  # fmt: skip
