@@ -49,15 +49,17 @@ def interleaved_ms(fns: dict, rounds: int) -> dict[str, list[float]]:
 
 def de_start(objective, n: int, key: int = 0):
     """A DE run's initial state at population ``n`` in the HTM box, the box, and the settings
-    ``optim._de._chunk`` takes (no generation limit, CR 0.9, F 0.5, early stop off)."""
+    ``optim._de._chunk`` takes after the state: its step (the box, CR 0.9, F 0.5) and its stop
+    (no generation limit, early stop off)."""
     lower, upper = (jnp.asarray(b) for b in HTMModel.search_bounds())
     state = de._init(objective, jax.random.PRNGKey(key), lower, upper, n)
-    settings = [np.asarray(v) for v in (10**9, 0.9, 0.5, 0.0, 0.0, False)]
-    return state, lower, upper, settings
+    step = de._Step(lower, upper, np.asarray(0.9), np.asarray(0.5))
+    stop = de._Stop(*(np.asarray(v) for v in (10**9, 0.0, 0.0, False)))
+    return state, lower, upper, (step, stop)
 
 
 def de_generation_ms(objective, n: int, reps: int, key: int = 0) -> tuple[float, de.DEState]:
     """ms per DE generation at population ``n`` (HTM box), timed over chunks of generations."""
     state, lower, upper, settings = de_start(objective, n, key)
-    ms = median_ms(lambda: de._chunk(objective, state, lower, upper, *settings), reps)
+    ms = median_ms(lambda: de._chunk(objective, state, *settings), reps)
     return ms / de.CHUNK_GENERATIONS, state

@@ -62,34 +62,34 @@ from _common import PAPER, de_start, interleaved_ms  # noqa: E402
 from de_throughput import _objective_scan  # noqa: E402
 
 
-def _scaled(fn, state, lower, upper, crossover, mutation):
-    return de._select(fn, state, state.population * (1.0 + 1e-12 * mutation))
+def _scaled(fn, state, step):
+    return de._select(fn, state, state.population * (1.0 + 1e-12 * step.mutation))
 
 
-def _fixed_donors(fn, state, lower, upper, crossover, mutation):
-    pop = state.population
+def _fixed_donors(fn, state, step):
+    pop, lower, upper = state.population, step.lower, step.upper
     base, b, c = (jnp.roll(pop, k, axis=0) for k in (1, 2, 3))
-    trial = jnp.where(pop > 0.5 * (lower + upper), base + mutation * (b - c), pop)
+    trial = jnp.where(pop > 0.5 * (lower + upper), base + step.mutation * (b - c), pop)
     trial = jnp.where(trial < lower, 0.5 * (base + lower), trial)
     trial = jnp.where(trial > upper, 0.5 * (base + upper), trial)
     return de._select(fn, state, trial)
 
 
-def _draws_only(fn, state, lower, upper, crossover, mutation):
+def _draws_only(fn, state, step):
     pop = state.population
     n, d = pop.shape
     u = _rng.uniforms(state.seed, state.generation, (n, d + 4))
     j_rand = jnp.floor(u[:, 3] * d).astype(jnp.int32)
-    cross = (u[:, 4:] < crossover) | (jnp.arange(d)[None, :] == j_rand[:, None])
-    return de._select(fn, state, jnp.where(cross, pop * (1.0 + 1e-12 * mutation), pop))
+    cross = (u[:, 4:] < step.crossover) | (jnp.arange(d)[None, :] == j_rand[:, None])
+    return de._select(fn, state, jnp.where(cross, pop * (1.0 + 1e-12 * step.mutation), pop))
 
 
-def _no_random_gather(fn, state, lower, upper, crossover, mutation):
+def _no_random_gather(fn, state, step):
     pop = state.population
     n, d = pop.shape
     u = _rng.uniforms(state.seed, state.generation, (n, d + 4))
-    base, b, c = (jnp.roll(pop, k, axis=0) for k in (1, 2, 3))
-    return de._select(fn, state, de._trial(pop, base, b, c, u, lower, upper, crossover, mutation))
+    donors = jnp.stack([jnp.roll(pop, k, axis=0) for k in (1, 2, 3)])
+    return de._select(fn, state, de._trial(pop, donors, u, step))
 
 
 def _loop_with(generation, name: str):
@@ -141,7 +141,7 @@ def main(argv=None) -> None:
             "crossover draws only": _loop_with(_draws_only, "_chunk_draws_only"),
             "no random gather": _loop_with(_no_random_gather, "_chunk_no_random_gather"),
         }
-        calls = {name: functools.partial(f, objective, state, lower, upper, *settings)
+        calls = {name: functools.partial(f, objective, state, *settings)
                  for name, f in loops.items()}  # fmt: skip
         alone = eqx.filter_jit(_objective_scan, compiler_options=loop_compiler_options())
         # Over columns, as the DE maps its objective over the trials.

@@ -79,7 +79,7 @@ def ours(objective, n: int, reps: int) -> tuple[float, dict[str, float], float]:
     while the machine's speed drifts."""
     state, lower, upper, settings = de_start(objective, n)
     k = de.CHUNK_GENERATIONS
-    fns = {"de": lambda: de._chunk(objective, state, lower, upper, *settings)}
+    fns = {"de": lambda: de._chunk(objective, state, *settings)}
     scans = {
         options_name: eqx.filter_jit(_objective_scan, compiler_options=options)
         for options_name, options in (("ours", loop_compiler_options()), ("default", None))

@@ -198,9 +198,9 @@ def _polish_temp_bytes(n: int) -> int:
     """Scratch memory XLA plans for the LM polish of ``Curve`` with n residuals."""
     t = jnp.linspace(0.0, 1.0, n)
     fn = Curve(t, jnp.sin(3.0 * t))
-    lowered = jax.jit(_lm, static_argnums=(4, 5, 6)).lower(
-        fn, jnp.zeros(6), -5.0 * jnp.ones(6), 5.0 * jnp.ones(6), 1e-12, 1e-12, 100
-    )
+    box = Box(-5.0 * np.ones(6), 5.0 * np.ones(6))
+    lm = LevenbergMarquardt(rtol=1e-12, atol=1e-12, max_steps=100)
+    lowered = eqx.filter_jit(_lm).lower(fn, jnp.zeros(6), box, lm).lowered
     return lowered.compile().memory_analysis().temp_size_in_bytes
 
 

@@ -103,31 +103,46 @@ def distinct_indices(u: Float[Array, "3 n"]) -> Int[Array, "3 n"]:
     return jnp.stack([r1, r2, r3])
 
 
+class _Step(eqx.Module):
+    """What one generation needs besides the population: the box and DE's two rates."""
+
+    lower: Float[Array, " d"]
+    upper: Float[Array, " d"]
+    crossover: Float[Array, ""]
+    mutation: Float[Array, ""]
+
+
+class _Stop(eqx.Module):
+    """When a run stops: after ``generations``, or once the fitnesses' spread is at most
+    ``atol + tol·|mean|`` if ``early``."""
+
+    generations: Int[Array, ""]
+    tol: Float[Array, ""]
+    atol: Float[Array, ""]
+    early: Bool[Array, ""]
+
+
 def _trial(
     pop: Float[Array, "n d"],
-    base: Float[Array, "n d"],
-    b: Float[Array, "n d"],
-    c: Float[Array, "n d"],
+    donors: Float[Array, "3 n d"],
     u: Float[Array, "n d+4"],
-    lower: Float[Array, " d"],
-    upper: Float[Array, " d"],
-    crossover: float,
-    mutation: float,
+    step: _Step,
 ) -> Float[Array, "n d"]:
     """Mutation ``base + F·(b − c)``, binomial crossover and the bounds rule.
 
     Args:
         pop: the current members (targets).
-        base, b, c: each member's donors ``x_r1``, ``x_r2``, ``x_r3``.
+        donors: each member's donors ``x_r1`` (the base), ``x_r2``, ``x_r3``.
         u: each member's uniforms; column 3 picks ``j_rand``, columns 4… the crossover tests.
     """
+    base, b, c = donors
     d = pop.shape[1]
-    mutant = base + mutation * (b - c)
+    mutant = base + step.mutation * (b - c)
     j_rand = jnp.floor(u[:, 3] * d).astype(jnp.int32)
-    cross = (u[:, 4:] < crossover) | (jnp.arange(d)[None, :] == j_rand[:, None])
+    cross = (u[:, 4:] < step.crossover) | (jnp.arange(d)[None, :] == j_rand[:, None])
     trial = jnp.where(cross, mutant, pop)
-    trial = jnp.where(trial < lower, 0.5 * (base + lower), trial)
-    return jnp.where(trial > upper, 0.5 * (base + upper), trial)
+    trial = jnp.where(trial < step.lower, 0.5 * (base + step.lower), trial)
+    return jnp.where(trial > step.upper, 0.5 * (base + step.upper), trial)
 
 
 def _select(fn: Callable, state: DEState, trial: Float[Array, "n d"]) -> DEState:
@@ -146,14 +161,7 @@ def _select(fn: Callable, state: DEState, trial: Float[Array, "n d"]) -> DEState
     )
 
 
-def _generation(
-    fn: Callable,
-    state: DEState,
-    lower: Float[Array, " d"],
-    upper: Float[Array, " d"],
-    crossover: float,
-    mutation: float,
-) -> DEState:
+def _generation(fn: Callable, state: DEState, step: _Step) -> DEState:
     pop = state.population
     n, d = pop.shape
     u = _rng.uniforms(state.seed, state.generation, (n, d + 4))
@@ -162,8 +170,7 @@ def _generation(
     # test checks it), so the gather needs no bounds handling: about 5 % faster a generation
     # than "fill" mode at N = 10,000 (interleaved A/B, benchmarks/de_throughput.py's harness).
     donors = pop.at[jnp.concatenate([r1, r2, r3])].get(mode="promise_in_bounds")
-    base, b, c = donors.reshape(3, n, d)
-    return _select(fn, state, _trial(pop, base, b, c, u, lower, upper, crossover, mutation))
+    return _select(fn, state, _trial(pop, donors.reshape(3, n, d), u, step))
 
 
 def _spread_converged(f: Float[Array, " n"], tol: float, atol: float) -> Bool[Array, ""]:
@@ -183,16 +190,17 @@ def _init(fn, key, lower, upper, n):
     )
 
 
-def _chunk_scan(fn, state, lower, upper, max_generations, crossover, mutation, tol, atol, stop):
-    def step(state, _):
-        active = (~state.converged) & (state.generation < max_generations)
-        new = _generation(fn, state, lower, upper, crossover, mutation)
+def _chunk_scan(fn: Callable, state: DEState, step: _Step, stop: _Stop):
+    def one(state, _):
+        active = (~state.converged) & (state.generation < stop.generations)
+        new = _generation(fn, state, step)
         state = jax.tree.map(lambda a, b: jnp.where(active, a, b), new, state)
-        converged = state.converged | (stop & active & _spread_converged(state.fitness, tol, atol))
+        spread = _spread_converged(state.fitness, stop.tol, stop.atol)
+        converged = state.converged | (stop.early & active & spread)
         state = eqx.tree_at(lambda s: s.converged, state, converged)
         return state, (jnp.min(state.fitness), active)
 
-    return jax.lax.scan(step, state, None, length=CHUNK_GENERATIONS)
+    return jax.lax.scan(one, state, None, length=CHUNK_GENERATIONS)
 
 
 #: ``CHUNK_GENERATIONS`` generations in one compiled ``lax.scan``.
@@ -237,21 +245,22 @@ class DifferentialEvolution(AbstractSolver[DESolution]):
         state = _init(fn, key, lower, upper, self.population)
         # Arrays, not Python numbers, so that new settings reuse the compiled program (NumPy's:
         # jnp.asarray would compile a small program for each).
-        dynamic = [np.asarray(v) for v in (self.generations, self.crossover, self.mutation,
-                                           self.tol, self.atol, self.early_stop)]  # fmt: skip
-        state, best, median = _generations(fn, state, lower, upper, dynamic,
+        step = _Step(lower, upper, np.asarray(self.crossover), np.asarray(self.mutation))
+        stop = _Stop(np.asarray(self.generations), np.asarray(self.tol), np.asarray(self.atol),
+                     np.asarray(self.early_stop))  # fmt: skip
+        state, best, median = _generations(fn, state, step, stop,
                                            (self.generations, desc or "DE", progress))  # fmt: skip
         return _solution(state, best, median, self.population)
 
 
-def _generations(fn, state: DEState, lower, upper, dynamic: list, bar: tuple):
+def _generations(fn, state: DEState, step: _Step, stop: _Stop, bar: tuple):
     """Chunks of generations until the run converges or reaches its limit; the best value of
     every generation and the median after every chunk. ``bar``: (total, label, shown)."""
     total, desc, shown = bar
     best, median = [], []
     with progress_bar(total=total, desc=desc, enabled=shown, unit="gen") as bar:
         while True:
-            state, (b, active) = _chunk(fn, state, lower, upper, *dynamic)
+            state, (b, active) = _chunk(fn, state, step, stop)
             active = np.asarray(active)
             best.append(np.asarray(b)[active])
             median.append((int(state.generation), float(np.median(np.asarray(state.fitness)))))

@@ -56,8 +56,7 @@ class LevenbergMarquardt(AbstractSolver[LMSolution]):
         if x0 is None:
             raise ValueError("Levenberg-Marquardt needs a start point x0")
         x0 = np.clip(np.asarray(x0, dtype=float), box.lower, box.upper)
-        x, steps, ok = _lm_compiled(fn, x0, box.lower, box.upper, self.rtol, self.atol,
-                                    self.max_steps)  # fmt: skip
+        x, steps, ok = _lm_compiled(fn, x0, box, self)
         x = np.asarray(x)
         return LMSolution(
             x=x, value=float(_value(fn, x)), steps=int(steps), evaluations=int(steps) + 1,
@@ -65,11 +64,12 @@ class LevenbergMarquardt(AbstractSolver[LMSolution]):
         )  # fmt: skip
 
 
-def _lm(fn: Problem, x0, lower, upper, rtol: float, atol: float, max_steps: int):
+def _lm(fn: Problem, x0, box: Box, lm: LevenbergMarquardt):
     # Imported while tracing only: a run that loads the stored program needs none of it.
     import optimistix as optx
 
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    lower, upper = box.lower, box.upper
+    solver = optx.LevenbergMarquardt(rtol=lm.rtol, atol=lm.atol)
     # optimistix evaluates and differentiates the residuals several times while it traces;
     # as a nested jit they are traced once and the rest is reused.
     residuals = eqx.filter_jit(fn.residuals)
@@ -80,7 +80,7 @@ def _lm(fn: Problem, x0, lower, upper, rtol: float, atol: float, max_steps: int)
         lambda z, _: residuals(_box.to_x(z, lower, upper)),
         solver,
         _box.to_z(x0, lower, upper),
-        max_steps=max_steps,
+        max_steps=lm.max_steps,
         throw=False,
         options={"jac": "fwd"},
     )
