@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from .._core import write_output
 
@@ -88,12 +89,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
     if zeros:
         print(f"{PROG}: warning: {', '.join(zeros)} not determined by the data: written as 0 "
               f"in the {args.fmt} file, which says so", file=sys.stderr)  # fmt: skip
-    if out is None:
-        sys.stdout.write(text)
-    else:
-        write_output(out, text, "--out")
-        print(f"{args.fmt} export written to {out}")
-    return 0
+    return _emit(text, out, f"{args.fmt} export")
 
 
 def _cmd_predict(args: argparse.Namespace) -> int:
@@ -114,12 +110,7 @@ def _cmd_predict(args: argparse.Namespace) -> int:
                                      capture_position_mm=position, capture_hand_angle_deg=angle,
                                      axes=predictor.axes)  # fmt: skip
     text = points_csv_text(header, rows, hand_xy)
-    if out is None:
-        sys.stdout.write(text)
-    else:
-        write_output(out, text, "--out")
-        print(f"{len(rows)} hand commands (stage {args.stage}, mm) written to {out}")
-    return 0
+    return _emit(text, out, f"{len(rows)} hand commands (stage {args.stage}, mm)")
 
 
 def add_predict_command(sub: argparse._SubParsersAction) -> None:
@@ -144,3 +135,14 @@ def add_predict_command(sub: argparse._SubParsersAction) -> None:
         help="2: eq. (25) with the affine correction (default); 1: eq. (8), model only",
     )  # fmt: skip
     pre.set_defaults(func=_cmd_predict, jax=False)  # only for files it must check (see there)
+
+
+def _emit(text: str, out: Path | None, what: str) -> int:
+    """``text`` written to ``out`` (saying so, as ``what written to OUT``), or to standard
+    output."""
+    if out is None:
+        sys.stdout.write(text)
+    else:
+        write_output(out, text, "--out")
+        print(f"{what} written to {out}")
+    return 0

@@ -293,13 +293,7 @@ def _pictures(
     if exact:
         image_px, depth_mm = truth_c.project(truth_c.landmarks_tablet_px)
         return picture, depth, image_px, depth_mm
-    n = len(truth_c.landmarks_tablet_px)
-    blobs = find_blobs(picture, settings)
-    if len(blobs.image_px) != n:
-        hint = "; try exact=True (simulate --exact) or larger dots (--dot-px)"
-        raise BlobCountError("capture.png (simulated)", blobs, n, hint)
-    image_px = blobs.image_px[order_blobs(blobs.image_px, truth_c.landmarks_tablet_px)]
-    return picture, depth, image_px, depth_at(depth, image_px, settings.depth_window_px)
+    return picture, depth, *_detected(truth_c, picture, depth, settings)
 
 
 def simulate_captures(
