@@ -110,8 +110,10 @@ def test_partial_match_reads_no_picture_wrong():
     out = run_in_process("partial_match.py", "--trials", "40", "--seed", "3")
     total = [line.split() for line in out.splitlines() if line.strip().startswith("total")]
     assert len(total) == 1
-    _, right, refused, wrong = total[0]
-    assert int(wrong) == 0 and int(right) + int(refused) == 40 and int(right) > 20
+    right, refused, _, avoidable, wrong = map(int, total[0][1:6])
+    assert wrong == 0 and right + refused == 40 and right > 20
+    # blobs that span a quadrilateral are never refused as collinear, nor as matching nothing
+    assert avoidable == 0 and total[0][6:8] == ["(0,", "0,"], out
 
 
 def test_dots_by_height_finds_two_pixel_dots_from_80_mm_higher():
