@@ -98,6 +98,8 @@ _EXPORTS = {
     "PRESETS": "_simulate",
     "Prior": "_params",
     "plan_captures": "_plan",
+    "planned_view": "_plan",
+    "PlannedView": "_plan",
     "PriorObjective": "_objective",
     "put": "_params",
     "recalibrate": "_calibrate",
@@ -216,7 +218,7 @@ if TYPE_CHECKING:
     )
     from ._observations import Observations, Rig
     from ._params import ParameterSpace, Prior, put, resolve_names
-    from ._plan import plan_captures
+    from ._plan import PlannedView, plan_captures, planned_view
     from ._predict import hand_command
     from ._predictor import Predictor
     from ._report import render, write_report
@@ -263,6 +265,7 @@ __all__ = [
     "PRESETS",
     "ParameterSpace",
     "Plan",
+    "PlannedView",
     "Predictor",
     "Prior",
     "PriorObjective",
@@ -315,6 +318,7 @@ __all__ = [
     "models",
     "optim",
     "plan_captures",
+    "planned_view",
     "put",
     "recalibrate",
     "recalibration_plan",

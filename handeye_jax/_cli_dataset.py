@@ -9,7 +9,7 @@ from pathlib import Path
 from ._atomic import check_output, same_file
 from ._constants import RECOMMENDED_CAPTURES as RECOMMENDED
 from ._errors import InputError
-from ._validate import MAX_DEG, MAX_MM, parse_numbers
+from ._validate import MAX_DEG, MAX_IMAGE_PIXELS, MAX_MM, parse_numbers
 
 
 def _cmd_convert(args: argparse.Namespace) -> int:
@@ -40,19 +40,27 @@ def _cmd_convert(args: argparse.Namespace) -> int:
     return 0
 
 
-def _numbers(limit: float, unit: str):
+def _numbers(limit: float, unit: str, n: int | None = None):
     def parse(text: str) -> list[float]:
         try:
-            return parse_numbers(text, limit, unit)
+            return parse_numbers(text, limit, unit, n)
         except ValueError as e:
             raise argparse.ArgumentTypeError(str(e)) from None
 
     return parse
 
 
+def _image_size(text: str) -> tuple[int, int]:
+    w, h = _numbers(MAX_MM, "px", 2)(text)
+    if not (w == int(w) >= 8 and h == int(h) >= 8 and w * h <= MAX_IMAGE_PIXELS):
+        why = f"at least 8 px each, at most {MAX_IMAGE_PIXELS:,} px in all (got {text!r})"
+        raise argparse.ArgumentTypeError(f"needs 2 whole numbers, {why}")
+    return int(w), int(h)
+
+
 def _cmd_plan(args: argparse.Namespace) -> int:
     from ._dataset_io import backup_path, load_dataset, save_dataset, update_dataset
-    from ._plan import plan_captures
+    from ._plan import plan_captures, planned_view
 
     path = Path(args.dataset)
     out = None if args.out is None else check_output(args.out, "--out", [path])
@@ -75,7 +83,16 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     else:
         done = f"{path} already holds them"
     target = out or path
-    print(f"{done}; the pictures to take, each with every landmark in view, then detect each:")
+    cam = new.camera
+    size = args.image_size_px or (round(2 * cam.cx_px), round(2 * cam.cy_px))
+    views, why = {}, ""
+    try:
+        for k in indices:
+            c = new.captures[k]
+            views[k] = planned_view(new, c.hand_position_mm, c.hand_angle_deg, size)
+    except ValueError as e:
+        views, why = {}, str(e)
+    print(f"{done}; the pictures to take, then detect each:")
     for k in [0, *indices]:
         c = new.captures[k]
         x, y, z = (f"{v:g}" for v in c.hand_position_mm)
@@ -83,7 +100,36 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         print(f"  capture {k}: hand at ({x}, {y}, {z}) mm, hand angle {c.hand_angle_deg:g} deg "
               f"({seen}): handeye-jax detect CAP{k}.png DEP{k}.png --dataset {target} "
               f"--capture {k}")  # fmt: skip
+        if k in views and not views[k].in_view:
+            print(f"    {_lost(views[k])}")
+    if why:
+        print(f"Not checked whether each picture shows every landmark: {why}; detect capture "
+              "0, then plan again.")  # fmt: skip
+    elif views:
+        mount = next(iter(views.values())).describe_mount()
+        how = (f"a {size[0]} x {size[1]} px picture" + ("" if args.image_size_px else
+               " (twice the principal point)") + ", by the rig's approximate model (camera "
+               f"mount {mount})")  # fmt: skip
+        if all(v.in_view for v in views.values()):
+            print(f"Each planned picture shows every landmark ({how}).")
+        else:
+            print(f"Checked against {how}: plan other poses (less turn or rise) for the "
+                  "pictures that may lose landmarks.")  # fmt: skip
     return 0
+
+
+def _lost(view) -> str:
+    """Which landmarks a planned picture loses, in words."""
+
+    def names(ms):
+        return ("landmark " if len(ms) == 1 else "landmarks ") + ", ".join(map(str, ms))
+
+    parts = []
+    if view.outside:
+        parts.append(f"{names(view.outside)} outside the picture")
+    if view.at_risk:
+        parts.append(f"{names(view.at_risk)} near its edge (may fall outside)")
+    return "; ".join(parts)
 
 
 def add_dataset_commands(sub: argparse._SubParsersAction) -> None:
@@ -97,8 +143,9 @@ def add_dataset_commands(sub: argparse._SubParsersAction) -> None:
         description="Add an empty capture for each further picture the toolkit recommends: "
         "higher than the dataset's first capture by each --rise-mm, with the hand turned by "
         "each --turn-deg, so that the tablet page lists their poses and 'detect --capture K' "
-        "fills each. A pose the dataset already has is not added twice. Prints the poses and "
-        "the detect command of each picture.",
+        "fills each. A pose the dataset already has is not added twice. Prints the poses, "
+        "the detect command of each picture, and the landmarks each may not show (by the "
+        "rig's approximate model, from what the first capture saw).",
     )
     p.add_argument("dataset", help="the version-2 dataset (TOML)")
     p.add_argument(
@@ -110,6 +157,11 @@ def add_dataset_commands(sub: argparse._SubParsersAction) -> None:
         "--turn-deg", type=_numbers(MAX_DEG, "deg"), default=turns,
         metavar="DEG,DEG", help=f"each picture's hand angle minus the first capture's, deg; "
         f"write --turn-deg=-30,30 when the first is negative (default: {turns})",
+    )  # fmt: skip
+    p.add_argument(
+        "--image-size-px", type=_image_size, metavar="W,H",
+        help="the pictures' width and height, px, to check each planned picture against "
+        "(default: twice the camera's principal point)",
     )  # fmt: skip
     p.add_argument(
         "--out", metavar="NEW.toml",
