@@ -216,6 +216,14 @@ def _max_area_quad(points: np.ndarray, what: str) -> np.ndarray:
     return best
 
 
+def _spread(points: np.ndarray, among: np.ndarray | None = None) -> bool:
+    """Whether some four of the points have no three nearly in a row (:data:`MIN_TRIANGLE`
+    of the nearest two of ``among``, by default the points themselves)."""
+    among = points if among is None else among
+    spacing = min(np.linalg.norm(a - b) for a, b in itertools.combinations(among, 2))
+    return bool(_frames(points)[2].max() >= MIN_TRIANGLE * spacing**2)
+
+
 def order_blobs(
     blobs_px: Float[np.ndarray, "n 2"], layout_px: Float[np.ndarray, "n 2"]
 ) -> Int[np.ndarray, " n"]:
@@ -230,7 +238,11 @@ def order_blobs(
     when turned by a quarter turn. So the picture may show the grid turned by less than ±45°
     in its plane, and in perspective, not mirrored (as a camera above the display sees it). A
     square grid turned by more than 45° is indistinguishable from one turned by less, and is
-    ordered as the latter: keep the tablet's x axis roughly along the picture's u axis.
+    ordered as the latter: keep the tablet's x axis roughly along the picture's u axis. A
+    layout whose outermost four have three nearly in a row (a staircase or an L of at most
+    :data:`MAX_PARTIAL_LANDMARKS` landmarks), or a picture of it, fixes no map that way: it
+    is matched as :func:`match_blobs` matches a part (within that function's bounds on the
+    view).
 
     Args:
         blobs_px: blob centroids, image px, ``(n, 2)``.
@@ -245,8 +257,18 @@ def order_blobs(
     if len(blobs_px) != n or n < 4:
         raise ValueError(f"need the same number (>= 4) of blobs and landmarks, got {len(blobs_px)}"
                          f" and {n}")  # fmt: skip
-    q_layout = _max_area_quad(layout_px, "drawn landmarks (tablet_px)")
-    q_blobs = _max_area_quad(blobs_px, "blobs")
+    try:
+        q_layout = _max_area_quad(layout_px, "drawn landmarks (tablet_px)")
+        q_blobs = _max_area_quad(blobs_px, "blobs")
+        spread = _spread(layout_px[q_layout], layout_px) and _spread(blobs_px[q_blobs], blobs_px)
+    except ValueError:
+        if n > MAX_PARTIAL_LANDMARKS or not (_spread(layout_px) and _spread(blobs_px)):
+            raise
+        spread = False
+    if not spread and n <= MAX_PARTIAL_LANDMARKS:
+        # Three of the outermost four in a row (a staircase, an L) fix no map: match the
+        # whole layout as a part is matched.
+        return match_blobs(blobs_px, layout_px)[1]
     spacing = np.min([np.linalg.norm(a - b) for a, b in itertools.combinations(blobs_px, 2)])
     candidates = []
     for mirror in (False, True):
