@@ -310,9 +310,9 @@ MAX_ANISOTROPY = 1.5
 #: A match whose tablet x axis is within this of +u in the picture is a plausible reading.
 PLAUSIBLE_TURN_DEG = 55.0
 #: Four points fix a homography only if no three of them are nearly on a line: in
-#: :func:`match_blobs` the smallest triangle three of the four blobs make must cover at least
-#: this fraction of the square of the nearest two blobs' distance (a cell of a square grid
-#: gives 0.5; three dots of one row give 0, plus noise).
+#: :func:`match_blobs` (and :func:`order_blobs`) the smallest triangle three of four blobs
+#: make must cover at least this fraction of the square of the nearest two blobs' distance
+#: (a cell of a square grid gives 0.5; three dots of one row give 0, plus noise).
 MIN_TRIANGLE = 0.1
 
 
@@ -332,13 +332,12 @@ def _frames(points: Float[np.ndarray, "n 2"]) -> tuple[np.ndarray, np.ndarray, n
     tri = np.stack([np.abs(_cross(p[:, b] - p[:, a], p[:, c] - p[:, a])) for a, b, c in others],
                    axis=1)  # fmt: skip
     # A corner inside the triangle of the other three: that triangle is the other three's sum.
-    inner = tri.argmax(axis=1)
     convex = tri.max(axis=1) < 0.5 * tri.sum(axis=1) * (1 - 1e-9)
-    rank = np.where(np.arange(4) == inner[:, None], np.inf, 0.0)  # the inner corner last
+    inner = ~convex[:, None] & (np.arange(4) == tri.argmax(axis=1)[:, None])
     centre = p.mean(axis=1, keepdims=True)
     angle = np.arctan2(p[..., 1] - centre[..., 1], p[..., 0] - centre[..., 0])
-    key = np.where(convex[:, None], angle, np.where(np.isinf(rank), 10.0, angle))
-    quads = np.take_along_axis(quads, np.argsort(key, axis=1), axis=1)
+    # around the centre, the inner corner (angles are at most pi) last
+    quads = np.take_along_axis(quads, np.argsort(np.where(inner, 10.0, angle), axis=1), axis=1)
     return quads, convex, 0.5 * tri.min(axis=1)
 
 
@@ -448,8 +447,10 @@ def match_blobs(
     of them) is the largest, so that no three are nearly on a line. Every four landmarks of
     the same kind (the corners of a quadrilateral, or a triangle with one inside) are mapped
     onto them, in each way they can meet; each map that pairs every blob with a different
-    landmark gives a reading, whose homography is then fitted to all its pairs by least
-    squares. A reading is a candidate if that map could be a camera's view of a flat tablet:
+    landmark gives a reading, whose homography is then fitted to all its pairs (by algebraic
+    least squares, to sort out the readings far from plausible, then by reprojection error,
+    ``cv2.findHomography``). A reading is a candidate if that map could be a camera's view
+    of a flat tablet:
     every landmark in front of the camera (the map does not fold the tablet through the line
     it sends to infinity), its scales along two directions differ by at most
     :data:`MAX_ANISOTROPY` (no shear), each blob's landmark is the one mapped nearest it; and
