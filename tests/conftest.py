@@ -18,11 +18,13 @@ jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 
 
 # Property tests: the same draws on every clone and every run ("ci", the default: derandomised,
-# no example database), or new random draws and ten times the examples ("explore", run with
-# HYPOTHESIS_PROFILE=explore before an issue is closed; the README gives the command).
+# no example database, no verdict by the machine's speed), or new random draws and ten times
+# the examples ("explore", run with HYPOTHESIS_PROFILE=explore before an issue is closed; the
+# README gives the command).
 hypothesis.settings.register_profile(
-    "ci", derandomize=True, database=None, print_blob=True, deadline=None
-)
+    "ci", derandomize=True, database=None, print_blob=True, deadline=None,
+    suppress_health_check=[hypothesis.HealthCheck.too_slow],
+)  # fmt: skip
 hypothesis.settings.register_profile("explore", derandomize=False, print_blob=True, deadline=None)
 hypothesis.settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 EXPLORE_EXAMPLES = 10  # times each test's own max_examples
