@@ -557,6 +557,9 @@ def fit(
     model_cls = type(plan.space1.template)
     if settings.model != model_cls.name:
         raise ValueError(f"settings.model is {settings.model!r}, the plan's {model_cls.name!r}")
+    if not 0 <= settings.seed < 2**63:  # refused now, not by the diagnostics after the fit
+        raise ValueError(f"seed must be 0 to 2^63 - 1: numpy's generators take no other seed "
+                         f"(got {settings.seed})")  # fmt: skip
     check_population(dataset, settings.population)
     if not 0 <= settings.restarts <= MAX_RESTARTS:
         raise ValueError(f"restarts must be 0 to {MAX_RESTARTS:,} (got {settings.restarts})")

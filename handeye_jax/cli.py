@@ -108,8 +108,9 @@ def _restarts(text: str) -> int:
 
 def _seed(text: str) -> int:
     v = _whole_number(text)
-    if not -(2**63) <= v < 2**63:
-        raise argparse.ArgumentTypeError(f"must fit in 64 bits, -2^63 to 2^63 - 1 (got {v})")
+    if not 0 <= v < 2**63:  # as simulate's: the diagnostics seed numpy's generators with it
+        why = f"must be 0 to 2^63 - 1: numpy's generators take no other seed (got {v})"
+        raise argparse.ArgumentTypeError(why)
     return v
 
 
