@@ -267,8 +267,11 @@ def test_an_edited_prior_is_refused_before_the_fit(folder, tmp_path, capsys, nam
     out = tmp_path / "new.json"
     capsys.readouterr()
     assert main([*_calibrate_from(prior, PAPER), "--out", str(out)]) == 2
-    field = "frames" if name == "parameters only" else (
-        r"stage1\.residuals_mm\[\d\]\.image_vs_tablet_xy_mm")
+    field = (
+        "frames"
+        if name == "parameters only"
+        else (r"stage1\.residuals_mm\[\d\]\.image_vs_tablet_xy_mm")
+    )
     _one_line(capsys.readouterr().err, prior, field, "the file was edited after the fit")
     assert not out.exists()
 
@@ -313,7 +316,8 @@ def test_a_deliberate_rig_change_is_accepted_and_said(folder, new, tmp_path, cap
             "617.7 px → 630 px") in summary  # fmt: skip
     doc = json.loads(out.read_text())
     assert doc["recalibration"]["rig_changes"] == [
-        {"field": "camera.fx", "previous": 617.7, "new": 630.0, "unit": "px"}]
+        {"field": "camera.fx", "previous": 617.7, "new": 630.0, "unit": "px"}
+    ]
     assert load_result(out).rig.fx_px == 630.0  # the new rig's, and the file checks out
     capsys.readouterr()
     assert main(["calibrate", str(PAPER), "--accept-rig-change", *TINY]) == 2
