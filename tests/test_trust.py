@@ -4,7 +4,11 @@ foreign prior, a FIFO given as a result, a negative seed.
 The forgeries recompute the content digest, as anyone editing a file can: what refuses them is
 the agreement of a result's parts (frames, parameters, rig, data, residuals) and the rig's reach,
 checked by ``predict`` with NumPy alone and by every other reader through ``load_result``.
+
+The fixture ``folder`` (test_result_input's): a result the toolkit wrote of the paper's data,
+``folder/good.json``, and a points CSV, ``folder/pts.csv``.
 """
+# ruff: noqa: F811  (test functions take the imported fixture ``folder`` as an argument)
 
 from __future__ import annotations
 
@@ -35,20 +39,10 @@ from handeye_jax._io import DIGEST_KEY, document_digest
 from handeye_jax._objective import stage1_errors, stage2_errors
 from handeye_jax.cli import main
 from handeye_jax.models import AffinePair, model_registry
+from tests.test_result_input import TINY, folder  # noqa: F401  (folder: a fixture, below)
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "data" / "paper2023.toml"
-TINY = ["--population", "16", "--generations", "10", "--quiet"]
-POINTS = "u,v,depth,hand_angle\n338,244,169.2,90\n119,105,168.2,0\n"
-
-
-@pytest.fixture(scope="module")
-def folder(tmp_path_factory):
-    """A result the toolkit wrote of the paper's data (``good.json``), a points CSV."""
-    folder = tmp_path_factory.mktemp("trust")
-    assert main(["calibrate", str(PAPER), "--out", str(folder / "good.json"), *TINY]) == 0
-    (folder / "pts.csv").write_text(POINTS)
-    return folder
 
 
 def _with_digest(doc: dict) -> str:
