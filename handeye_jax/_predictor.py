@@ -94,7 +94,7 @@ def stored_result(path: str | Path) -> Checked | None:
             return None
     except ValueError:  # NaN or infinity, which the writer never writes
         return None
-    if doc.get("model") not in MODELS:  # its frames are checked against its parameters by JAX
+    if not isinstance(doc.get("model"), str) or doc["model"] not in MODELS:  # checked by JAX
         return None
     return check_result_document(doc, path)
 

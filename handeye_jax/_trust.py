@@ -142,7 +142,7 @@ def check_result_document(
     rows = _rows(c, data)
     _compare_rig(c, doc, rows)
     reach = Reach.around(rows.positions_mm)
-    for key, (e1, e2, command) in _replay(frames, rows).items():
+    for key, (e1, e2, command) in (_replay(frames, rows) if rows.n else {}).items():
         _compare_residuals(c, doc, key, e1, e2, rows.n)
         far = reach.excess_mm(command)
         m = int(np.argmax(far))
@@ -396,10 +396,16 @@ def _indices(c: _Doc, x: np.ndarray, where: str, key: str, n: int) -> np.ndarray
 
 def _compare_rig(c: _Doc, doc: dict[str, Any], rows: _Rows) -> None:
     """The rig a result was fitted with must be its data's (the fit takes it from there)."""
-    rig = doc["rig"]
+    rig = c.get(doc, "rig", "")
+    cam, angle = c.get(rig, "camera_px", "rig"), c.get(rig, "hand_angle", "rig")
     cap_angle = rig.get("capture_hand_angle_deg")
-    zero, sign = float(rig["hand_angle"]["zero_deg"]), float(rig["hand_angle"]["sign"])
-    pairs = [(f"rig.camera_px.{k}", rig["camera_px"][k], f"data.camera.{k}", v, "px")
+    cap_angle = None if cap_angle is None else c.number(cap_angle, "rig.capture_hand_angle_deg")
+    zero = c.number(c.get(angle, "zero_deg", "rig.hand_angle"), "rig.hand_angle.zero_deg")
+    sign = c.number(c.get(angle, "sign", "rig.hand_angle"), "rig.hand_angle.sign")
+    capture = c.vector(c.get(rig, "capture_hand_position_mm", "rig"),
+                       "rig.capture_hand_position_mm", 3)  # fmt: skip
+    pairs = [(f"rig.camera_px.{k}", c.number(c.get(cam, k, "rig.camera_px"), f"rig.camera_px.{k}"),
+              f"data.camera.{k}", v, "px")
              for k, v in zip(("fx", "fy", "cx", "cy"), rows.camera_px, strict=True)]  # fmt: skip
     pairs += [
         ("rig.hand_angle.zero_deg", zero, "data.hand_angle.zero", rows.zero_deg, "deg"),
@@ -407,7 +413,7 @@ def _compare_rig(c: _Doc, doc: dict[str, Any], rows: _Rows) -> None:
         ("rig.capture_hand_angle_deg", 0.0 if cap_angle is None else zero + sign * cap_angle,
          "the first capture's hand angle", rows.first_capture_phi_deg, "deg (as φ)"),
     ]  # fmt: skip
-    pairs += [(f"rig.capture_hand_position_mm[{i}]", rig["capture_hand_position_mm"][i],
+    pairs += [(f"rig.capture_hand_position_mm[{i}]", capture[i],
                "the first capture's hand_position", rows.first_capture_mm[i], "mm")
               for i in range(3)]  # fmt: skip
     for field, a, where, b, unit in pairs:
@@ -435,12 +441,15 @@ def _replay(f: Frames, rows: _Rows) -> dict[str, tuple[np.ndarray, np.ndarray, n
 
 def _compare_residuals(c: _Doc, doc: dict[str, Any], key: str, e1: np.ndarray, e2: np.ndarray,
                        n: int) -> None:  # fmt: skip
-    residuals = doc[key].get("residuals_mm") or []
+    stage = c.get(doc, key, "")
+    if not isinstance(stage, dict):
+        c.fail(key, "must be an object")
+    residuals = stage.get("residuals_mm") or []
     if not residuals:  # a result made without them (the library's own constructions)
         return
-    if len(residuals) != n:
-        c.fail(f"{key}.residuals_mm", f"must have {n} entries, one per row of the data (got "
-               f"{len(residuals)})")  # fmt: skip
+    if not isinstance(residuals, list) or len(residuals) != n:
+        c.fail(f"{key}.residuals_mm", f"must be an array of {n} entries, one per row of the "
+               "data")  # fmt: skip
     where = f"{key}.residuals_mm"
     for name, got in (("image_vs_tablet_xy_mm", e1), ("hand_xy_mm", e2)):
         recorded = c.column(residuals, name, where, (2,), math.inf)

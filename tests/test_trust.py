@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 from frames_cases import cases, run_without_jax
 from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from handeye_jax import (
     InputError,
@@ -37,9 +38,10 @@ from handeye_jax import (
 from handeye_jax._dataset import Camera
 from handeye_jax._io import DIGEST_KEY, document_digest
 from handeye_jax._objective import stage1_errors, stage2_errors
+from handeye_jax._predictor import stored_result
 from handeye_jax.cli import main
 from handeye_jax.models import AffinePair, model_registry
-from tests.test_result_input import TINY, folder  # noqa: F401  (folder: a fixture, below)
+from tests.test_result_input import JSON_VALUES, TINY, _paths, _set, folder  # noqa: F401
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "data" / "paper2023.toml"
@@ -207,6 +209,28 @@ def test_predict_refuses_a_hand_command_beyond_the_rigs_reach(folder, tmp_path, 
                      "338,244,169.2,90,2320,-70,290\n")  # fmt: skip
     assert main(["predict", str(folder / "good.json"), str(moved)]) == 0
     assert float(capsys.readouterr().out.splitlines()[1].split(",")[-2]) > 2000
+
+
+@settings(max_examples=60, deadline=None)
+@given(data=st.data(), value=JSON_VALUES)
+def test_any_changed_field_is_checked_without_jax_or_refused_in_one_line(folder, data, value):
+    """Any field of a result changed (its digest recomputed, so predict takes it without the
+    full reader): the NumPy checks load it usably or refuse it in one line, no other error."""
+    good = json.loads((folder / "good.json").read_text())
+    where = data.draw(st.sampled_from([p for p in _paths(good) if p and p[0] != DIGEST_KEY]))
+    doc = json.loads(json.dumps(good))
+    _set(doc, where, value)
+    path = folder / "changed.json"
+    path.write_text(_with_digest(doc))
+    for read in (Predictor.from_result, stored_result):
+        try:
+            got = read(path)
+        except InputError as e:
+            assert len(str(e).splitlines()) == 1 and str(e).startswith(f"{path}: "), str(e)
+            continue
+        if got is not None:
+            p = Predictor.from_frames(*got) if read is stored_result else got
+            assert np.isfinite(p.hand_command([[338.0, 244]], [169.2], [90.0])).all()
 
 
 def test_predictor_reach_is_the_recorded_hand_positions_with_a_margin(folder):
