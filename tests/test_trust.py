@@ -221,7 +221,10 @@ def test_any_changed_field_is_checked_without_jax_or_refused_in_one_line(folder,
     doc = json.loads(json.dumps(good))
     _set(doc, where, value)
     path = folder / "changed.json"
-    path.write_text(_with_digest(doc))
+    try:
+        path.write_text(_with_digest(doc))
+    except ValueError:  # NaN or infinity: no digest (the writer writes neither)
+        path.write_text(json.dumps(doc))
     for read in (Predictor.from_result, stored_result):
         try:
             got = read(path)
