@@ -22,6 +22,7 @@ if TYPE_CHECKING:  # the CLI's predict reads the CSV here without JAX
     from jaxtyping import Array, Float
 
     from ._observations import Rig
+    from ._trust import Reach
     from .models import AbstractCorrection, AbstractModel
 
 POINTS_HEADER = ("u", "v", "depth", "hand_angle")
@@ -169,6 +170,20 @@ def csv_number(path: Path, where: str, cell: str, limit: float) -> float:
     if abs(x) > limit:
         raise InputError(path, where, f"must be at most {limit:g} in magnitude (got {cell})")
     return x
+
+
+def check_reach(
+    path: str | Path, commands_mm: np.ndarray, reach: Reach, result: str | Path
+) -> None:
+    """Refuse hand commands beyond ``reach`` (:class:`~handeye_jax._trust.Reach`): an
+    :class:`InputError` naming the points file ``path`` and the first such point's line."""
+    far = reach.excess_mm(commands_mm)
+    i = int(np.argmax(far)) if len(far) else 0
+    if len(far) and far[i] > 0:
+        command = ", ".join(f"{c:.1f}" for c in commands_mm[i])
+        raise InputError(path, f"line {i + 2}", f"its hand command ({command}) mm lies "
+                         f"{far[i]:.0f} mm outside the rig's reach ({reach.describe()}): check "
+                         f"the point's values, or the result {str(result)!r}")  # fmt: skip
 
 
 def points_csv_text(header: list[str], rows: list[list[str]], hand_xy_mm: np.ndarray) -> str:

@@ -35,6 +35,7 @@ from ._observations import Rig
 from ._params import FIXED, FREE, PRIOR
 from ._result import CalibrationResult, StageResult
 from ._settings import SEED_RANGE, read_settings
+from ._trust import check_result_document
 from ._validate import (
     MAX_DEG,
     MAX_LANDMARKS,
@@ -215,7 +216,7 @@ def load_result(path: str | Path) -> CalibrationResult:
     recal = doc.get("recalibration")
     if recal is not None and not isinstance(recal, dict):
         r.fail("recalibration", f"must be an object (got {describe(recal)})")
-    return CalibrationResult(
+    result = CalibrationResult(
         model=model_cls.from_dict(stage1.params),
         correction=AffinePair.from_dict(stage2.params),
         rig=rig_from_dict(rig_doc),
@@ -233,6 +234,9 @@ def load_result(path: str | Path) -> CalibrationResult:
         recalibration=recal,
         heights=_heights(r, doc),
     )
+    # Its parts agree (frames, parameters, rig, data, residuals), as predict checks them.
+    check_result_document(doc, path, result.frames)
+    return result
 
 
 #: The keys of a result's ``heights`` (what the hand's heights at the touches determined).

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ._result import CalibrationResult, StageResult
+from ._rig_change import change_line
 from ._scope import scope_lines
 from .models import AffinePair
 
@@ -117,6 +118,8 @@ def format_summary(result: CalibrationResult) -> str:
                   else "given its posterior as their prior")  # fmt: skip
         lines.append(f"recalibrated from {recal['previous']}: refitted "
                      f"{', '.join(recal['refit'])}; the other parameters {others}")  # fmt: skip
+        if recal.get("rig_changes"):
+            lines.append(change_line(recal["rig_changes"]))
     lines.append("")
     early_stop = settings.early_stop
     diag = result.diagnostics

@@ -108,8 +108,9 @@ def _restarts(text: str) -> int:
 
 def _seed(text: str) -> int:
     v = _whole_number(text)
-    if not -(2**63) <= v < 2**63:
-        raise argparse.ArgumentTypeError(f"must fit in 64 bits, -2^63 to 2^63 - 1 (got {v})")
+    if not 0 <= v < 2**63:  # as simulate's: the diagnostics seed numpy's generators with it
+        why = f"must be 0 to 2^63 - 1: numpy's generators take no other seed (got {v})"
+        raise argparse.ArgumentTypeError(why)
     return v
 
 
@@ -133,6 +134,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
                          "needs --prior OLD.result.json, the result to start from")  # fmt: skip
     if args.prior and not args.refit:
         raise InputError(None, "--refit", "name what changed: camera, tablet, pen or parameters")
+    if args.accept_rig_change and not args.prior:
+        raise InputError(None, "--accept-rig-change", "needs --prior OLD.result.json")
     previous = load_result(args.prior) if args.prior else None
     model = args.model or (previous.model_name if previous else Settings().model)
     if previous is not None and model != previous.model_name:
@@ -161,7 +164,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         except ValueError as e:
             raise InputError(None, "--refit", str(e)) from None
         result = recalibrate(dataset, previous, refit, settings, fix=args.fix,
-                             source=Path(args.prior).name, progress=not args.quiet)  # fmt: skip
+                             source=Path(args.prior).name, progress=not args.quiet,
+                             accept_rig_change=args.accept_rig_change)  # fmt: skip
     if not args.no_diagnostics:
         result = diagnose(result, search=dataset.search)
     print(format_summary(result))
@@ -172,22 +176,23 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_predict(args: argparse.Namespace) -> int:
-    from ._predict import points_csv_text, read_capture_columns, read_points_csv
-    from ._predictor import Predictor, stored_frames
+    from ._predict import check_reach, points_csv_text, read_capture_columns, read_points_csv
+    from ._predictor import Predictor, result_reach, stored_result
 
     out = _output_path(args.out, "--out", [args.result, args.points])
-    frames = stored_frames(args.result)  # NumPy only: no JAX for a file as it was written
-    if frames is None:  # older or edited: validated, its frames checked against its parameters
+    checked = stored_result(args.result)  # NumPy only: no JAX for a file as it was written
+    if checked is None:  # older or edited: validated, its frames checked against its parameters
         _start_jax()
         from ._compute_frames import load_frames
 
-        frames = load_frames(args.result)
-    predictor = Predictor.from_frames(frames)
+        checked = (load_frames(args.result), result_reach(args.result))
+    predictor = Predictor.from_frames(*checked)
     header, rows, values = read_points_csv(args.points)
     position, angle = read_capture_columns(args.points, header, rows)
     hand_xy = predictor.hand_command(values[:, :2], values[:, 2], values[:, 3], stage=args.stage,
                                      capture_position_mm=position, capture_hand_angle_deg=angle,
                                      axes=predictor.axes)  # fmt: skip
+    check_reach(args.points, hand_xy, predictor.reach.including(position), args.result)
     text = points_csv_text(header, rows, hand_xy)
     if out is None:
         sys.stdout.write(text)
@@ -311,6 +316,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--fix", action="store_true",
         help="with --prior: hold the parameters not in --refit at its values instead of "
         "giving them its posterior as a prior",
+    )  # fmt: skip
+    cal.add_argument(
+        "--accept-rig-change", action="store_true",
+        help="with --prior: accept data whose intrinsics (fx, fy, cx, cy), tablet ppi or "
+        "scale, or hand-angle convention differ from the prior's (e.g. a re-calibrated "
+        "camera); the summary and the result say so. Without it they are refused",
     )  # fmt: skip
     cal.add_argument(
         "--no-diagnostics", action="store_true",
@@ -457,9 +468,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     with _interrupt.recording_interrupts():
         try:
             return _run_command(argv)
-        except KeyboardInterrupt:
-            print(f"{PROG}: interrupted; nothing was written", file=sys.stderr)
-            return 130
+        except KeyboardInterrupt:  # Ctrl-C or SIGTERM
+            what, code = _interrupt.stopped_by()
+            print(f"{PROG}: {what}; nothing was written", file=sys.stderr)
+            return code
 
 
 def _run_command(argv: Sequence[str] | None) -> int:

@@ -329,7 +329,7 @@ def test_bad_files_give_one_line_naming_the_file(tmp_path, result_file):
     big = tmp_path / "big.json"
     with open(big, "wb") as f:
         f.truncate(65 * 1024 * 1024)  # sparse: nothing is written
-    with pytest.raises(InputError, match="too large"):
+    with pytest.raises(InputError, match="larger than 64 MiB"):
         Predictor.from_result(big)
 
 
