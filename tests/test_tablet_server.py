@@ -326,7 +326,7 @@ def test_a_short_body_cannot_hold_a_thread(tmp_path):
             while chunk := raw.recv(65536):  # until the server closes the connection
                 answer += chunk
             waited = time.monotonic() - t0
-        assert answer.startswith(b"HTTP/1.0 408") or answer.startswith(b"HTTP/1.1 408"), answer
+        assert answer.startswith(b"HTTP/1.1 408"), answer
         assert b"Content-Length" in answer and 0.4 < waited < 5
         with socket.create_connection(("127.0.0.1", port), timeout=10) as idle:
             t0 = time.monotonic()
@@ -658,7 +658,7 @@ def test_a_dataset_whose_folder_cannot_be_written_is_refused_before_serving(
     before = _listing(folder)
     assert main(argv) == 2
     _one_error_line(capsys, f"{ds}: --dataset: cannot write in folder", "Permission denied",
-                    "keeps each previous version beside it as rig.toml.<UTC time>.bak")  # fmt: skip
+                    "keeps previous versions as rig.toml.<UTC time>.bak")  # fmt: skip
     assert _listing(folder) == before and not trials.exists()
     monkeypatch.undo()  # the same files in a writable folder: the server starts
     stop(start(ds, trials_path=trials))
@@ -983,7 +983,7 @@ def test_a_host_that_is_not_the_servers_is_refused(real):
     with socket.create_connection(("127.0.0.1", port), timeout=10) as raw:
         raw.sendall(f"GET /api/session HTTP/1.0\r\nX-Handeye-Token: {real.token}\r\n\r\n".encode())
         answer = b"".join(iter(lambda: raw.recv(65536), b""))
-    assert answer.startswith(b"HTTP/1.0 403") and b'"field": "Host"' in answer
+    assert answer.startswith(b"HTTP/1.1 403") and b'"field": "Host"' in answer
     for host in (f"127.0.0.1:{port}", f"localhost:{port}", f"LOCALHOST:{port}"):
         assert real.api("GET", "/api/session", host=host)[0] == 200, host
 
@@ -1017,7 +1017,7 @@ def test_an_oversized_content_length_gets_413_at_once(real):
                         f"Content-Length: {length}\r\n\r\n".encode())  # fmt: skip
             answer = b"".join(iter(lambda raw=raw: raw.recv(65536), b""))  # until it closes
             waited = time.monotonic() - t0
-        assert answer.startswith(b"HTTP/1.0 413"), answer[:100]
+        assert answer.startswith(b"HTTP/1.1 413"), answer[:100]
         assert f"body of {length} bytes is over the limit".encode() in answer
         assert waited < 2.0, waited  # not request_timeout_s (30 s)
     # A client that sends its whole oversized body reads the 413 too (not a reset).
@@ -1116,7 +1116,7 @@ def test_fifty_concurrent_posts_get_in_while_the_server_is_busy(real):
         t.start()
     for t in threads:
         t.join()
-    assert answers == [b"HTTP/1.0 200 OK"] * n
+    assert answers == [b"HTTP/1.1 200 OK"] * n
     saved = json.loads(real.dataset.with_name("rig.trials.json").read_text())["trials"]
     assert sorted(t["run_id"] for t in saved if t["label"] == "busy") == sorted(
         f"busy-{i}" for i in range(n)
