@@ -39,6 +39,10 @@ MAX_CONNECTIONS = 256
 SPARE_FILES = 64
 # Connections the kernel completes before the server accepts them: a burst gets in whole.
 LISTEN_BACKLOG = 1024
+# Connections accepted at a time (asyncio accepts its `backlog` in a row): between batches the
+# accepted ones are read, so a whole request is read before a burst of newer connections
+# could push its connection out over the cap.
+ACCEPT_BATCH = 32
 HANDLER_THREADS = 4
 MAX_HEAD_BYTES = 16 * 1024
 # After an answer with the body unread: read (and drop) what the client still sends, briefly,
@@ -204,8 +208,9 @@ class HTTPServer:
                 self._stop.set()
         with concurrent.futures.ThreadPoolExecutor(HANDLER_THREADS) as self._pool:
             server = await asyncio.start_server(
-                self._connection, sock=self.socket, backlog=LISTEN_BACKLOG
+                self._connection, sock=self.socket, backlog=ACCEPT_BATCH
             )
+            self.socket.listen(LISTEN_BACKLOG)  # start_server set the kernel's queue to the batch
             try:
                 await self._stop.wait()
             finally:
