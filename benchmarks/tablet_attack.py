@@ -62,11 +62,18 @@ _LIBRARIES = {
 }
 
 
-def _limit_files(nofile: int):
-    def limit() -> None:
-        resource.setrlimit(resource.RLIMIT_NOFILE, (nofile, nofile))
-
-    return limit
+# The server's command, run after setting its file limit (no preexec_fn: a fork of a process
+# with threads, e.g. JAX's in the test suite, may deadlock).
+_LIMITED = (
+    "import resource, runpy, sys\n"
+    "n = int(sys.argv.pop(1))\n"
+    "resource.setrlimit(resource.RLIMIT_NOFILE, (n, n))\n"
+    "if sys.argv[1] == '-m':\n"
+    "    sys.argv = sys.argv[2:]\n"
+    "    runpy.run_module(sys.argv[0], run_name='__main__', alter_sys=True)\n"
+    "else:\n"
+    "    exec(sys.argv[2])\n"
+)
 
 
 def raise_own_file_limit(need: int) -> None:
@@ -96,14 +103,13 @@ class Server:
         if kind == "tablet":
             dataset = folder / "rig.toml"
             shutil.copy(PAPER, dataset)
-            cmd = [sys.executable, "-m", "handeye_jax.cli", "tablet", "--dataset", str(dataset),
-                   "--port", "0"]  # fmt: skip
+            cmd = ["-m", "handeye_jax.cli", "tablet", "--dataset", str(dataset), "--port", "0"]
         else:
             self.port = _free_port()
-            cmd = [sys.executable, "-c", _LIBRARIES[kind].replace("PORT", str(self.port))]
+            cmd = ["-c", _LIBRARIES[kind].replace("PORT", str(self.port))]
         self.proc = subprocess.Popen(
-            cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=folder,
-            preexec_fn=_limit_files(nofile),
+            [sys.executable, "-c", _LIMITED, str(nofile), *cmd],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=folder,
         )  # fmt: skip
         self.log = bytearray()
         self.lines = 0

@@ -101,7 +101,7 @@ class TabletHandler:
 
     def refuse(self, status: int, message: str, field: str = "") -> Response:
         doc = {"error": message, "field": field, "status": int(status)}
-        note = f"refused: {field + ': ' if field else ''}{message}" if status == 403 else ""
+        note = f"refused: {message}" if status == 403 else ""
         return _json(status, doc, note)
 
     # -- who may ask ---------------------------------------------------------------------
