@@ -2,6 +2,7 @@
 
     python benchmarks/tablet_attack.py [--server tablet|waitress|cheroot|uvicorn]
         [--tree PATH] [--connections 1100] [--seconds 10] [--nofile 1024] [--resets 200]
+        [--attacks slow,resets,escapes]
 
 The server runs in its own process with ``RLIMIT_NOFILE = --nofile`` (the desktop's usual
 ``ulimit -n 1024``): ``tablet`` is ``python -m handeye_jax.cli tablet`` from ``--tree`` (this
@@ -294,30 +295,39 @@ def main() -> None:
     p.add_argument("--drip", type=float, default=2.0, help="seconds between header lines")
     p.add_argument("--nofile", type=int, default=1024, help="the server's RLIMIT_NOFILE")
     p.add_argument("--resets", type=int, default=200)
+    p.add_argument("--attacks", default="slow,resets,escapes",
+                   help="which attacks, in this order (a server the first stalled may log "
+                   "more at the next)")  # fmt: skip
     args = p.parse_args()
+    attacks = args.attacks.split(",")
     raise_own_file_limit(args.connections + 200)
     with tempfile.TemporaryDirectory() as tmp:
         server = Server(args.server, Path(tmp), args.tree.resolve(), args.nofile)
         try:
             print(f"server: {args.server} ({args.tree}), RLIMIT_NOFILE {args.nofile}")
-            quiet = server.ask()
-            print(f"operator's answer before the attack: {quiet:.3f} s")
-            slow = slow_attack(server, args.connections, args.seconds, args.drip)
-            print(f"{args.connections} slow connections, {args.seconds:g} s: operator answered "
-                  f"{slow['answered']} of {slow['asked']}, median "
-                  f"{_s(slow['median_s'])}, max {_s(slow['max_s'])}; server CPU "
-                  f"{100 * slow['cpu_core']:.1f} % of a core; connections reopened by the "
-                  f"attacker {slow['reopened']}")  # fmt: skip
-            time.sleep(1.0)
-            after = server.ask(timeout_s=10.0)
-            print(f"operator's answer after the attack: {_s(after)}")
-            resets = reset_flood(server, args.resets)
-            print(f"{args.resets} reset connections: {resets['lines']} log lines, "
-                  f"{resets['bytes']} bytes")  # fmt: skip
-            esc = escapes(server)
-            print(f"control bytes of a request path in the log: {esc['control_bytes_in_log']}")
+            print(f"operator's answer before the attack: {_s(server.ask())}")
+            if "slow" in attacks:
+                _report_slow(server, args)
+            if "resets" in attacks:
+                resets = reset_flood(server, args.resets)
+                print(f"{args.resets} reset connections: {resets['lines']} log lines, "
+                      f"{resets['bytes']} bytes")  # fmt: skip
+            if "escapes" in attacks:
+                esc = escapes(server)
+                print(f"control bytes of a request path in the log: "
+                      f"{esc['control_bytes_in_log']}")  # fmt: skip
         finally:
             server.stop()
+
+
+def _report_slow(server: Server, args: argparse.Namespace) -> None:
+    slow = slow_attack(server, args.connections, args.seconds, args.drip)
+    print(f"{args.connections} slow connections, {args.seconds:g} s: operator answered "
+          f"{slow['answered']} of {slow['asked']}, median {_s(slow['median_s'])}, max "
+          f"{_s(slow['max_s'])}; server CPU {100 * slow['cpu_core']:.1f} % of a core; "
+          f"connections reopened by the attacker {slow['reopened']}")  # fmt: skip
+    time.sleep(1.0)
+    print(f"operator's answer after the attack: {_s(server.ask(timeout_s=10.0))}")
 
 
 def _s(t: float | None) -> str:

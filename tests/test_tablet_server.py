@@ -1,5 +1,6 @@
 """The tablet server without a browser: only the operator gets in, strict bounded posts,
-files never corrupted and every version of the dataset kept, one-line errors.
+files never corrupted, the first and the last 50 versions of the dataset kept, one-line
+errors; no stranger can stall it, flood its log or write to its terminal.
 
 Most tests use a server in this process (over a copy of the paper's dataset); the ones on
 who may get in (the secret, Host, Origin) and on what the listening socket takes run against
