@@ -7,7 +7,8 @@
 The server runs in its own process with ``RLIMIT_NOFILE = --nofile`` (the desktop's usual
 ``ulimit -n 1024``): ``tablet`` is ``python -m handeye_jax.cli tablet`` from ``--tree`` (this
 checkout by default; give another, e.g. main's, to compare); the others serve a one-line WSGI
-or ASGI app with the library's default settings, to weigh a server library against our own.
+or ASGI app with the library's default settings, to weigh a server library against our own
+(they are not the project's dependencies: ``pip install waitress cheroot uvicorn`` first).
 
 1. **Slow connections.** ``--connections`` connections each send a request line, then one
    header line every ``--drip`` s, and never finish; a connection the server closes is opened
