@@ -150,3 +150,11 @@ def test_startup_times_every_command_and_the_parts_of_a_calibration():
         for part in ("import", "stage1_de", "stage1_polish", "stage2_polish", "whole process"):
             assert re.search(rf"^\| {kind} \| {part} \| \d+\.\d\d \| ", out, re.M), (kind, part)
     assert re.search(r"NumPy Predictor, in this process: \d+\.\d+ µs per point", out)
+
+
+def test_tablet_attack_runs_every_attack():
+    out = _run("tablet_attack.py", "--connections", "40", "--seconds", "1", "--drip", "0.5",
+               "--resets", "5")  # fmt: skip
+    assert re.search(r"40 slow connections, 1 s: operator answered (\d+) of \1,", out), out
+    assert re.search(r"5 reset connections: \d log lines", out), out
+    assert "control bytes of a request path in the log: False" in out
