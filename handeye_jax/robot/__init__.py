@@ -14,7 +14,8 @@ _EXPORTS = {
         "export_text", "FORMATS", "NAME_PATTERN", "zero_filled",
     ),
     "_frames": ("Affine", "Frames", "TRANSLATIONS"),
-    "_predictor": ("Predictor", "read_json", "stored_frames"),
+    "_predictor": ("Predictor", "read_json", "result_reach", "stored_frames", "stored_result"),
+    "_trust": ("check_reach", "check_result_document"),
 }
 # fmt: on
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)
