@@ -1,6 +1,7 @@
 """The robot's side, NumPy only (no JAX): the fitted frames as plain numbers
-(:class:`Frames`), the hand command from them (:class:`Predictor`), and their exports (URDF,
-ROS 2, OpenCV, YAML, JSON, a NumPy module). A robot PC needs nothing above this folder."""
+(:class:`Frames`), a result file's parts checked against each other and the rig's reach, the
+hand command from them (:class:`Predictor`), and their exports (URDF, ROS 2, OpenCV, YAML,
+JSON, a NumPy module). A robot PC needs nothing above this folder."""
 
 from __future__ import annotations
 

@@ -294,7 +294,7 @@ def _opencv(frames: Frames, source: str) -> str:
 
 
 def _kernel_source() -> str:
-    """The functions of :mod:`handeye_jax._npchain`, as source (no docstring, no imports)."""
+    """The functions of :mod:`handeye_jax.robot._npchain`, as source (no docstring, no imports)."""
     source = inspect.getsource(_npchain)
     tree = ast.parse(source)
     parts = [ast.get_source_segment(source, node) for node in tree.body
@@ -419,7 +419,7 @@ def hand_command(
     return np.column_stack([xy, z + PEN_MINUS_CAMERA_Z_MM])
 
 
-# The chain: handeye_jax._npchain, verbatim.
+# The chain: handeye_jax.robot._npchain, verbatim.
 
 
 {_kernel_source()}'''

@@ -38,7 +38,7 @@ REACH_MARGIN_MM = 500.0
 #: How closely the recorded residuals must match the replayed ones, mm (float64 gives 1e-10).
 RESIDUAL_TOL_MM = 1e-6
 #: How closely the frames must match those the parameters give (relative to max(1, |value|)),
-#: as :func:`~handeye_jax._compute_frames.load_frames` checks them with JAX.
+#: as :func:`~handeye_jax.calibration.load_frames` checks them with JAX.
 FRAMES_TOL = 1e-9
 UNDETERMINED = tuple(f"{t}.z" for t in TRANSLATIONS)
 EDITED = "the file was edited after the fit"
