@@ -253,6 +253,20 @@ def test_console_script_exit_keeps_every_output(tmp_path):
     assert load_result(out).stage1.F > 0
 
 
+def test_a_closed_pipe_on_stdout_keeps_the_result_and_says_nothing(tmp_path):
+    # `handeye-jax calibrate ... --out r.json | head -1`: the reader leaves before the summary.
+    out = tmp_path / "r.json"
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    p = subprocess.Popen([sys.executable, "-m", "handeye_jax.cli", "calibrate", str(PAPER),
+                          "--population", "40", "--generations", "5", "--no-diagnostics",
+                          "--quiet", "--out", str(out)], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, env=env)  # fmt: skip
+    p.stdout.close()
+    err = p.stderr.read().decode()
+    assert p.wait() == 141 and err == "", err
+    assert load_result(out).stage1.F > 0
+
+
 def test_console_script_runs_without_traceback(tmp_path):
     bad = _bad_dataset(tmp_path, "scale = 2.0", "scale = -2.0")
     env = dict(os.environ, JAX_PLATFORMS="cpu")

@@ -1,8 +1,10 @@
 """The README's examples run as written, its set-up commands are the CI's and work on Debian's
 own Python, and what it says agrees with the code (the paper it cites, the stage to deploy)."""
 
+import argparse
 import os
 import re
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -115,3 +117,58 @@ def test_the_layout_says_what_each_folder_says_of_itself():
         want.append(f"**`{name}`** {_first_paragraph(path)}")
     got = [" ".join(p.split()) for p in block.split("-->", 1)[1].strip().split("\n\n")]
     assert got == want
+
+
+def _command_line_entries() -> dict[str, str]:
+    """The "Command line" synopsis block: each command's entry (its lines) by its name."""
+    section = README[README.index("## Command line") :]
+    block = re.search(r"```text\n(.*?)```", section, flags=re.S).group(1)
+    entries: dict[str, str] = {}
+    for line in block.splitlines():
+        if line.startswith("handeye-jax "):
+            name = line.split()[1]
+            entries[name] = line
+        else:
+            entries[name] += "\n" + line
+    return entries
+
+
+def test_the_command_line_block_lists_every_command_and_option():
+    from handeye_jax.cli import build_parser
+
+    parser = build_parser()
+    (sub,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    entries = _command_line_entries()
+    assert set(sub.choices) <= set(entries), set(sub.choices) - set(entries)
+    for name, command in sub.choices.items():
+        options = {o for a in command._actions for o in a.option_strings if o.startswith("--")}
+        missing = {o for o in options - {"--help"} if o not in entries[name]}
+        assert not missing, (name, missing)
+
+
+@pytest.mark.slow
+def test_the_recalibration_walkthrough_runs_as_written(tmp_path, monkeypatch, capsys):
+    """Every command of "Try it without a robot", as printed, in a folder of its own (with a
+    smaller DE budget as the commands' defaults, to keep the suite's time)."""
+    import dataclasses
+
+    import handeye_jax.calibration as calibration
+    from handeye_jax.cli import main
+
+    @dataclasses.dataclass(frozen=True)
+    class Budget(calibration.Settings):
+        population: int = 200
+        generations: int = 400
+        restarts: int = 4
+
+    monkeypatch.setattr(calibration, "Settings", Budget)
+
+    section = README[README.index("Try it without a robot") :]
+    block = re.search(r"```text\n(.*?)```", section, flags=re.S).group(1)
+    lines = [line for line in block.splitlines() if line and not line.startswith("#")]
+    assert lines[-1].startswith("handeye-jax evaluate")
+    monkeypatch.chdir(tmp_path)
+    for line in lines:
+        assert main(shlex.split(line)[1:]) == 0, line
+    rows = [r for r in capsys.readouterr().out.splitlines() if r.startswith("| stage 2")]
+    assert len(rows) == 1 and float(rows[0].split("|")[2]) < 1.5  # mm: a pen recalibrated

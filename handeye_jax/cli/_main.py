@@ -73,6 +73,9 @@ def _run_command(argv: Sequence[str] | None) -> int:
     except InputError as e:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # `... | head`: the reader has what it wanted; files are complete
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141  # 128 + SIGPIPE, as a shell tool killed by the closed pipe reports
     except Exception as e:  # the user gets one line; developers can ask for the traceback
         if interrupts.pending():  # a Ctrl-C that C++ code turned into another error
             raise KeyboardInterrupt from None
