@@ -29,7 +29,7 @@ import numpy as np
 from .._core import MAX_DEG, MAX_MM, MAX_PX, InputError, Reader
 from . import _npchain
 from ._frames import TRANSLATIONS, Affine, Frames
-from ._npframes import AFFINE_PARAMS, MODELS, mount_pose_pen
+from ._npframes import AFFINE_PARAMS, MODELS, chain_of, mount_pose_pen
 
 #: How far beyond the hand positions a calibration recorded (its captures and touches) a hand
 #: command may lie, mm: a camera's view from those poses at a rig's working depths, with room
@@ -439,15 +439,15 @@ def _compare_rig(c: _Doc, doc: dict[str, Any], rows: _Rows) -> None:
 def _replay(f: Frames, rows: _Rows) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Each stage's error vectors (image vs tablet, hand) and hand commands at the data's
     rows, as the fit computes them (``_objective.stage1_errors``, ``stage2_errors``), mm."""
-    x_bi = _npchain.image_to_base_xy(rows.image_px, rows.depth_mm, f.camera_px, f.R_hand_camera,
-                                     f.t_hand_camera_mm, rows.capture_mm,
+    chain = chain_of(f)
+    x_bi = _npchain.image_to_base_xy(chain, rows.image_px, rows.depth_mm, rows.capture_mm,
                                      rows.capture_phi_deg)  # fmt: skip
     R = f.R_base_tablet[:2, :2]
     x_bt = rows.tablet_mm @ R.T + f.t_base_tablet_mm[:2]
     target = rows.hand_xy_mm - rows.touch_error_mm @ R.T
-    offset = _npchain.pen_offset_xy(f.t_hand_pen_mm, rows.phi_deg)
-    a1 = _npchain.affine_about(x_bi, f.centres_mm[0], f.A1.as_tuple())
-    command2 = _npchain.affine_about(a1 - offset, f.centres_mm[1], f.A2.as_tuple())
+    offset = _npchain.pen_offset_xy(chain.t_hand_pen_mm, rows.phi_deg)
+    a1 = _npchain.affine_about(x_bi, chain.centres_mm[0], chain.A1)
+    command2 = _npchain.affine_about(a1 - offset, chain.centres_mm[1], chain.A2)
     command1 = x_bi - offset
     return {"stage1": (x_bi - x_bt, command1 - target, command1),
             "stage2": (a1 - x_bt, command2 - target, command2)}  # fmt: skip
