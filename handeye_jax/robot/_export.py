@@ -294,11 +294,12 @@ def _opencv(frames: Frames, source: str) -> str:
 
 
 def _kernel_source() -> str:
-    """The functions of :mod:`handeye_jax.robot._npchain`, as source (no docstring, no imports)."""
+    """The classes and functions of :mod:`handeye_jax.robot._npchain`, as source (no docstring,
+    no imports)."""
     source = inspect.getsource(_npchain)
     tree = ast.parse(source)
     parts = [ast.get_source_segment(source, node) for node in tree.body
-             if isinstance(node, ast.FunctionDef)]  # fmt: skip
+             if isinstance(node, ast.FunctionDef | ast.ClassDef)]  # fmt: skip
     return "\n\n\n".join(parts) + "\n"
 
 
@@ -344,6 +345,8 @@ Units: mm, deg, px. Frames (R_a_b maps frame b to frame a, p_a = R_a_b·p_b + t_
 {undetermined}"""
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
@@ -408,14 +411,14 @@ def hand_command(
         np.asarray(capture_hand_angle_deg, dtype=np.float64)
     )
     cap = np.asarray(cap, dtype=np.float64)
+    chain = Chain(CAMERA_PX, R_HAND_CAMERA, T_HAND_CAMERA_MM, T_HAND_PEN_MM, A1, A2, CENTRES_MM)
     xy = hand_command_xy(
-        uv, depth, HAND_ANGLE_ZERO_DEG + HAND_ANGLE_SIGN * angle, stage, CAMERA_PX,
-        R_HAND_CAMERA, T_HAND_CAMERA_MM, T_HAND_PEN_MM, cap,
-        HAND_ANGLE_ZERO_DEG + HAND_ANGLE_SIGN * cap_angle, A1, A2, CENTRES_MM,
+        chain, uv, depth, HAND_ANGLE_ZERO_DEG + HAND_ANGLE_SIGN * angle, cap,
+        HAND_ANGLE_ZERO_DEG + HAND_ANGLE_SIGN * cap_angle, stage=stage,
     )
     if axes == "xy":
         return xy
-    z = image_to_base_z(uv, depth, CAMERA_PX, R_HAND_CAMERA, cap)
+    z = image_to_base_z(chain, uv, depth, cap)
     return np.column_stack([xy, z + PEN_MINUS_CAMERA_Z_MM])
 
 

@@ -169,8 +169,8 @@ def evaluate(
     rows.append(("oracle", hand_command(model, rig, image_px, depth_mm, angle_deg)))
     if dataset is not None:
         correction, centres = fit_correction(dataset, model, oracle_settings(result))
-        cmd = hand_command(model, rig, image_px, depth_mm, angle_deg, correction,
-                           jnp.asarray(centres))  # fmt: skip
+        cmd = hand_command(model, rig, image_px, depth_mm, angle_deg, correction=correction,
+                           centres_mm=jnp.asarray(centres))  # fmt: skip
         rows.append(("oracle + stage 2", cmd))
     return [
         TouchingError(
@@ -239,8 +239,8 @@ def evaluate_points(
     if dataset is not None:
         correction, centres = fit_correction(dataset, model, oracle_settings(result))
         rows.append(("oracle + stage 2", hand_command(
-            model, rig, image_px, depth_mm, angle, correction, jnp.asarray(centres), **jpose,
-            pen_minus_camera_mm=dz)))  # fmt: skip
+            model, rig, image_px, depth_mm, angle, correction=correction,
+            centres_mm=jnp.asarray(centres), **jpose, pen_minus_camera_mm=dz)))  # fmt: skip
     want = truth.true_command(heldout.true_mm, heldout.hand_angle_deg)
     rise = heldout.capture_position_mm[:, 2] - truth.capture_position_mm[2]
     out = []
