@@ -32,6 +32,7 @@ import textwrap
 import numpy as np
 
 from .._core import package_version
+from ..data import distort_px, undistort_px
 from . import _npchain
 from ._frames import AXES, REASONS, Frames
 
@@ -265,7 +266,8 @@ def _opencv(frames: Frames, source: str) -> str:
         "t_pentip2gripper: the pen tip (tool centre point) in the gripper frame, mm.",
         f"Frames: gripper = {AXES['hand']}. camera = {AXES['camera_optical']}.",
         f"tablet = {AXES['tablet']}.",
-        "camera_matrix: [fx 0 cx; 0 fy cy; 0 0 1], px (no distortion model).",
+        "camera_matrix: [fx 0 cx; 0 fy cy; 0 0 1], px; distortion_coefficients: (k1 k2 p1 p2",
+        "k3) as cv2.undistortPoints takes them (zeros: the pictures have no distortion).",
         "hand_angle: phi = zero_deg + sign * theta_h turns the gripper about its own z.",
         "stage2_A1, stage2_A2: (X mm, Y mm, theta deg, Sx, Sy) of eq. (24); stage2_centres_mm:",
         "their centres (rows). Hand command = A2(A1(x_bi) - x'), see the json export.",
@@ -282,6 +284,7 @@ def _opencv(frames: Frames, source: str) -> str:
     fs.write("t_tablet2base", t(frames.t_base_tablet_mm))
     fs.write("t_pentip2gripper", t(frames.t_hand_pen_mm))
     fs.write("camera_matrix", np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]))
+    fs.write("distortion_coefficients", np.array(frames.distortion or (0.0,) * 5).reshape(1, 5))
     fs.write("hand_angle_zero_deg", float(frames.hand_angle_zero_deg))
     fs.write("hand_angle_sign", int(frames.hand_angle_sign))
     fs.write("capture_position_mm", frames.capture_position_mm.reshape(3, 1))
@@ -294,11 +297,13 @@ def _opencv(frames: Frames, source: str) -> str:
 
 
 def _kernel_source() -> str:
-    """The functions of :mod:`handeye_jax._npchain`, as source (no docstring, no imports)."""
+    """The functions of :mod:`handeye_jax._npchain` and the lens's undistortion, as source
+    (no docstring, no imports)."""
     source = inspect.getsource(_npchain)
     tree = ast.parse(source)
     parts = [ast.get_source_segment(source, node) for node in tree.body
              if isinstance(node, ast.FunctionDef)]  # fmt: skip
+    parts += [inspect.getsource(distort_px).rstrip(), inspect.getsource(undistort_px).rstrip()]
     return "\n\n\n".join(parts) + "\n"
 
 
@@ -356,8 +361,10 @@ R_BASE_TABLET = {_py_matrix(f.R_base_tablet)}
 T_BASE_TABLET_MM = {_py_vector(f.t_base_tablet_mm)}
 # The pen tip (tool centre point) in the hand frame, mm.
 T_HAND_PEN_MM = {_py_vector(f.t_hand_pen_mm)}
-# Intrinsics (fx, fy, cx, cy), px.
+# Intrinsics (fx, fy, cx, cy), px, and the lens distortion: plumb_bob (k1, k2, p1, p2, k3), or
+# None. Image points are undistorted with it before the chain.
 CAMERA_PX = ({_num(f.fx_px)}, {_num(f.fy_px)}, {_num(f.cx_px)}, {_num(f.cy_px)})
+DISTORTION = {None if f.distortion is None else "(" + ", ".join(map(_num, f.distortion)) + ")"}
 # The controller's hand angle θh turns the hand about its own z by φ = ZERO + SIGN·θh, deg.
 HAND_ANGLE_ZERO_DEG = {_num(f.hand_angle_zero_deg)}
 HAND_ANGLE_SIGN = {f.hand_angle_sign}
@@ -399,7 +406,8 @@ def hand_command(
         raise ValueError(f"stage must be 1 or 2 (got {{stage!r}})")
     if axes not in ("xy", "xyz") or (axes == "xyz" and PEN_MINUS_CAMERA_Z_MM is None):
         raise ValueError(f"axes must be 'xy' (or 'xyz' with heights; got {{axes!r}})")
-    uv = np.asarray(image_px, dtype=np.float64).reshape(-1, 2)
+    uv = undistort_px(np.asarray(image_px, dtype=np.float64).reshape(-1, 2), CAMERA_PX,
+                      DISTORTION)
     n = uv.shape[0]
     depth = np.broadcast_to(np.asarray(depth_mm, dtype=np.float64), (n,))
     angle = np.broadcast_to(np.asarray(hand_angle_deg, dtype=np.float64), (n,))
@@ -419,7 +427,7 @@ def hand_command(
     return np.column_stack([xy, z + PEN_MINUS_CAMERA_Z_MM])
 
 
-# The chain: handeye_jax._npchain, verbatim.
+# The chain: handeye_jax._npchain and the lens's undistortion, verbatim.
 
 
 {_kernel_source()}'''

@@ -19,7 +19,7 @@ _EXPORTS = {
         "simulate_captures", "Twin", "write_twin",
     ),
     "_synthetic": ("seen_from", "synthesize_captures", "synthesize_dataset", "true_command"),
-    "_truth": ("change_truth", "draw_truth", "load_truth", "TwinTruth"),
+    "_truth": ("change_truth", "draw_truth", "load_truth", "REALSENSE_LIKE", "TwinTruth"),
 }
 # fmt: on
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)
