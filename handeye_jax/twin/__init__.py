@@ -19,6 +19,7 @@ _EXPORTS = {
         "simulate_captures", "Twin", "write_twin",
     ),
     "_synthetic": ("seen_from", "synthesize_captures", "synthesize_dataset", "true_command"),
+    "_poses": ("tool_poses",),
     "_truth": ("change_truth", "draw_truth", "load_truth", "REALSENSE_LIKE", "TwinTruth"),
 }
 # fmt: on
