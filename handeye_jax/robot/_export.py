@@ -12,6 +12,9 @@ Every format holds the same :class:`~handeye_jax.Frames`, each in its ecosystem'
 * ``opencv``: ``R_cam2gripper`` and ``t_cam2gripper`` as ``cv2.calibrateHandEye`` returns them
   (plus the rest of the chain), written with ``cv2.FileStorage``.
 * ``python``: a standalone, NumPy-only module with the fitted numbers inside.
+* ``easy_handeye``: the YAML easy_handeye (ROS) stores an eye-on-hand calibration in: its
+  ``parameters`` (frames named) and ``transformation`` (``x y z`` in metres, ``qx qy qz qw``)
+  of the camera's optical frame in the flange frame.
 
 URDF, ROS and OpenCV cannot hold "unknown": they get 0 for an undetermined component, with a
 comment in the file saying so (:func:`zero_filled` lists them for the command's warning).
@@ -35,11 +38,14 @@ from .._core import package_version
 from ..data import distort_px, undistort_px
 from . import _npchain
 from ._frames import AXES, REASONS, Frames
+from ._heights import filled_translations_mm
 
-FORMATS = ("json", "yaml", "urdf", "ros2", "opencv", "python")
+FORMATS = ("json", "yaml", "urdf", "ros2", "opencv", "python", "easy_handeye")
 #: Formats that cannot hold an unknown value and write 0 (with a comment) instead.
-ZERO_FILLED_FORMATS = ("urdf", "ros2", "opencv")
+ZERO_FILLED_FORMATS = ("urdf", "ros2", "opencv", "easy_handeye")
 DEFAULT_PARENT_LINK = "tool0"
+DEFAULT_BASE_FRAME = "base_link"
+DEFAULT_TABLET_FRAME = "tablet"
 DEFAULT_CAMERA_FRAME = "camera_optical_frame"
 DEFAULT_PEN_FRAME = "pen_tip"
 #: Link and frame names: what URDF, tf2 and ROS node names all accept.
@@ -59,6 +65,7 @@ def zero_filled(frames: Frames, fmt: str) -> list[str]:
         "urdf": ("t_hand_camera_mm", "t_hand_pen_mm"),
         "ros2": ("t_hand_camera_mm", "t_hand_pen_mm"),
         "opencv": ("t_hand_camera_mm", "t_hand_pen_mm", "t_base_tablet_mm"),
+        "easy_handeye": ("t_hand_camera_mm",),
     }[fmt]
     return [c for c in frames.undetermined if c.split(".")[0] in carried]
 
@@ -83,9 +90,9 @@ def quaternion_xyzw(R: np.ndarray) -> tuple[float, float, float, float]:
     return (x, y, z, w) if w >= 0 else (-x, -y, -z, -w)
 
 
-def _filled_m(v: np.ndarray) -> list[float]:
-    """A translation in metres, an undetermined (NaN) component as 0."""
-    return [0.0 if math.isnan(x) else float(x) / MM_PER_M for x in v]
+def _m(v: np.ndarray) -> list[float]:
+    """A translation in mm as metres."""
+    return [float(x) / MM_PER_M for x in v]
 
 
 def _num(x: float) -> str:
@@ -112,9 +119,21 @@ def _header_lines(frames: Frames, fmt: str, source: str) -> list[str]:
 
 def _undetermined_lines(frames: Frames, fmt: str) -> list[str]:
     zeros = zero_filled(frames, fmt)
+    *_, relative = filled_translations_mm(frames)
+    lines = []
+    if frames.given:
+        lines.append("GIVEN by the user, not determined by the calibration data (mm): " + ", ".join(
+            f"{c} = {getattr(frames, c.split('.')[0])[2]:.3f}" for c in frames.given))
     if not zeros:
-        return []
-    lines = ["NOT DETERMINED by the calibration data, written as 0 here (do not trust them):"]
+        return lines
+    if relative and "t_hand_pen_mm.z" in zeros:
+        zeros = [c for c in zeros if c != "t_hand_pen_mm.z"]
+        lines.append(f"t_hand_pen_mm.z is written as t_hand_camera_mm.z + (z_pen - z_camera) = "
+                     f"0 + {frames.pen_minus_camera_z_mm:.3f} mm: only the difference is "
+                     "determined (from the hand's heights), so the pen sits right relative to "
+                     "the camera; give export --camera-z-mm to place both on the flange.")
+    lines.append("NOT DETERMINED by the calibration data, written as 0 here (do not trust them; "
+                 "export --camera-z-mm or --pen-z-mm gives them):")
     lines += [f"  {c}: {REASONS.get(c, 'not determined by the data')}" for c in zeros]
     return lines
 
@@ -126,6 +145,7 @@ def export_text(
     parent_link: str = DEFAULT_PARENT_LINK,
     camera_frame: str = DEFAULT_CAMERA_FRAME,
     pen_frame: str = DEFAULT_PEN_FRAME,
+    base_frame: str = DEFAULT_BASE_FRAME,
     source: str = "",
 ) -> str:
     """The calibration ``frames`` in format ``fmt`` (one of :data:`FORMATS`), as text.
@@ -135,9 +155,10 @@ def export_text(
         fmt: ``json``, ``yaml``, ``urdf``, ``ros2``, ``opencv`` or ``python``.
         parent_link: the URDF/tf2 name of the hand (flange) frame.
         camera_frame, pen_frame: names of the camera's optical frame and of the pen tip.
+        base_frame: the robot's base frame (easy_handeye's ``robot_base_frame``).
         source: where the frames came from (a file name), for the file's header.
     """
-    for name in (parent_link, camera_frame, pen_frame):
+    for name in (parent_link, camera_frame, pen_frame, base_frame):
         if not NAME_PATTERN.fullmatch(name):
             raise ValueError(f"not a valid link or frame name: {name!r} (letters, digits, _)")
     if len({parent_link, camera_frame, pen_frame}) != 3:
@@ -158,6 +179,8 @@ def export_text(
         return _opencv(frames, source)
     if fmt == "python":
         return _python(frames, source)
+    if fmt == "easy_handeye":
+        return _easy_handeye(frames, base_frame, parent_link, camera_frame, source)
     raise ValueError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
 
 
@@ -171,6 +194,7 @@ def _frame_lines(parent: str, camera: str, pen: str) -> list[str]:
 
 
 def _urdf(frames: Frames, parent: str, camera: str, pen: str, source: str) -> str:
+    cam, pen_t, _, _ = filled_translations_mm(frames)
     lines = [
         *_header_lines(frames, "urdf", source),
         "ROS conventions: lengths in metres, angles in radians; rpy is fixed-axis roll, pitch,",
@@ -195,8 +219,8 @@ def _urdf(frames: Frames, parent: str, camera: str, pen: str, source: str) -> st
         '<?xml version="1.0"?>\n'
         f"<!--\n{comment}\n-->\n"
         '<robot xmlns:xacro="http://www.ros.org/wiki/xacro" name="handeye_jax_end_effector">\n'
-        + joint(camera, _filled_m(frames.t_hand_camera_mm), rpy_radians(frames.R_hand_camera))
-        + joint(pen, _filled_m(frames.t_hand_pen_mm), (0.0, 0.0, 0.0))
+        + joint(camera, _m(cam), rpy_radians(frames.R_hand_camera))
+        + joint(pen, _m(pen_t), (0.0, 0.0, 0.0))
         + "</robot>\n"
     )
 
@@ -205,7 +229,7 @@ def static_transform_arguments(
     t_mm: np.ndarray, R: np.ndarray, parent: str, child: str
 ) -> list[str]:
     """The arguments of ``ros2 run tf2_ros static_transform_publisher`` (metres, x y z w)."""
-    xyz = _filled_m(t_mm)
+    xyz = _m(t_mm)
     q = quaternion_xyzw(R)
     args = []
     for flag, value in zip(("x", "y", "z", "qx", "qy", "qz", "qw"), (*xyz, *q), strict=True):
@@ -214,11 +238,10 @@ def static_transform_arguments(
 
 
 def _ros2(frames: Frames, parent: str, camera: str, pen: str, source: str) -> str:
+    cam, pen_t, _, _ = filled_translations_mm(frames)
     transforms = {
-        camera: static_transform_arguments(
-            frames.t_hand_camera_mm, frames.R_hand_camera, parent, camera
-        ),
-        pen: static_transform_arguments(frames.t_hand_pen_mm, np.eye(3), parent, pen),
+        camera: static_transform_arguments(cam, frames.R_hand_camera, parent, camera),
+        pen: static_transform_arguments(pen_t, np.eye(3), parent, pen),
     }
     lines = [
         *_header_lines(frames, "ros2", source),
@@ -275,14 +298,14 @@ def _opencv(frames: Frames, source: str) -> str:
     ]
     for line in _wrap(lines):
         fs.writeComment(line)
-    t = lambda v: np.nan_to_num(v, nan=0.0).reshape(3, 1)  # noqa: E731 (mm, unknowns as 0)
+    cam, pen, tab, _ = filled_translations_mm(frames)  # mm, unknowns as 0
     fx, fy, cx, cy = frames.camera_px
     fs.write("R_cam2gripper", frames.R_hand_camera)
-    fs.write("t_cam2gripper", t(frames.t_hand_camera_mm))
+    fs.write("t_cam2gripper", cam.reshape(3, 1))
     fs.write("translation_unit", "mm")
     fs.write("R_tablet2base", frames.R_base_tablet)
-    fs.write("t_tablet2base", t(frames.t_base_tablet_mm))
-    fs.write("t_pentip2gripper", t(frames.t_hand_pen_mm))
+    fs.write("t_tablet2base", tab.reshape(3, 1))
+    fs.write("t_pentip2gripper", pen.reshape(3, 1))
     fs.write("camera_matrix", np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]))
     fs.write("distortion_coefficients", np.array(frames.distortion or (0.0,) * 5).reshape(1, 5))
     fs.write("hand_angle_zero_deg", float(frames.hand_angle_zero_deg))
@@ -433,11 +456,46 @@ def hand_command(
 {_kernel_source()}'''
 
 
+#: easy_handeye's calibration parameters, as its ``HandeyeCalibrationParameters`` takes them.
+EASY_HANDEYE_PARAMETERS = ("namespace", "move_group_namespace", "move_group", "eye_on_hand",
+                           "robot_base_frame", "robot_effector_frame", "tracking_base_frame",
+                           "tracking_marker_frame")  # fmt: skip
+
+
+def _easy_handeye(frames: Frames, base: str, parent: str, camera: str, source: str) -> str:
+    import yaml
+
+    cam, _, _, _ = filled_translations_mm(frames)
+    x, y, z = _m(cam)
+    qx, qy, qz, qw = quaternion_xyzw(frames.R_hand_camera)
+    lines = [
+        *_header_lines(frames, "easy_handeye", source),
+        "An eye-on-hand calibration in easy_handeye's file format (~/.ros/easy_handeye/NAME.yaml; "
+        "HandeyeCalibration.from_file reads it): transformation is the camera's optical frame "
+        f"({camera}) in the flange frame ({parent}), as tf publishes it from "
+        "robot_effector_frame to tracking_base_frame: x y z in metres, the quaternion qx qy qz "
+        "qw. The tracking marker is the tablet.",
+        f"{parent}: the hand (flange) frame: {AXES['hand']}.",
+        f"{camera}: {AXES['camera_optical']}.",
+        "The pen tip, the tablet and the stage-2 correction are not part of this format: see the "
+        "json or yaml export.",
+        *_undetermined_lines(frames, "easy_handeye"),
+    ]
+    doc = {
+        "parameters": dict(zip(EASY_HANDEYE_PARAMETERS, (
+            "/handeye_jax_eye_on_hand/", "/", "manipulator", True, base, parent, camera,
+            DEFAULT_TABLET_FRAME), strict=True)),
+        "transformation": {"x": x, "y": y, "z": z, "qx": qx, "qy": qy, "qz": qz, "qw": qw},
+    }  # fmt: skip
+    head = "".join(f"# {line}".rstrip() + "\n" for line in _wrap(lines))
+    return head + yaml.safe_dump(doc, sort_keys=False, default_flow_style=False)
+
+
 def check_parses(text: str, fmt: str) -> None:
     """Parse ``text`` as its format's reader would (a last guard before writing)."""
     if fmt == "json":
         json.loads(text)
-    elif fmt == "yaml":
+    elif fmt in ("yaml", "easy_handeye"):
         import yaml
 
         yaml.safe_load(text)
@@ -456,6 +514,7 @@ def check_parses(text: str, fmt: str) -> None:
 
 
 __all__ = [
+    "EASY_HANDEYE_PARAMETERS",
     "FORMATS",
     "check_parses",
     "export_text",

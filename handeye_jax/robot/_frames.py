@@ -67,6 +67,10 @@ HEIGHT_RULE = (
     "with t_hand_camera z taken as 0: only z_pen − z_camera is determined (from the hand's "
     "heights at the touches), not each"
 )
+GIVEN_NOTE = (
+    "not determined by the calibration data: given by the user (export --camera-z-mm or "
+    "--pen-z-mm), or following from the one given and heights.pen_minus_camera_mm"
+)
 DISTORTION_RULE = (
     "plumb_bob (Brown–Conrady, OpenCV's distCoeffs order): a measured image point is first "
     "undistorted to the pixel a pinhole camera with camera_px would record "
@@ -132,6 +136,9 @@ class Frames:
             when the touches recorded no hand height.
         distortion: the lens's Brown–Conrady (``plumb_bob``) ``(k1, k2, p1, p2, k3)``, or
             ``None``; image points are undistorted with it before the chain.
+        given: components the data leaves undetermined whose values were given by the user
+            (a measured camera height, :func:`~handeye_jax.robot.with_heights`), or follow from
+            one given and ``z_p − z_c``.
     """
 
     R_hand_camera: np.ndarray
@@ -154,6 +161,7 @@ class Frames:
     model: str = ""
     pen_minus_camera_z_mm: float | None = None
     distortion: tuple[float, float, float, float, float] | None = None
+    given: tuple[str, ...] = ()
 
     def __post_init__(self):
         shapes = {"R_hand_camera": (3, 3), "R_base_tablet": (3, 3), "capture_position_mm": (3,),
@@ -164,7 +172,11 @@ class Frames:
             raise ValueError(f"hand_angle_sign must be 1 or -1, got {self.hand_angle_sign}")
         object.__setattr__(self, "hand_angle_sign", int(self.hand_angle_sign))
         object.__setattr__(self, "undetermined", tuple(self.undetermined))
+        object.__setattr__(self, "given", tuple(self.given))
         known = {f"{t}.{a}" for t in TRANSLATIONS for a in AXIS_NAMES}
+        for name in self.given:
+            if name not in known or name in self.undetermined:
+                raise ValueError(f"given: {name!r} must be a known component with a value")
         for name in self.undetermined:
             if name not in known:
                 raise ValueError(f"unknown component {name!r}; known: {sorted(known)}")
@@ -268,6 +280,8 @@ class Frames:
         if self.has_height:
             doc["heights"] = {"pen_minus_camera_mm": self.pen_minus_camera_z_mm,
                               "rule": HEIGHT_RULE}  # fmt: skip
+        if self.given:
+            doc["given"] = [{"component": c, "note": GIVEN_NOTE} for c in self.given]
         if self.distortion is not None:
             doc["distortion"] = {"model": DISTORTION_MODEL,
                                  **dict(zip(DISTORTION_COEFFICIENTS, self.distortion, strict=True)),
@@ -287,7 +301,7 @@ class Frames:
         d = r.table(doc, where, ("format", "model", "units", "T_hand_camera", "T_base_tablet",
                                  "pen_tip", "camera_px", "hand_angle", "capture", "stage2",
                                  "undetermined"), ("axes", "convention", "heights",
-                                                   "distortion"))  # fmt: skip
+                                                   "distortion", "given"))  # fmt: skip
         at = lambda key: f"{where}.{key}" if where else key  # noqa: E731
         if d["format"] != FORMAT:
             r.fail(at("format"), f"expected {FORMAT!r} (got {d['format']!r:.60})")
@@ -348,6 +362,8 @@ class Frames:
             model=d["model"],
             pen_minus_camera_z_mm=height,
             distortion=distortion,
+            given=tuple(r.table(g, at(f"given[{i}]"), ("component",), ("note",))["component"]
+                        for i, g in enumerate(r.table_list(d.get("given", []), at("given")))),
         )  # fmt: skip
 
 
