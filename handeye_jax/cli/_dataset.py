@@ -6,7 +6,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .._core import MAX_DEG, MAX_MM, InputError, check_output, parse_numbers, same_file
+from .._core import (
+    MAX_DEG,
+    MAX_MM,
+    InputError,
+    check_output,
+    parse_numbers,
+    same_file,
+    write_output,
+)
 from .._core import RECOMMENDED_CAPTURES as RECOMMENDED
 
 
@@ -49,11 +57,22 @@ def _numbers(limit: float, unit: str):
 
 
 def _cmd_plan(args: argparse.Namespace) -> int:
-    from ..data import backup_path, load_dataset, save_dataset, update_dataset
+    from ..data import (
+        ToolPose,
+        backup_path,
+        load_dataset,
+        poses_csv_text,
+        quaternion_from_rotation,
+        save_dataset,
+        tool_pose_of_hand,
+        update_dataset,
+    )
     from ..vision import plan_captures
 
     path = Path(args.dataset)
     out = None if args.out is None else check_output(args.out, "--out", [path])
+    if args.poses_csv is not None:
+        check_output(args.poses_csv, "--poses-csv", [path, *([out] if out else [])])
     if out is None:
         check_output(path, "--dataset")
         check_output(backup_path(path), "--dataset")
@@ -74,13 +93,25 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         done = f"{path} already holds them"
     target = out or path
     print(f"{done}; the pictures to take, each with every landmark in view, then detect each:")
+    poses = []
     for k in [0, *indices]:
         c = new.captures[k]
         x, y, z = (f"{v:g}" for v in c.hand_position_mm)
         seen = f"{len(c.landmarks)} of {new.n_landmarks} landmarks"
+        R, t = tool_pose_of_hand(c.hand_position_mm, c.hand_angle_deg, new.hand_angle_zero_deg,
+                                 new.hand_angle_sign)  # fmt: skip
+        poses.append(ToolPose("capture", k, R, t, 0))
+        q = " ".join(f"{v:.6f}" for v in quaternion_from_rotation(R))
+        m = " ".join(f"{v / 1000:.4f}" for v in t)
         print(f"  capture {k}: hand at ({x}, {y}, {z}) mm, hand angle {c.hand_angle_deg:g} deg "
-              f"({seen}): handeye-jax detect CAP{k}.png DEP{k}.png --dataset {target} "
+              f"({seen}); tool0 in the base frame at [{m}] m, quaternion (x y z w) [{q}]: "
+              f"handeye-jax detect CAP{k}.png DEP{k}.png --dataset {target} "
               f"--capture {k}")  # fmt: skip
+    if args.poses_csv is not None:
+        write_output(args.poses_csv, poses_csv_text(poses), "--poses-csv")
+        print(f"their tool0 poses written to {args.poses_csv} (kind,index,x_m,y_m,z_m,qx,qy,qz,"
+              "qw; after the pictures, the poses the robot reports go back in with handeye-jax "
+              "poses)")  # fmt: skip
     return 0
 
 
@@ -113,6 +144,11 @@ def add_dataset_commands(sub: argparse._SubParsersAction) -> None:
         "--out", metavar="NEW.toml",
         help="write here (default: update DATASET in place, the old one kept as "
         "DATASET.<UTC time>.bak)",
+    )  # fmt: skip
+    p.add_argument(
+        "--poses-csv", metavar="POSES.csv",
+        help="also write each picture's tool0 pose (the hand frame; metres, quaternion x y z w) "
+        "as a poses CSV, to drive the robot there (default: printed only)",
     )  # fmt: skip
     p.set_defaults(func=_cmd_plan, imports=("data.load_dataset", "vision.plan_captures"))
 
