@@ -21,6 +21,7 @@ from ..robot import (
     NAME_PATTERN,
     check_parses,
     export_text,
+    filled_translations_mm,
     with_heights,
     zero_filled,
 )
@@ -122,7 +123,11 @@ def _cmd_export(args: argparse.Namespace) -> int:
     if zeros:
         print(f"{PROG}: warning: {', '.join(zeros)} not determined by the data: written as 0 "
               f"in the {args.fmt} file, which says so; give --camera-z-mm (the camera's "
-              "optical centre along the flange's z, measured)", file=sys.stderr)  # fmt: skip
+              "optical centre along the flange's z, measured)" + (
+                  f"; t_hand_pen_mm.z written as z_pen - z_camera = "
+                  f"{frames.pen_minus_camera_z_mm:.3f} mm above it"
+                  if filled_translations_mm(frames)[3] and args.fmt != "easy_handeye" else ""),
+              file=sys.stderr)  # fmt: skip
     return _emit(text, out, f"{args.fmt} export")
 
 

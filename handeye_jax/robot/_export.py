@@ -67,7 +67,10 @@ def zero_filled(frames: Frames, fmt: str) -> list[str]:
         "opencv": ("t_hand_camera_mm", "t_hand_pen_mm", "t_base_tablet_mm"),
         "easy_handeye": ("t_hand_camera_mm",),
     }[fmt]
-    return [c for c in frames.undetermined if c.split(".")[0] in carried]
+    zeros = [c for c in frames.undetermined if c.split(".")[0] in carried]
+    if filled_translations_mm(frames)[3] and "t_hand_pen_mm.z" in zeros:
+        zeros.remove("t_hand_pen_mm.z")  # written relative to the camera's: z_pen - z_camera
+    return zeros
 
 
 def rpy_radians(R: np.ndarray) -> tuple[float, float, float]:
@@ -124,14 +127,13 @@ def _undetermined_lines(frames: Frames, fmt: str) -> list[str]:
     if frames.given:
         lines.append("GIVEN by the user, not determined by the calibration data (mm): " + ", ".join(
             f"{c} = {getattr(frames, c.split('.')[0])[2]:.3f}" for c in frames.given))
-    if not zeros:
-        return lines
-    if relative and "t_hand_pen_mm.z" in zeros:
-        zeros = [c for c in zeros if c != "t_hand_pen_mm.z"]
+    if relative and fmt != "easy_handeye":
         lines.append(f"t_hand_pen_mm.z is written as t_hand_camera_mm.z + (z_pen - z_camera) = "
                      f"0 + {frames.pen_minus_camera_z_mm:.3f} mm: only the difference is "
                      "determined (from the hand's heights), so the pen sits right relative to "
                      "the camera; give export --camera-z-mm to place both on the flange.")
+    if not zeros:
+        return lines
     lines.append("NOT DETERMINED by the calibration data, written as 0 here (do not trust them; "
                  "export --camera-z-mm or --pen-z-mm gives them):")
     lines += [f"  {c}: {REASONS.get(c, 'not determined by the data')}" for c in zeros]
