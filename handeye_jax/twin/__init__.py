@@ -13,7 +13,7 @@ _EXPORTS = {
         "evaluate", "evaluate_points", "evaluate_twin", "format_evaluation", "Heldout",
         "load_heldout", "PointErrors", "TouchingError",
     ),
-    "_render": ("render_capture",),
+    "_render": ("render_capture", "render_depth"),
     "_simulate": (
         "check_twin_folder", "encode_png", "heldout_targets", "NoisePreset", "PRESETS", "simulate",
         "simulate_captures", "Twin", "write_twin",
