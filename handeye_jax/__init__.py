@@ -114,6 +114,8 @@ _EXPORTS = {
     "PRESETS": "twin",
     "Prior": "problem",
     "plan_captures": "vision",
+    "planned_view": "vision",
+    "PlannedView": "vision",
     "PriorObjective": "problem",
     "put": "problem",
     "recalibrate": "calibration",
@@ -265,7 +267,7 @@ if TYPE_CHECKING:
     from .twin._simulate import PRESETS, NoisePreset, Twin, simulate, simulate_captures, write_twin
     from .twin._synthetic import synthesize_captures, synthesize_dataset
     from .twin._truth import TwinTruth, change_truth, draw_truth, load_truth
-    from .vision._captures import plan_captures
+    from .vision._captures import PlannedView, plan_captures, planned_view
     from .vision._detect import (
         Detection,
         DetectSettings,
@@ -323,6 +325,7 @@ __all__ = [
     "PRESETS",
     "ParameterSpace",
     "Plan",
+    "PlannedView",
     "Predictor",
     "Prior",
     "PriorObjective",
@@ -375,6 +378,7 @@ __all__ = [
     "models",
     "optim",
     "plan_captures",
+    "planned_view",
     "put",
     "recalibrate",
     "recalibration_plan",

@@ -339,8 +339,9 @@ CTRL_C_MOMENTS = {
 }
 
 
-def _ctrl_c_when(tmp_path, python_flags, pattern):
-    """Start ``calibrate --out`` over an existing file, send SIGINT when stderr matches."""
+def _ctrl_c_when(tmp_path, python_flags, pattern, signum=None):
+    """Start ``calibrate --out`` over an existing file, send SIGINT (or ``signum``) when
+    stderr matches."""
     import signal
     import threading
     import time
@@ -358,7 +359,7 @@ def _ctrl_c_when(tmp_path, python_flags, pattern):
         assert p.poll() is None, f"the run ended before {pattern!r}"
         assert time.monotonic() < deadline
         time.sleep(0.005)
-    p.send_signal(signal.SIGINT)
+    p.send_signal(signal.SIGINT if signum is None else signum)
     stdout = p.stdout.read()
     p.wait(timeout=120)
     reader.join()
@@ -373,6 +374,18 @@ def test_ctrl_c_at_any_moment_exits_130_and_keeps_the_out_file(tmp_path, moment)
     rc, _, err, lines, out = _ctrl_c_when(tmp_path, *CTRL_C_MOMENTS[moment])
     assert rc == 130, err[-2000:]
     assert lines[-1] == INTERRUPTED
+    assert "Traceback" not in err and "Exception ignored" not in err
+    assert out.read_text() == "precious\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["result.json"]  # no temporary file left
+
+
+@pytest.mark.parametrize("moment", ["importing numpy", "stage 1 DE"])
+def test_sigterm_is_handled_as_ctrl_c_is_exit_143_and_the_out_file_kept(tmp_path, moment):
+    import signal
+
+    rc, _, err, lines, out = _ctrl_c_when(tmp_path, *CTRL_C_MOMENTS[moment], signal.SIGTERM)
+    assert rc == 143, err[-2000:]
+    assert lines[-1] == "handeye-jax: terminated; nothing was written"
     assert "Traceback" not in err and "Exception ignored" not in err
     assert out.read_text() == "precious\n"
     assert [p.name for p in tmp_path.iterdir()] == ["result.json"]  # no temporary file left

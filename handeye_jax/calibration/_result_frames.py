@@ -1,7 +1,7 @@
 """Named frames from a fitted model: :func:`compute_frames`.
 
-:class:`~handeye_jax.Frames` itself is NumPy only (``handeye_jax._frames``); this module is the
-JAX side that evaluates a model's ``camera_mount()``, ``tablet_pose()`` and ``t_hand_pen()``.
+:class:`~handeye_jax.Frames` itself is NumPy only (``handeye_jax.robot._frames``); this module
+is the JAX side that evaluates a model's ``camera_mount()``, ``tablet_pose()`` and ``t_hand_pen()``.
 """
 
 from __future__ import annotations

@@ -30,6 +30,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
                          "needs --prior OLD.result.json, the result to start from")  # fmt: skip
     if args.prior and not args.refit:
         raise InputError(None, "--refit", "name what changed: camera, tablet, pen or parameters")
+    if args.accept_rig_change and not args.prior:
+        raise InputError(None, "--accept-rig-change", "needs --prior OLD.result.json")
     previous = load_result(args.prior) if args.prior else None
     model = args.model or (previous.model_name if previous else Settings().model)
     if previous is not None and model != previous.model_name:
@@ -58,7 +60,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         except ValueError as e:
             raise InputError(None, "--refit", str(e)) from None
         result = recalibrate(dataset, previous, refit, settings, fix=args.fix,
-                             source=Path(args.prior).name, progress=not args.quiet)  # fmt: skip
+                             source=Path(args.prior).name, progress=not args.quiet,
+                             accept_rig_change=args.accept_rig_change)  # fmt: skip
     if not args.no_diagnostics:
         result = diagnose(result, search=dataset.search)
     print(format_summary(result))
@@ -141,4 +144,10 @@ def _add_prior_options(cal: argparse.ArgumentParser) -> None:
         "--fix", action="store_true",
         help="with --prior: hold the parameters not in --refit at its values instead of "
         "giving them its posterior as a prior",
+    )  # fmt: skip
+    cal.add_argument(
+        "--accept-rig-change", action="store_true",
+        help="with --prior: accept data whose intrinsics (fx, fy, cx, cy), tablet ppi or "
+        "scale, or hand-angle convention differ from the prior's (e.g. a re-calibrated "
+        "camera); the summary and the result say so. Without it they are refused",
     )  # fmt: skip

@@ -54,9 +54,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     with interrupts.recording_interrupts():
         try:
             return _run_command(argv)
-        except KeyboardInterrupt:
-            print(f"{PROG}: interrupted; nothing was written", file=sys.stderr)
-            return 130
+        except KeyboardInterrupt:  # Ctrl-C or SIGTERM
+            what, code = interrupts.stopped_by()
+            print(f"{PROG}: {what}; nothing was written", file=sys.stderr)
+            return code
 
 
 def _run_command(argv: Sequence[str] | None) -> int:

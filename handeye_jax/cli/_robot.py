@@ -133,21 +133,22 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 def _cmd_predict(args: argparse.Namespace) -> int:
     from ..data import points_csv_text, read_capture_columns, read_points_csv
-    from ..robot import Predictor, stored_frames
+    from ..robot import Predictor, check_reach, result_reach, stored_result
 
     out = output_path(args.out, "--out", [args.result, args.points])
-    frames = stored_frames(args.result)  # NumPy only: no JAX for a file as it was written
-    if frames is None:  # older or edited: validated, its frames checked against its parameters
+    checked = stored_result(args.result)  # NumPy only: no JAX for a file as it was written
+    if checked is None:  # older or edited: validated, its frames checked against its parameters
         start_jax()
         from ..calibration import load_frames
 
-        frames = load_frames(args.result)
-    predictor = Predictor.from_frames(frames)
+        checked = (load_frames(args.result), result_reach(args.result))
+    predictor = Predictor.from_frames(*checked)
     header, rows, values = read_points_csv(args.points)
     position, angle = read_capture_columns(args.points, header, rows)
     hand_xy = predictor.hand_command(values[:, :2], values[:, 2], values[:, 3], stage=args.stage,
                                      capture_position_mm=position, capture_hand_angle_deg=angle,
                                      axes=predictor.axes)  # fmt: skip
+    check_reach(args.points, hand_xy, predictor.reach.including(position), args.result)
     text = points_csv_text(header, rows, hand_xy)
     return _emit(text, out, f"{len(rows)} hand commands (stage {args.stage}, mm)")
 

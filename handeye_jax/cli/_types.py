@@ -1,4 +1,5 @@
-"""The command line's parser and the argument types its commands share, each written once.
+"""The command line's parser, the argument types its commands share and the words they share,
+each written once.
 
 A type turns the text of one option into its value or raises ``ArgumentTypeError``, which the
 parser prints as one line naming the option. Imports no JAX.
@@ -18,6 +19,9 @@ from .._core import (
     parse_float,
     parse_int,
     parse_numbers,
+)
+from .._core import (
+    TWIN_SEED_RANGE as SEED_RANGE,
 )
 
 PROG = "handeye-jax"
@@ -95,9 +99,11 @@ def restarts(text: str) -> int:
 
 
 def seed(text: str) -> int:
+    """A seed of NumPy's generators (the diagnostics' and the twin's): 0 to 2^63 - 1."""
     v = whole_number(text)
-    if not -(2**63) <= v < 2**63:
-        raise argparse.ArgumentTypeError(f"must fit in 64 bits, -2^63 to 2^63 - 1 (got {v})")
+    if not SEED_RANGE[0] <= v <= SEED_RANGE[1]:
+        why = f"must be 0 to 2^63 - 1: numpy's generators take no other seed (got {v})"
+        raise argparse.ArgumentTypeError(why)
     return v
 
 
@@ -155,3 +161,9 @@ def numbers(limit: float, unit: str, n: int | None = None) -> Callable[[str], li
             raise argparse.ArgumentTypeError(str(e)) from None
 
     return parse
+
+
+def landmarks_named(ms) -> str:
+    """``landmark 3`` or ``landmarks 3, 5``."""
+    ms = list(ms)
+    return ("landmark " if len(ms) == 1 else "landmarks ") + ", ".join(map(str, ms))

@@ -22,7 +22,7 @@ from .._core import (
     same_file,
     write_output,
 )
-from ._types import PROG, numbers, output_path, positive_int
+from ._types import PROG, landmarks_named, numbers, output_path, positive_int
 
 if TYPE_CHECKING:  # the command imports OpenCV and tomlkit when it runs, not for --help
     import numpy as np
@@ -135,11 +135,6 @@ def _check_landmarks(args: argparse.Namespace, n: int) -> None:
                          "needs at least 4 landmarks in the picture")  # fmt: skip
 
 
-def _listed(ms) -> str:
-    ms = list(ms)
-    return ("landmark " if len(ms) == 1 else "landmarks ") + ", ".join(map(str, ms))
-
-
 def _cmd_detect(args: argparse.Namespace) -> int:
     from ..data import load_dataset
     from ..vision import fill_capture
@@ -163,7 +158,7 @@ def _cmd_detect(args: argparse.Namespace) -> int:
     where = f"capture {len(dataset.captures) if target is None else target}"
     where += " (new)" if target is None else ""
     lost = sorted(set(range(n)) - set(found.landmarks.tolist()) - set(found.no_depth))
-    left = "".join(f"; {_listed(ms)} {why}, left out" for ms, why in
+    left = "".join(f"; {landmarks_named(ms)} {why}, left out" for ms, why in
                    ((lost, "not found"), (found.no_depth, "without depth")) if ms)  # fmt: skip
     print(f"{k} of {n} landmarks found in {where}{left}; {done}")
     print(f"depth: {args.depth} read as 16-bit, {args.depth_scale_mm:g} mm per unit, aligned to "

@@ -58,7 +58,7 @@ def known_search_names() -> frozenset[str]:
 def check_tablet_px(ppi: float, scale: float, path: str | Path | None, field: str) -> float:
     """One tablet px in mm (eq. 9); :class:`InputError` naming ``field`` unless a screen's.
 
-    A screen's pixel is :data:`~handeye_jax._validate.MM_PER_TABLET_PX` (0.01 to 3 mm); ppi
+    A screen's pixel is :data:`~handeye_jax._core.MM_PER_TABLET_PX` (0.01 to 3 mm); ppi
     and scale that make it larger or smaller are a typo (``ppi = 1``, ``scale = 100``: 2.5 m).
     """
     mm = geo.mm_per_tablet_px(ppi, scale)
@@ -269,7 +269,7 @@ def load_dataset(path: str | Path) -> Dataset:
     :class:`InputError` naming the file and the field.
 
     The file must be a regular file of at most 4 MiB
-    (:data:`~handeye_jax._io.MAX_DATASET_BYTES`) with at most 10,000 landmarks.
+    (:data:`~handeye_jax._core.MAX_DATASET_BYTES`) with at most 10,000 landmarks.
     """
     path = Path(path)
     return _parse_text(read_text(path, MAX_DATASET_BYTES)[1], path)

@@ -322,7 +322,7 @@ def _opencv(frames: Frames, source: str) -> str:
 
 
 def _kernel_source() -> str:
-    """The functions of :mod:`handeye_jax._npchain` and the lens's undistortion, as source
+    """The functions of :mod:`handeye_jax.robot._npchain` and the lens's undistortion, as source
     (no docstring, no imports)."""
     source = inspect.getsource(_npchain)
     tree = ast.parse(source)
@@ -452,7 +452,7 @@ def hand_command(
     return np.column_stack([xy, z + PEN_MINUS_CAMERA_Z_MM])
 
 
-# The chain: handeye_jax._npchain and the lens's undistortion, verbatim.
+# The chain: handeye_jax.robot._npchain and the lens's undistortion, verbatim.
 
 
 {_kernel_source()}'''

@@ -1,8 +1,8 @@
 """The hand-command chain in NumPy alone: eqs. (4), (5), (7), (8) and (25).
 
-The same chain as :mod:`handeye_jax._predict`, for a robot PC: no JAX, vectorised over points.
-``handeye-jax export --format python`` copies this module's functions verbatim into the file it
-writes, so it imports nothing but NumPy.
+The same chain as :func:`handeye_jax.models.hand_command`, for a robot PC: no JAX, vectorised
+over points. ``handeye-jax export --format python`` copies this module's functions verbatim
+into the file it writes, so it imports nothing but NumPy.
 
 The hand points down at the capture and at every touch (eq. 1): ``R_base_hand = Ry(180)·Rz(φ)``,
 whose x-y block is ``[[-cos φ, sin φ], [sin φ, cos φ]]`` and whose third column is

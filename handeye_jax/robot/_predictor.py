@@ -14,11 +14,13 @@ from typing import Any
 
 import numpy as np
 
-from .._core import DIGEST_KEY, InputError, document_digest
+from .._core import DIGEST_KEY, InputError, document_digest, read_text
 from ..data import undistort_px
 from . import _npchain
 from ._frames import FORMAT as FRAMES_FORMAT
 from ._frames import MAX_FILE_BYTES, Frames
+from ._npframes import MODELS
+from ._trust import Checked, Reach, check_result_document
 
 RESULT_FORMAT = "handeye-jax.result/1"
 
@@ -42,14 +44,11 @@ def read_json(path: str | Path) -> Any:
     """A JSON file, parsed; :class:`InputError` naming the file if it cannot be (too large,
     unreadable, not JSON, a key twice in one object)."""
     path = Path(path)
-    try:
-        with open(path, "rb") as f:
-            data = f.read(MAX_FILE_BYTES + 1)
-        if len(data) > MAX_FILE_BYTES:
-            raise InputError(path, "", f"too large: more than {MAX_FILE_BYTES >> 20} MiB")
-        text = data.decode("utf-8")
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(path, "", f"cannot read file: {e}") from None
+    _, text = read_text(path, MAX_FILE_BYTES)  # a regular file only: a FIFO would hang open()
+    return _parse_json(text, path)
+
+
+def _parse_json(text: str, path: Path) -> Any:
     try:
         return json.loads(text, object_pairs_hook=_no_duplicates)
     except _Duplicate as e:
@@ -62,16 +61,29 @@ def read_json(path: str | Path) -> Any:
 
 
 def stored_frames(path: str | Path) -> Frames | None:
-    """A result file's ``frames`` section if the file is as handeye-jax wrote it, else ``None``.
+    """A result file's ``frames`` section if the file is as handeye-jax wrote it and its
+    parts agree (:func:`stored_result`), else ``None``."""
+    checked = stored_result(path)
+    return None if checked is None else checked.frames
+
+
+def stored_result(path: str | Path) -> Checked | None:
+    """A result file's frames and reach, checked with NumPy alone, if the file is as
+    handeye-jax wrote it; else ``None``.
 
     The writer stores the SHA-256 of the rest of the document (``content_sha256``). While it
-    matches, the frames are the ones the file's own parameters gave when it was written, so
-    they need no check against them, which takes JAX and a second or more. An older result,
-    an edited one, a frames file or one that cannot be read give ``None``: for those,
-    :func:`~handeye_jax.load_frames` validates the whole file and checks the frames.
+    matches, the file needs no validation of every field, which takes JAX and a second or
+    more; but anyone editing a file can recompute the digest, so its parts are still checked
+    against each other (:func:`~handeye_jax.robot.check_result_document`: an
+    :class:`InputError` if they disagree). An older result, an edited one, a frames file or
+    one that is not JSON give ``None``: for those, :func:`~handeye_jax.load_frames` validates
+    the whole file and makes the same checks. A file that cannot be read at all (missing, a
+    FIFO, too large) is an :class:`InputError` here.
     """
+    path = Path(path)
+    _, text = read_text(path, MAX_FILE_BYTES)  # unreadable is an error either way
     try:
-        doc = read_json(path)
+        doc = _parse_json(text, path)
     except InputError:  # the full reader says what is wrong, in its own words
         return None
     if not isinstance(doc, dict) or doc.get("format") != RESULT_FORMAT or "frames" not in doc:
@@ -82,31 +94,43 @@ def stored_frames(path: str | Path) -> Frames | None:
             return None
     except ValueError:  # NaN or infinity, which the writer never writes
         return None
-    return Frames.from_dict(doc["frames"], path, "frames")
+    if not isinstance(doc.get("model"), str) or doc["model"] not in MODELS:  # checked by JAX
+        return None
+    return check_result_document(doc, path)
+
+
+def result_reach(path: str | Path) -> Reach:
+    """The reach of a result file's rig (:class:`~handeye_jax.robot.Reach`), its parts
+    checked as :func:`stored_result` checks them."""
+    return check_result_document(read_json(path), path).reach
 
 
 class Predictor:
     """Where to send the hand so that the pen touches image points: NumPy, no JAX.
 
     Build it with :meth:`from_result` (a result file or a frames file) or :meth:`from_frames`.
+    :attr:`reach` says where its commands may go.
     """
 
-    def __init__(self, frames: Frames):
+    def __init__(self, frames: Frames, reach: Reach | None = None):
         if not isinstance(frames, Frames):
             raise TypeError(f"expected Frames, got {type(frames).__name__}")
         self._frames = frames
+        self._reach = Reach.of_frames(frames) if reach is None else reach
         # x and y of the camera and the pen: the chain's x-y never reads a z (_npchain says why).
         self._t_hand_camera = frames.t_hand_camera_mm[:2].copy()
         self._t_hand_pen = frames.t_hand_pen_mm[:2].copy()
 
     @classmethod
-    def from_frames(cls, frames: Frames) -> Predictor:
-        return cls(frames)
+    def from_frames(cls, frames: Frames, reach: Reach | None = None) -> Predictor:
+        return cls(frames, reach)
 
     @classmethod
     def from_result(cls, path: str | Path) -> Predictor:
         """Read a result file's ``frames`` section, or a frames file; :class:`InputError`
-        names the file and field when it is missing or malformed."""
+        names the file and field when it is missing or malformed, or when a result's parts
+        disagree (its frames, parameters, rig, data and residuals, checked with NumPy:
+        :func:`~handeye_jax.robot.check_result_document`)."""
         doc = read_json(path)
         if not isinstance(doc, dict):
             raise InputError(path, "", "must be a JSON object")
@@ -122,11 +146,18 @@ class Predictor:
                 f"frames; run `handeye-jax export {path} --format json --out FRAMES.json` and "
                 "load FRAMES.json",
             )  # fmt: skip
-        return cls(Frames.from_dict(doc["frames"], path, "frames"))
+        return cls(*check_result_document(doc, path))
 
     @property
     def frames(self) -> Frames:
         return self._frames
+
+    @property
+    def reach(self) -> Reach:
+        """Where the calibration's commands may go: around the hand positions it recorded
+        (:class:`~handeye_jax.robot.Reach`); :meth:`Reach.excess_mm` says how far a command
+        lies beyond."""
+        return self._reach
 
     @property
     def axes(self) -> str:

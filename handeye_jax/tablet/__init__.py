@@ -1,11 +1,13 @@
 """The tablet app: a page that draws the landmarks, records the pen, and measures touch errors.
 
-:func:`make_server` binds the HTTP server (standard library); :func:`serve` runs it until
-Ctrl-C. Only whoever has the secret the server prints (in its URL and QR code) can use it
-(:mod:`.guard`). The page lives in ``static/`` (HTML, JS and CSS; no build step).
+:func:`make_server` binds the HTTP server (asyncio and h11: a cap on connections, a deadline
+for each request); :func:`serve` runs it until Ctrl-C. Only whoever has the secret the server
+prints (in its URL and QR code) can use it (:mod:`.guard`). The page lives in ``static/``
+(HTML, JS and CSS; no build step).
 """
 
 from ..data import backup_path as versioned_backup_path
+from ._app import TabletApp
 from ._calibration import apply_touch_errors
 from ._guard import new_token
 from ._posts import (
@@ -16,7 +18,7 @@ from ._posts import (
     parse_calibration,
     parse_evaluation,
 )
-from ._server import DEFAULT_HOST, DEFAULT_PORT, TabletApp, TabletServer, make_server, serve
+from ._server import DEFAULT_HOST, DEFAULT_PORT, TabletServer, make_server, serve
 from ._targets import grid_targets, load_targets
 from ._trials import format_summary, load_trials, summarise
 

@@ -1,7 +1,7 @@
 """Render what the twin's RGB-D camera sees of the tablet: a colour picture and a depth image.
 
 The display is projected into the camera through the twin's true chain
-(:meth:`~handeye_jax._twin.TwinTruth.project`). Each landmark dot is a square of ``dot_px``
+(:meth:`~handeye_jax.twin.TwinTruth.project`). Each landmark dot is a square of ``dot_px``
 tablet px; the paper's one-pixel dot is about 0.7 image px wide, so it lands as a small blob
 only through the lens's point-spread function. The dot is sampled on a fine grid in the tablet
 plane and each sample's darkness is spread over the pixels by the exact integral of a Gaussian

@@ -1,15 +1,16 @@
 """The synthetic twin: every input the real rig produces, from a rig whose truth is known.
 
-:func:`simulate` takes a :class:`~handeye_jax._twin.TwinTruth` and a :class:`NoisePreset` and
+:func:`simulate` takes a :class:`~handeye_jax.twin.TwinTruth` and a :class:`NoisePreset` and
 makes what the rig would: the picture of the tablet and its depth image
-(:mod:`~handeye_jax._render`), the landmarks found in them (:mod:`~handeye_jax._detect`), the
-touches (operator error, the tablet's report of it, the controller's hand positions), and
-held-out targets for :mod:`~handeye_jax._evaluate`. :func:`write_twin` writes them to a folder:
+(:mod:`~handeye_jax.twin._render`), the landmarks found in them
+(:mod:`~handeye_jax.vision._detect`), the touches (operator error, the tablet's report of it,
+the controller's hand positions), and held-out targets for :mod:`~handeye_jax.twin._evaluate`.
+:func:`write_twin` writes them to a folder:
 
 ``dataset.toml``  the core format, ``image_px`` and ``depth`` from the detector (or exact)
 ``capture.png``   the colour picture, 8-bit BGR
 ``depth.png``     the depth image, 16-bit, mm (0 = no measurement)
-``truth.json``    the rig truth (:func:`~handeye_jax._twin.load_truth` reads it back)
+``truth.json``    the rig truth (:func:`~handeye_jax.twin.load_truth` reads it back)
 ``heldout.csv``   held-out targets: ``u,v,depth,hand_angle`` as measured (px, px, mm, deg)
                   and where they are drawn, ``tablet_x,tablet_y`` (tablet px)
 
@@ -451,7 +452,7 @@ def check_twin_folder(out_dir: str | Path, force: bool = False, field: str = "")
 
     Returns the stale files :func:`write_twin` with ``force`` removes once the new twin is in
     place: :data:`DERIVED_FILES` and the figures of ``result_report/``. Raises
-    :class:`~handeye_jax._errors.InputError` naming ``out_dir`` and ``field``.
+    :class:`~handeye_jax._core.InputError` naming ``out_dir`` and ``field``.
     """
     folder = Path(out_dir)
     try:
@@ -499,7 +500,7 @@ def write_twin(
     (:func:`check_twin_folder`) is removed; other files are left as they are.
 
     Every file is encoded before the first is written, and all are put in place together:
-    on failure (an :class:`~handeye_jax._errors.InputError` naming the file and ``field``)
+    on failure (an :class:`~handeye_jax._core.InputError` naming the file and ``field``)
     the folder is as it was.
     """
     stale = check_twin_folder(out_dir, force, field)
