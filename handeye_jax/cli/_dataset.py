@@ -206,7 +206,7 @@ def add_dataset_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--poses-csv", metavar="POSES.csv",
         help="also write each picture's tool0 pose (the hand frame; metres, quaternion x y z w) "
-        "as a poses CSV, to drive the robot there (default: printed only)",
+        "as a poses CSV, to drive the robot there (default: none, printed only)",
     )  # fmt: skip
     p.set_defaults(func=_cmd_plan, imports=("data.load_dataset", "vision.plan_captures"))
 

@@ -5,11 +5,10 @@ OpenCV, a NumPy module, JSON or YAML."""
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 
-from .._core import MAX_MM, InputError, parse_float, write_output
+from .._core import MAX_MM, InputError, write_output
 
 # constants only: the formats import their libraries on use
 from ..robot import (
@@ -26,7 +25,7 @@ from ..robot import (
     zero_filled,
 )
 from ._runtime import start_jax
-from ._types import PROG, output_path, whole_number
+from ._types import PROG, numbers, output_path, whole_number
 
 
 def _name(text: str) -> str:
@@ -78,25 +77,19 @@ def add_export_command(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--camera-z-mm", type=_length_mm, metavar="MM",
         help="the camera's optical centre along the flange's z axis, mm, measured: the data "
-        "does not determine it; with the touches' hand heights the pen tip's z follows",
+        "does not determine it; with the touches' hand heights the pen tip's z follows (default: "
+        "none; the file writes 0 there and says so)",
     )  # fmt: skip
     p.add_argument(
         "--pen-z-mm", type=_length_mm, metavar="MM",
         help="the pen tip along the flange's z axis, mm, measured (instead of --camera-z-mm "
-        "when the calibration determined z_pen - z_camera; else as well)",
+        "when the calibration determined z_pen - z_camera; else as well; default: none)",
     )  # fmt: skip
     p.set_defaults(func=_cmd_export, imports=("calibration.load_frames", "robot.export_text"))
 
 
 def _length_mm(text: str) -> float:
-    try:
-        v = parse_float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(v) and abs(v) <= MAX_MM):
-        raise argparse.ArgumentTypeError(f"must be finite, at most {MAX_MM:g} mm in magnitude "
-                                         f"(got {text})")  # fmt: skip
-    return v
+    return numbers(MAX_MM, "mm", 1)(text)[0]
 
 
 def _cmd_export(args: argparse.Namespace) -> int:

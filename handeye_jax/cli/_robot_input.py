@@ -5,11 +5,11 @@ into a dataset (thin over :func:`~handeye_jax.apply_poses` and
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 
-from .._core import check_output, parse_float
+from .._core import check_output
+from ._types import number_at_most
 
 DEFAULT_MAX_TILT_DEG = 1.0  # data.MAX_TILT_DEG, kept here so --help imports nothing
 
@@ -71,16 +71,6 @@ def _cmd_intrinsics(args: argparse.Namespace) -> int:
     return 0
 
 
-def _tilt(text: str) -> float:
-    try:
-        v = parse_float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(v) and 0 < v <= 90):
-        raise argparse.ArgumentTypeError(f"must be more than 0 and at most 90 deg (got {text})")
-    return v
-
-
 def _out_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--out", metavar="NEW.toml",
@@ -108,7 +98,7 @@ def add_robot_input_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("dataset", help="the version-2 dataset (TOML)")
     p.add_argument("poses", help="CSV of flange poses (see above)")
     p.add_argument(
-        "--max-tilt-deg", type=_tilt, default=DEFAULT_MAX_TILT_DEG, metavar="DEG",
+        "--max-tilt-deg", type=number_at_most(90.0), default=DEFAULT_MAX_TILT_DEG, metavar="DEG",
         help=f"refuse a pose whose tool axis is further than this from vertical, deg "
         f"(default {DEFAULT_MAX_TILT_DEG:g})",
     )  # fmt: skip

@@ -4,7 +4,6 @@ over :mod:`handeye_jax.vision`); :func:`add_detect_command` adds it to the comma
 from __future__ import annotations
 
 import argparse
-import math
 import statistics
 import sys
 from pathlib import Path
@@ -17,12 +16,11 @@ from .._core import (
     MIN_AREA_PX,
     InputError,
     StagedFiles,
-    parse_float,
     parse_int,
     same_file,
     write_output,
 )
-from ._types import PROG, landmarks_named, numbers, output_path, positive_int
+from ._types import PROG, landmarks_named, number_at_most, numbers, output_path, positive_int
 
 if TYPE_CHECKING:  # the command imports OpenCV and tomlkit when it runs, not for --help
     import numpy as np
@@ -178,16 +176,6 @@ def _cmd_detect(args: argparse.Namespace) -> int:
 DEPTH_PLAUSIBLE_MM = (20.0, 1000.0)
 
 
-def _depth_scale(text: str) -> float:
-    try:
-        v = parse_float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(v) and 0 < v <= 100):
-        raise argparse.ArgumentTypeError(f"must be > 0 and at most 100 mm per unit (got {text})")
-    return v
-
-
 def _written(dataset: str, out: Path | None, in_place: bool) -> list:
     """The files ``detect`` writes: the dataset and its backup, or ``--out``."""
     from ..data import backup_path
@@ -305,7 +293,7 @@ def add_detect_command(sub: argparse._SubParsersAction) -> None:
         "OpenCV's adaptive threshold",
     )  # fmt: skip
     det.add_argument(
-        "--depth-scale-mm", type=_depth_scale, default=1.0, metavar="MM",
+        "--depth-scale-mm", type=number_at_most(100.0), default=1.0, metavar="MM",
         help="mm per unit of the depth image: RealSense's depth_scale (metres) times 1000, e.g. "
         "1 for 0.001 m units, 0.1 for 0.0001 m (default: %(default)s)",
     )  # fmt: skip
