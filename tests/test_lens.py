@@ -110,6 +110,12 @@ def lens_twin():
     return truth, simulate(truth, PRESETS["none"], 4, exact=True, n_heldout=5, captures=3)
 
 
+@pytest.fixture(scope="module")
+def lens_fit(lens_twin):
+    """The lens twin calibrated with the distortion in its [camera]."""
+    return calibrate(lens_twin[1].dataset, FAST_SETTINGS)
+
+
 def test_the_twin_renders_through_its_lens(lens_twin):
     truth, twin = lens_twin
     pin = dataclasses.replace(truth, distortion=None)
@@ -120,10 +126,11 @@ def test_the_twin_renders_through_its_lens(lens_twin):
     assert twin.dataset.camera.distortion == REALSENSE_LIKE
 
 
-def test_noise_free_lens_twin_calibrates_exactly_with_the_model_only(lens_twin, tmp_path):
+def test_noise_free_lens_twin_calibrates_exactly_with_the_model_only(lens_twin, lens_fit,
+                                                                    tmp_path):  # fmt: skip
     truth, twin = lens_twin
     ds = twin.dataset
-    with_model = calibrate(ds, FAST_SETTINGS)
+    with_model = lens_fit
     without = calibrate(ds.replace(camera=Camera(*ds.camera.px)), FAST_SETTINGS)
     assert with_model.stage1.F < 1e-6
     assert without.stage1.F > 100 * max(with_model.stage1.F, 1e-4)
@@ -159,3 +166,31 @@ def test_predictor_refuses_a_point_the_lens_cannot_undistort(paper_result):
     strong = dataclasses.replace(paper_result.frames(), distortion=(-2.0, 0.0, 0.0, 0.0, 0.0))
     with pytest.raises(ValueError, match=r"image_px\[0\] cannot be undistorted"):
         Predictor(strong).hand_command([[0.0, 0.0]], [170.0], [0.0])
+
+
+def test_predict_reads_the_lens_and_an_edited_one_is_refused(lens_twin, lens_fit, tmp_path,
+                                                              capsys):  # fmt: skip
+    import json
+
+    from handeye_jax import save_result
+
+    truth, twin = lens_twin
+    r = lens_fit
+    path = tmp_path / "r.json"
+    save_result(r, path)
+    uv, depth = twin.heldout_image_px[:3], twin.heldout_depth_mm[:3]
+    angle = twin.heldout_hand_angle_deg[:3]
+    csv = tmp_path / "points.csv"
+    lines = [f"{a:.9f},{b:.9f},{d:.9f},{t:.9f}\n"
+             for (a, b), d, t in zip(uv, depth, angle, strict=True)]  # fmt: skip
+    csv.write_text("u,v,depth,hand_angle\n" + "".join(lines))
+    assert main(["predict", str(path), str(csv), "--stage", "1"]) == 0
+    rows = [line.split(",") for line in capsys.readouterr().out.splitlines()[1:]]
+    got = np.array([[float(x) for x in row[4:6]] for row in rows])
+    assert np.abs(got - r.predict(uv, depth, angle, stage=1)).max() < 1e-5  # CSV: 6 decimals
+    doc = json.loads(path.read_text())
+    doc["frames"]["distortion"]["k1"] = 0.0
+    path.write_text(json.dumps(doc))
+    assert main(["predict", str(path), str(csv)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "frames.distortion" in err and "edited" in err
