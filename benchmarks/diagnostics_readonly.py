@@ -63,7 +63,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--twins", type=int, default=10, help="paper twins, seeds 1..N (default 10)")
     ap.add_argument("--quick", action="store_true",
-                    help="1 twin, a tiny DE (population 40, 30 generations): a smoke test")  # fmt: skip
+                    help="1 twin, a tiny DE (population 40, 30 generations): a smoke test",
+                    )  # fmt: skip
     args = ap.parse_args(argv)
     vectorise_small_loops()  # as the command line does
     settings, settings_args = Settings(), []

@@ -450,7 +450,7 @@ def _subcommands():
 
 
 SUBCOMMANDS = ["calibrate", "predict", "report", "tablet", "simulate", "detect", "evaluate",
-               "export", "convert", "plan"]  # fmt: skip
+               "export", "convert", "plan", "poses", "intrinsics"]  # fmt: skip
 
 
 @pytest.mark.parametrize("name", SUBCOMMANDS)

@@ -30,6 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
     from ._dataset import add_dataset_commands
     from ._report import add_report_command
     from ._robot import add_export_command, add_predict_command
+    from ._robot_input import add_robot_input_commands
     from ._tablet import add_tablet_command
     from ._twin import add_evaluate_command, add_simulate_command
     from ._vision import add_detect_command
@@ -42,7 +43,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
     for add in (add_calibrate_command, add_simulate_command, add_detect_command,
                 add_evaluate_command, add_export_command, add_dataset_commands,
-                add_predict_command, add_tablet_command, add_report_command):  # fmt: skip
+                add_robot_input_commands, add_predict_command, add_tablet_command,
+                add_report_command):  # fmt: skip
         add(sub)  # in this order in --help
     return parser
 

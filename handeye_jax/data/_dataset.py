@@ -22,17 +22,43 @@ from .. import geometry as geo
 from .._core import MAX_MEMBER_LANDMARKS, InputError
 from .._jax import in_float64
 from ..models import Rig
+from ._lens import undistort_px
 from ._observations import Observations, centre_landmark
 
 
 @dataclass(frozen=True)
 class Camera:
-    """Pinhole intrinsics: focal lengths and principal point, px."""
+    """Intrinsics: focal lengths and principal point, px, and the lens distortion.
+
+    Attributes:
+        fx_px, fy_px, cx_px, cy_px: the pinhole's focal lengths and principal point, px.
+        distortion: Brown–Conrady (``plumb_bob``) ``(k1, k2, p1, p2, k3)``, or ``None``: the
+            pictures have none (:mod:`._lens`). Image points are undistorted before the chain.
+    """
 
     fx_px: float
     fy_px: float
     cx_px: float
     cy_px: float
+    distortion: tuple[float, float, float, float, float] | None = None
+
+    def __post_init__(self):
+        if self.distortion is not None:
+            d = tuple(float(c) for c in self.distortion)
+            if len(d) != 5:
+                raise ValueError(f"distortion must be (k1, k2, p1, p2, k3), got {len(d)} numbers")
+            object.__setattr__(self, "distortion", d)
+
+    @property
+    def px(self) -> tuple[float, float, float, float]:
+        """``(fx, fy, cx, cy)``, px."""
+        return (self.fx_px, self.fy_px, self.cx_px, self.cy_px)
+
+    def undistort(self, image_px: Any) -> np.ndarray:
+        """Measured image points as an ideal pinhole camera would record them, px (NaN where
+        the distortion cannot be inverted); unchanged without distortion."""
+        return undistort_px(np.asarray(image_px, dtype=np.float64).reshape(-1, 2), self.px,
+                            self.distortion)  # fmt: skip
 
 
 def capture_angle_at_zero(zero_deg: float, sign: int) -> float:
@@ -373,7 +399,7 @@ class Dataset:
         mm = self.mm_per_tablet_px
         return Observations(
             rig=self.rig(),
-            image_px=jnp.asarray(cap.image_px, dtype=float),
+            image_px=jnp.asarray(self.camera.undistort(cap.image_px), dtype=float),
             depth_mm=jnp.asarray(cap.depth_mm, dtype=float),
             tablet_mm=jnp.asarray(self.tablet_px * mm, dtype=float),
             hand_xy_mm=jnp.asarray(self.hand_xy_mm, dtype=float),
@@ -388,6 +414,7 @@ class Dataset:
             raise ValueError("no capture sees a touched landmark: nothing to calibrate")
         mm = self.mm_per_tablet_px
         image = np.stack([self.captures[c].image_px[v] for c, v in zip(caps, views, strict=True)])
+        image = self.camera.undistort(image)  # the chain back-projects through a pinhole
         depth = np.array([self.captures[c].depth_mm[v] for c, v in zip(caps, views, strict=True)])
         position = np.stack([self.captures[c].hand_position_mm for c in caps])
         angle = np.array([self.captures[c].hand_angle_deg for c in caps])

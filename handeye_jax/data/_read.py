@@ -73,9 +73,14 @@ def check_tablet_px(ppi: float, scale: float, path: str | Path | None, field: st
 
 
 def _check_ray(r: Reader, uv: list[float], camera: Camera, where: str) -> None:
-    """Refuse an image point more than MAX_RAY_DEG off the optical axis: not in a picture."""
-    x = (uv[0] - camera.cx_px) / camera.fx_px
-    y = (uv[1] - camera.cy_px) / camera.fy_px
+    """Refuse an image point more than MAX_RAY_DEG off the optical axis (not in a picture),
+    or one the camera's distortion cannot undistort."""
+    ideal = camera.undistort(uv)[0]
+    if not np.isfinite(ideal).all():
+        r.fail(where, f"cannot be undistorted with [camera]'s distortion (the model does not "
+               f"invert there; got [{uv[0]:g}, {uv[1]:g}]): check camera.distortion")  # fmt: skip
+    x = (ideal[0] - camera.cx_px) / camera.fx_px
+    y = (ideal[1] - camera.cy_px) / camera.fy_px
     angle = math.degrees(math.atan(math.hypot(x, y)))
     if angle > MAX_RAY_DEG:
         r.fail(where, f"is {angle:.1f} deg off the camera's optical axis (at most "
@@ -101,7 +106,7 @@ def _common(r: Reader, doc: dict, path: Path | None) -> dict[str, Any]:
     if not isinstance(name, str) or not name.strip():
         r.fail("name", f"must be a non-empty string (got {describe(name)})")
     cam = _read_table(r, doc["camera"], "camera", CAMERA)
-    camera = Camera(cam["fx"], cam["fy"], cam["cx"], cam["cy"])
+    camera = Camera(cam["fx"], cam["fy"], cam["cx"], cam["cy"], cam.get("distortion"))
     tablet = _read_table(r, doc["tablet"], "tablet", TABLET)
     try:
         check_tablet_px(tablet["ppi"], tablet["scale"], path, "tablet")

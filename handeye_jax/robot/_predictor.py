@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from .._core import DIGEST_KEY, InputError, document_digest, read_text
+from ..data import undistort_px
 from . import _npchain
 from ._frames import FORMAT as FRAMES_FORMAT
 from ._frames import MAX_FILE_BYTES, Frames
@@ -201,10 +202,15 @@ class Predictor:
         if uv.ndim != 2 or uv.shape[1] != 2:
             raise ValueError(f"image_px must have shape (n, 2), got {uv.shape}")
         n = uv.shape[0]
+        f = self._frames
+        uv = undistort_px(uv, f.camera_px, f.distortion)  # the chain is a pinhole's
+        if not np.isfinite(uv).all():
+            bad = int(np.flatnonzero(~np.isfinite(uv).all(axis=1))[0])
+            raise ValueError(f"image_px[{bad}] cannot be undistorted with the calibration's "
+                             "lens distortion (the model does not invert there)")  # fmt: skip
         depth = _finite(depth_mm, "depth_mm", (n,))
         if (depth <= 0).any():
             raise ValueError("depth_mm must be > 0")
-        f = self._frames
         phi = f.phi_deg(_finite(hand_angle_deg, "hand_angle_deg", (n,)))
         cap, cap_angle = _capture_pose(f, n, capture_position_mm, capture_hand_angle_deg)
         xy = _npchain.hand_command_xy(self._chain, uv, depth, phi, cap, f.phi_deg(cap_angle),

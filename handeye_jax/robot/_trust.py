@@ -20,13 +20,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 
 from .._core import MAX_DEG, MAX_MM, MAX_PX, InputError, Reader
+from ..data import undistort_px
 from . import _npchain
 from ._frames import TRANSLATIONS, Affine, Frames
 from ._npframes import AFFINE_PARAMS, MODELS, chain_of, mount_pose_pen
@@ -152,8 +153,14 @@ def check_result_document(
         c.fail("model", f"{doc.get('model')!r:.40} has no NumPy twin and the file no frames")
     data = doc.get("data")
     if not isinstance(data, dict):  # an older result, or one made without its data
+        if stored is not None:
+            frames = replace(frames, distortion=stored.distortion)
         return Checked(frames, Reach.of_frames(frames))
     rows = _rows(c, data)
+    if stored is not None and stored.distortion != rows.distortion:
+        c.fail("frames.distortion", f"is {stored.distortion} but the data's camera has "
+               f"{rows.distortion}: {EDITED}")  # fmt: skip
+    frames = replace(frames, distortion=rows.distortion)
     _compare_rig(c, doc, rows)
     reach = Reach.around(rows.positions_mm)
     for key, (e1, e2, command) in (_replay(frames, rows) if rows.n else {}).items():
@@ -322,6 +329,9 @@ class _Rows:
     first_capture_phi_deg: float
     #: every hand position recorded (captures; touches, z NaN where not recorded).
     positions_mm: np.ndarray
+    #: the camera's lens distortion (plumb_bob k1 k2 p1 p2 k3), or None; image_px above are
+    #: undistorted with it, as the fit's observations are.
+    distortion: tuple[float, ...] | None = None
 
 
 class _DataRig(NamedTuple):
@@ -331,6 +341,7 @@ class _DataRig(NamedTuple):
     mm_per_tablet_px: float
     zero_deg: float
     sign: float
+    distortion: tuple[float, ...] | None
 
     def phi_deg(self, hand_angle_deg: Any) -> Any:
         return self.zero_deg + self.sign * hand_angle_deg
@@ -340,13 +351,15 @@ def _data_rig(c: _Doc, data: dict[str, Any]) -> _DataRig:
     cam = c.get(data, "camera", "data")
     camera = tuple(c.number(c.get(cam, k, "data.camera"), f"data.camera.{k}", limit=MAX_PX)
                    for k in ("fx", "fy", "cx", "cy"))  # fmt: skip
+    lens = cam.get("distortion") if isinstance(cam, dict) else None
+    lens = None if lens is None else tuple(c.vector(lens, "data.camera.distortion", 5, 100.0))
     tab = c.get(data, "tablet", "data")
     ppi = c.number(c.get(tab, "ppi", "data.tablet"), "data.tablet.ppi", positive=True)
     mm_px = 25.4 / ppi * c.number(c.get(tab, "scale", "data.tablet"), "data.tablet.scale")
     angle = c.get(data, "hand_angle", "data")
     zero = c.number(c.get(angle, "zero", "data.hand_angle"), "data.hand_angle.zero")
     sign = c.number(c.get(angle, "sign", "data.hand_angle"), "data.hand_angle.sign")
-    return _DataRig(camera, mm_px, zero, sign)
+    return _DataRig(camera, mm_px, zero, sign, lens)
 
 
 def _rows(c: _Doc, data: dict[str, Any]) -> _Rows:
@@ -355,8 +368,16 @@ def _rows(c: _Doc, data: dict[str, Any]) -> _Rows:
     landmarks = c.get(data, "landmarks", "data")
     tablet_px = c.column(landmarks, "tablet_px", "data.landmarks", (2,), MAX_PX)
     if "captures" not in data:
-        return _rows_v1(c, data, rig, landmarks, tablet_px)
-    return _rows_v2(c, data, rig, len(landmarks), tablet_px)
+        rows = _rows_v1(c, data, rig, landmarks, tablet_px)
+    else:
+        rows = _rows_v2(c, data, rig, len(landmarks), tablet_px)
+    if rig.distortion is None:
+        return rows
+    # the fit's observations are undistorted
+    image = undistort_px(rows.image_px, rig.camera_px, rig.distortion)
+    if not np.isfinite(image).all():
+        c.fail("data.camera.distortion", "cannot undistort the data's image points")
+    return replace(rows, image_px=image, distortion=rig.distortion)
 
 
 def _rows_v1(c: _Doc, data: dict[str, Any], rig: _DataRig, landmarks: Any,

@@ -166,10 +166,11 @@ def evaluate(
     for label, stage in (("stage 1", 1), ("stage 2", 2)):
         rows.append((label, result.predict(image_px, depth_mm, angle_deg, stage)))
     model, rig = truth.htm(), truth.rig()
-    rows.append(("oracle", hand_command(model, rig, image_px, depth_mm, angle_deg)))
+    ideal_px = jnp.asarray(truth.undistort(heldout.image_px))  # the truth knows its lens
+    rows.append(("oracle", hand_command(model, rig, ideal_px, depth_mm, angle_deg)))
     if dataset is not None:
         correction, centres = fit_correction(dataset, model, oracle_settings(result))
-        cmd = hand_command(model, rig, image_px, depth_mm, angle_deg, correction=correction,
+        cmd = hand_command(model, rig, ideal_px, depth_mm, angle_deg, correction=correction,
                            centres_mm=jnp.asarray(centres))  # fmt: skip
         rows.append(("oracle + stage 2", cmd))
     return [
@@ -234,12 +235,13 @@ def evaluate_points(
     model, rig = truth.htm(), truth.rig()
     jpose = {k: jnp.asarray(v) for k, v in pose.items()}
     dz = jnp.asarray(truth.pen_z_mm - truth.camera_z_mm)
-    rows.append(("oracle", hand_command(model, rig, image_px, depth_mm, angle, **jpose,
+    ideal_px = jnp.asarray(truth.undistort(heldout.image_px))  # the truth knows its lens
+    rows.append(("oracle", hand_command(model, rig, ideal_px, depth_mm, angle, **jpose,
                                         pen_minus_camera_mm=dz)))  # fmt: skip
     if dataset is not None:
         correction, centres = fit_correction(dataset, model, oracle_settings(result))
         rows.append(("oracle + stage 2", hand_command(
-            model, rig, image_px, depth_mm, angle, correction=correction,
+            model, rig, ideal_px, depth_mm, angle, correction=correction,
             centres_mm=jnp.asarray(centres), **jpose, pen_minus_camera_mm=dz)))  # fmt: skip
     want = truth.true_command(heldout.true_mm, heldout.hand_angle_deg)
     rise = heldout.capture_position_mm[:, 2] - truth.capture_position_mm[2]

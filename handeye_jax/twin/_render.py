@@ -147,6 +147,9 @@ def true_depth_mm(truth: TwinTruth) -> Float[np.ndarray, "h w"]:
     normal = np.cross(px - p0, py - p0)
     c = truth.camera_px
     v, u = np.mgrid[0:h, 0:w].astype(float)
+    if truth.distortion is not None:  # each pixel sees along its undistorted ray
+        u, v = np.moveaxis(truth.undistort(np.stack([u, v], -1).reshape(-1, 2)), -1, 0)
+        u, v = u.reshape(h, w), v.reshape(h, w)
     rays = np.stack([(u - c["cx"]) / c["fx"], (v - c["cy"]) / c["fy"], np.ones_like(u)], -1)
     return float(normal @ p0) / (rays @ normal)
 

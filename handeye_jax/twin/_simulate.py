@@ -44,7 +44,7 @@ from .._core import (
 )
 from .._core import MAX_TWIN_CAPTURES as MAX_CAPTURES
 from .._core import TWIN_SEED_RANGE as SEED_RANGE
-from ..data import Camera, Capture, Dataset, dataset_to_toml
+from ..data import Capture, Dataset, dataset_to_toml
 from ..vision import BlobCountError, DetectSettings, depth_at, find_blobs, order_blobs
 from ._render import DepthSensing, Imaging, render_capture, render_depth
 from ._synthetic import synthesize_dataset
@@ -193,6 +193,9 @@ def simulate(
     capture = render_capture(truth, preset.imaging, rng_image)
     depth = render_depth(truth, preset.depth, rng_depth)
     exact_ds, touch_px = _touched(truth, preset, seed, rng_touch)
+    if truth.distortion is not None:  # the lens moves every point of the picture
+        exact_ds = exact_ds.replace(camera=truth.camera(), image_px=truth.project(
+            truth.landmarks_tablet_px)[0])  # fmt: skip
     hand_xy = exact_ds.hand_xy_mm
     if preset.hand_round_mm:
         hand_xy = np.round(hand_xy / preset.hand_round_mm) * preset.hand_round_mm
@@ -330,10 +333,9 @@ def simulate_captures(
         hand = np.round(hand / preset.hand_round_mm) * preset.hand_round_mm
     caps = [Capture(p, a, np.arange(n), image_px, depth_mm)
             for (p, a), (_, _, image_px, depth_mm) in zip(poses, shots, strict=True)]  # fmt: skip
-    c = truth.camera_px
     dataset = Dataset(
         name=f"twin-seed{seed}-{preset.name}-{captures}captures",
-        camera=Camera(c["fx"], c["fy"], c["cx"], c["cy"]), tablet_ppi=truth.ppi,
+        camera=truth.camera(), tablet_ppi=truth.ppi,
         tablet_scale=truth.scale, hand_angle_zero_deg=truth.hand_angle_zero_deg,
         hand_angle_sign=truth.hand_angle_sign, search={}, tablet_px=truth.landmarks_tablet_px,
         captures=caps, hand_xy_mm=hand[:, :2], hand_z_mm=hand[:, 2],

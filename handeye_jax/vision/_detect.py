@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import io
 import itertools
+import math
 import os
 import struct
 import sys
@@ -66,6 +67,8 @@ class DetectSettings:
         min_area_px, max_area_px: blobs outside these areas (image px²) are ignored.
         centroid_window_px: the centroid is taken over ``±centroid_window_px`` pixels.
         depth_window_px: depth is the median over ``±depth_window_px`` pixels.
+        depth_scale_mm: mm per unit of the 16-bit depth image (RealSense's ``depth_scale``
+            in mm: 1 for its default 0.001 m units, 0.1 for 0.0001 m).
     """
 
     threshold: str = "otsu"
@@ -79,8 +82,12 @@ class DetectSettings:
     max_area_px: int = MAX_AREA_PX
     centroid_window_px: int = 1
     depth_window_px: int = 2
+    depth_scale_mm: float = 1.0
 
     def __post_init__(self):
+        if not (math.isfinite(self.depth_scale_mm) and 0 < self.depth_scale_mm <= 100):
+            raise ValueError(f"depth_scale_mm must be > 0 and at most 100 mm per unit (got "
+                             f"{self.depth_scale_mm})")  # fmt: skip
         if self.threshold not in ("otsu", "adaptive"):
             raise ValueError(f"threshold must be 'otsu' or 'adaptive' (got {self.threshold!r})")
         for name in ("background_px", "adaptive_block_px"):
@@ -696,7 +703,8 @@ def detect_landmarks(
 
     Args:
         capture_path: the colour picture (8-bit PNG).
-        depth_path: the depth image (16-bit PNG, mm, 0 = no measurement), same size.
+        depth_path: the depth image (16-bit PNG in units of ``settings.depth_scale_mm``, 0 =
+            no measurement), aligned to the picture: the same size, pixel for pixel.
         layout_px: where the landmarks are drawn, tablet px, ``(n, 2)``, in landmark order.
         settings: detection settings.
         partial: the picture may show only some landmarks (a capture of a version-2
@@ -741,7 +749,7 @@ def detect_landmarks(
         raise BlobCountError(capture_path, blobs, expected, per="per landmark seen" * partial
                              or "per landmark")  # fmt: skip
     image_px = blobs.image_px[order]
-    depth_mm = depth_at(depth, image_px, settings.depth_window_px)
+    depth_mm = depth_at(depth, image_px, settings.depth_window_px) * settings.depth_scale_mm
     missing = np.flatnonzero(~np.isfinite(depth_mm))
     if missing.size and not partial:
         u, v = image_px[missing[0]]
