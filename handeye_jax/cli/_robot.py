@@ -10,7 +10,7 @@ from pathlib import Path
 
 from .._core import MAX_MM, InputError, write_output
 
-# constants only: the formats import their libraries on use
+# names only: the exports (and NumPy) load when a command runs, not for --help
 from ..robot import (
     DEFAULT_BASE_FRAME,
     DEFAULT_CAMERA_FRAME,
@@ -18,11 +18,6 @@ from ..robot import (
     DEFAULT_PEN_FRAME,
     FORMATS,
     NAME_PATTERN,
-    check_parses,
-    export_text,
-    filled_translations_mm,
-    with_heights,
-    zero_filled,
 )
 from ._runtime import start_jax
 from ._types import PROG, numbers, output_path, whole_number
@@ -100,6 +95,13 @@ def _cmd_export(args: argparse.Namespace) -> int:
               f"(got {', '.join(names)})", file=sys.stderr)  # fmt: skip
         return 2
     from ..calibration import load_frames  # JAX: not imported for --help
+    from ..robot import (
+        check_parses,
+        export_text,
+        filled_translations_mm,
+        with_heights,
+        zero_filled,
+    )
 
     frames = load_frames(args.result)
     try:

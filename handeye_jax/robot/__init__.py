@@ -11,11 +11,14 @@ from .._core import lazy_exports
 # fmt: off
 _EXPORTS = {
     "_export": (
-        "check_parses", "DEFAULT_BASE_FRAME", "DEFAULT_CAMERA_FRAME", "DEFAULT_PARENT_LINK",
-        "DEFAULT_PEN_FRAME", "EASY_HANDEYE_PARAMETERS", "export_text", "FORMATS",
-        "NAME_PATTERN", "quaternion_xyzw", "zero_filled",
+        "check_parses", "EASY_HANDEYE_PARAMETERS", "export_text", "quaternion_xyzw",
+        "zero_filled",
     ),
     "_frames": ("Affine", "Frames", "TRANSLATIONS"),
+    "_names": (
+        "DEFAULT_BASE_FRAME", "DEFAULT_CAMERA_FRAME", "DEFAULT_PARENT_LINK", "DEFAULT_PEN_FRAME",
+        "FORMATS", "NAME_PATTERN",
+    ),
     "_heights": ("filled_translations_mm", "with_heights"),
     "_predictor": ("Predictor", "read_json", "result_reach", "stored_frames", "stored_result"),
     "_trust": ("check_reach", "check_result_document"),

@@ -28,7 +28,6 @@ import ast
 import inspect
 import json
 import math
-import re
 import shlex
 import textwrap
 
@@ -39,17 +38,17 @@ from ..data import distort_px, undistort_px
 from . import _npchain
 from ._frames import AXES, REASONS, Frames
 from ._heights import filled_translations_mm
+from ._names import (
+    DEFAULT_BASE_FRAME,
+    DEFAULT_CAMERA_FRAME,
+    DEFAULT_PARENT_LINK,
+    DEFAULT_PEN_FRAME,
+    DEFAULT_TABLET_FRAME,
+    FORMATS,
+    NAME_PATTERN,
+    ZERO_FILLED_FORMATS,
+)
 
-FORMATS = ("json", "yaml", "urdf", "ros2", "opencv", "python", "easy_handeye")
-#: Formats that cannot hold an unknown value and write 0 (with a comment) instead.
-ZERO_FILLED_FORMATS = ("urdf", "ros2", "opencv", "easy_handeye")
-DEFAULT_PARENT_LINK = "tool0"
-DEFAULT_BASE_FRAME = "base_link"
-DEFAULT_TABLET_FRAME = "tablet"
-DEFAULT_CAMERA_FRAME = "camera_optical_frame"
-DEFAULT_PEN_FRAME = "pen_tip"
-#: Link and frame names: what URDF, tf2 and ROS node names all accept.
-NAME_PATTERN = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,127}")
 MM_PER_M = 1000.0
 
 
