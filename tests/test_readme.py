@@ -14,6 +14,9 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text()
 SETUP = README[README.index("## Set-up") : README.index("## What you get")]
+DOCS = {p.name: p.read_text() for p in sorted((ROOT / "docs").glob("*.md"))}
+#: The README and every page of docs/: what a user reads.
+EVERYTHING = README + "".join(DOCS.values())
 
 
 @pytest.mark.slow
@@ -66,7 +69,43 @@ def test_the_paper_is_cited_not_a_path_outside_the_repository():
     assert "Hand–Eye Calibration Using a Tablet Computer" in README
     assert "*Math. Comput. Appl.* **2023**, 28(1), 22" in README
     assert "https://doi.org/10.3390/mca28010022" in README
-    assert "shared/seed" not in README
+    assert "shared/seed" not in EVERYTHING
+
+
+def _anchor(heading: str) -> str:
+    """GitHub's anchor of a Markdown heading."""
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def _anchors(text: str) -> set[str]:
+    text = re.sub(r"```.*?```", "", text, flags=re.S)
+    return {_anchor(h) for h in re.findall(r"(?m)^#+ (.*)$", text)}
+
+
+def test_every_link_between_the_readme_and_docs_resolves():
+    """Each relative link of README.md and docs/*.md names a file of the repository, and each
+    #anchor a heading of that page."""
+    pages = {ROOT / "README.md": README, **{ROOT / "docs" / n: t for n, t in DOCS.items()}}
+    checked = 0
+    for page, text in pages.items():
+        for target in re.findall(r"\]\(([^)\s]+)\)", re.sub(r"```.*?```", "", text, flags=re.S)):
+            if re.match(r"[a-z]+:", target):
+                continue
+            path, _, anchor = target.partition("#")
+            dest = (page.parent / path).resolve() if path else page
+            assert dest.exists(), (page.name, target)
+            if anchor:
+                assert anchor in _anchors(dest.read_text()), (page.name, target)
+            checked += 1
+    assert checked >= 20  # the README's index and the pages' cross-references
+
+
+def test_the_readme_is_a_ten_minute_read_that_indexes_every_page():
+    """About 2,000 words a user reads in ten minutes; the rest is in docs/, every page linked."""
+    prose = re.sub(r"```.*?```", "", README, flags=re.S)
+    assert len(prose.split()) <= 2600, len(prose.split())
+    for name in DOCS:
+        assert f"(docs/{name})" in README, name
 
 
 def test_the_macos_and_fedora_notes_name_the_variable_the_tests_read():
@@ -79,14 +118,14 @@ def test_the_macos_and_fedora_notes_name_the_variable_the_tests_read():
 def test_one_stage_to_deploy_and_predict_and_the_page_default_to_it():
     from handeye_jax.cli import build_parser
 
-    advice = set(re.findall(r"[Dd]eploy stage (\d)", README))
+    advice = set(re.findall(r"[Dd]eploy stage (\d)", EVERYTHING))
     assert len(advice) == 1, advice
     (stage,) = advice
     predict = build_parser().parse_args(["predict", "r.json", "p.csv"])
     assert predict.stage == int(stage)
     page = (ROOT / "handeye_jax" / "tablet" / "static" / "index.html").read_text()
     assert re.search(rf'id="trial-label"[^>]*value="stage {stage}"', page)
-    assert f"--stage {3 - int(stage)}" in README  # and how to send the other one
+    assert f"--stage {3 - int(stage)}" in EVERYTHING  # and how to send the other one
 
 
 def test_the_suite_time_is_stated_with_its_conditions():
@@ -104,11 +143,11 @@ def _first_paragraph(path: Path) -> str:
 
 
 def test_the_layout_says_what_each_folder_says_of_itself():
-    """The README's "Layout": one paragraph per layer, the first of its own docstring, in the
+    """docs/layout.md: one paragraph per layer, the first of its own docstring, in the
     layers' order."""
     from tests.test_layers import LAYERS
 
-    text = (ROOT / "README.md").read_text()
+    text = DOCS["layout.md"]
     block = text.split("<!-- folders:")[1].split("<!-- end folders -->")[0]
     want = []
     for layer in LAYERS[:-1]:  # the root's own __init__ is the API, not a folder
@@ -121,7 +160,7 @@ def test_the_layout_says_what_each_folder_says_of_itself():
 
 def _command_line_entries() -> dict[str, str]:
     """The "Command line" synopsis block: each command's entry (its lines) by its name."""
-    section = README[README.index("## Command line") :]
+    section = DOCS["command-line.md"]
     block = re.search(r"```text\n(.*?)```", section, flags=re.S).group(1)
     entries: dict[str, str] = {}
     for line in block.splitlines():
@@ -163,7 +202,8 @@ def test_the_recalibration_walkthrough_runs_as_written(tmp_path, monkeypatch, ca
 
     monkeypatch.setattr(calibration, "Settings", Budget)
 
-    section = README[README.index("Try it without a robot") :]
+    section = DOCS["recalibration.md"]
+    section = section[section.index("Try it without a robot") :]
     block = re.search(r"```text\n(.*?)```", section, flags=re.S).group(1)
     lines = [line for line in block.splitlines() if line and not line.startswith("#")]
     assert lines[-1].startswith("handeye-jax evaluate")

@@ -15,8 +15,8 @@ the controller's hand positions), and held-out targets for :mod:`~handeye_jax.tw
                   and where they are drawn, ``tablet_x,tablet_y`` (tablet px)
 
 It writes into a new or empty folder only: with ``force=True`` it replaces an old twin's
-files and removes what the README's loop made from them (:data:`DERIVED_FILES`), so nothing
-stale is left beside the new twin.
+files and removes what the loop of docs/twin.md made from them (:data:`DERIVED_FILES`), so
+nothing stale is left beside the new twin.
 """
 
 from __future__ import annotations
