@@ -21,6 +21,10 @@ _EXPORTS = {
     "_result": ("CalibrationResult", "StageResult"),
     "_result_frames": ("compute_frames",),
     "_result_io": ("load_frames", "load_result", "result_to_json", "save_result"),
+    "_search": (
+        "BOX_SIGMAS", "estimate_box", "HALF_WIDTH", "plan_search", "SearchPlan", "SearchRange",
+        "SearchReport",
+    ),
     "_settings": ("Settings",),
     "_stage": ("fit_stage", "POLISH", "Population", "StageFit", "with_prior"),
     "_starts": ("convention_index", "CONVENTIONS", "REFIT_STARTS", "uniform_starts"),

@@ -96,8 +96,14 @@ def fit(
     def build1(template, free):
         return with_loss(Stage1Objective(template, obs, free))
 
-    task1 = StageTask(build1, plan.space1, n, plan.search1, "stage 1 DE", subset1,
-                      refit_starts(settings.seed, plan.space1.box, obs.rig))  # fmt: skip
+    starts1 = refit_starts(settings.seed, plan.space1.box, obs.rig)
+    labels1 = None
+    if plan.starts1 is not None and len(plan.starts1):  # the closed-form estimate's, polished
+        labels1 = tuple(f"LM from a uniform start (refit {i + 1} of {len(starts1)})"
+                        for i in range(len(starts1))) + tuple(plan.labels1)  # fmt: skip
+        starts1 = np.concatenate([starts1, plan.space1.clip(plan.starts1)])
+    task1 = StageTask(build1, plan.space1, n, plan.search1, "stage 1 DE", subset1, starts1,
+                      labels1)  # fmt: skip
     fit1 = fit_stage(task1, settings, keys1, progress=progress)
     stage1 = _finished(fit1, "stage 1", dataset.source)
     fit2, stage2, centres = fit_correction_stage(run, fit1.model(), plan.space2, plan.search2,
@@ -117,6 +123,7 @@ def fit(
         data=dataset, dataset_name=dataset.name, timings_s=timings, sign_twin=_sign_twin(fit1),
         warnings=all_warnings(n, spaces, stages, dataset.search, dataset.source),
         recalibration=recal, fits=Stages(fit1, fit2), heights=height_summary(fit1.model(), obs),
+        search=plan.search,
     )  # fmt: skip
 
 

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from .._core import Stages
+from .._jax import in_float64
 from ..data import Dataset
 from ..models import AffinePair, get_model
 from ..problem import (
@@ -24,6 +25,7 @@ from ._payloads import (
     PriorReport,
 )
 from ._result import CalibrationResult
+from ._search import SearchReport, plan_search, searched_box
 from ._settings import Settings
 
 
@@ -37,6 +39,9 @@ class Plan:
         previous: the result the plan starts from (its file or ``None``).
         refit: the groups or parameters refitted, when starting from a previous result.
         fixed: the other parameters were held at the previous values (not given a prior).
+        starts1, labels1: further LM starts of stage 1 (in ``space1``'s box) and what each is
+            (the closed-form estimate's polished candidates), or ``None``.
+        search: where the stages searched (:class:`SearchReport`), or ``None``.
     """
 
     space1: ParameterSpace
@@ -47,14 +52,23 @@ class Plan:
     refit: tuple[str, ...] = ()
     fixed: bool = False
     extra: dict[str, Any] = field(default_factory=dict)
+    starts1: np.ndarray | None = None
+    labels1: tuple[str, ...] = ()
+    search: SearchReport | None = None
 
 
+@in_float64
 def full_plan(dataset: Dataset, settings: Settings) -> Plan:
-    """Every parameter of both stages free in its search range: the paper's calibration."""
+    """Every parameter of both stages free in its search range (:func:`plan_search`: around
+    the closed-form estimate of the rig by default, or the paper's ranges)."""
     model_cls = get_model(settings.model)
-    space1 = ParameterSpace.all_free(model_cls.nominal(), dataset.search)
-    space2 = ParameterSpace.all_free(AffinePair.nominal(), dataset.search)
-    return Plan(space1, space2, space1.free, space2.free)
+    where = plan_search(dataset, model_cls, settings.search)
+    space1 = ParameterSpace(model_cls.nominal(), model_cls.param_names, where.box1.lower,
+                            where.box1.upper)  # fmt: skip
+    space2 = ParameterSpace(AffinePair.nominal(), AffinePair.param_names, where.box2.lower,
+                            where.box2.upper)  # fmt: skip
+    return Plan(space1, space2, space1.free, space2.free, starts1=where.starts1,
+                labels1=where.labels1, search=where.report)  # fmt: skip
 
 
 #: The prior's data scale ``s`` is the previous fit's F over this (the maximum-likelihood
@@ -74,8 +88,11 @@ def _previous_prior(previous: CalibrationResult, stage: str, names: Sequence[str
     return posterior.marginal(mine) if mine else None
 
 
-def _widened(cls, search, names, prior: Prior | None, template) -> tuple[np.ndarray, np.ndarray]:
-    lo, hi = cls.search_bounds(search)
+def _widened(cls, search, names, prior: Prior | None, template,
+             bounds: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The box of ``names``: ``bounds`` (all of ``cls``'s parameters; default: its preset
+    ranges with ``search``) widened to hold the template's values and the prior mean ± 6σ."""
+    lo, hi = cls.search_bounds(search) if bounds is None else bounds
     idx = [cls.param_names.index(n) for n in names]
     lo, hi = lo[idx], hi[idx]
     values = np.array([float(getattr(template, n)) for n in names])
@@ -146,14 +163,16 @@ def _prior_of(report: PriorReport | None) -> Prior | None:
 
 
 def _spaces_of(result: CalibrationResult, search: dict) -> Stages[ParameterSpace]:
-    """The stages' parameter spaces of a result read from a file (its boxes: the search
-    ranges, widened to hold the fit and its priors)."""
+    """The stages' parameter spaces of a result read from a file (its boxes: the ranges it
+    searched, or for an older result the preset's with ``search``, widened to hold the fit
+    and its priors)."""
     spaces = []
-    for template, stage in ((result.model, result.stage1),
-                            (result.correction, result.stage2)):  # fmt: skip
+    for template, stage, key in ((result.model, result.stage1, "stage1"),
+                                 (result.correction, result.stage2, "stage2")):  # fmt: skip
         cls = type(template)
         free = tuple(n for n in cls.param_names if n in stage.free())
         prior = _prior_of(stage.prior)
-        lo, hi = _widened(cls, search, free, prior, template)
+        bounds = searched_box(cls, result.search, key, search)
+        lo, hi = _widened(cls, search, free, prior, template, bounds)
         spaces.append(ParameterSpace(template, free, lo, hi, prior, stage.fixed_source))
     return Stages(*spaces)

@@ -13,6 +13,7 @@ _EXPORTS = {
     "_dataset": ("Camera", "Capture", "check_distinct", "check_population", "Dataset"),
     "_edit": ("update_dataset",),
     "_layouts": ("snake_grid_px",),
+    "_moved": ("moved_base",),
     "_observations": ("Observations",),
     "_points": ("csv_number", "points_csv_text", "read_capture_columns", "read_points_csv"),
     "_read": ("check_tablet_px", "dataset_from_document", "known_search_names", "load_dataset"),

@@ -15,6 +15,7 @@ from ..calibration import (
 )
 from ..diagnostics import scope_lines
 from ..models import AffinePair
+from ._search import search_lines
 
 
 def _unit(u: str) -> str:
@@ -124,6 +125,7 @@ def found_by_line(polish: PolishSummary) -> str:
 def format_summary(result: CalibrationResult) -> str:
     """A few dozen lines: parameters, f1 / f2 / F per stage, residuals, twin, warnings, time."""
     lines = _head(result)
+    lines += search_lines(result)
     lines += _stage1_block(result)
     lines.append("")
     lines += _stage2_block(result)
