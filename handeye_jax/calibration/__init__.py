@@ -10,11 +10,12 @@ from .._core import lazy_exports
 # What the layers above may use, by module; each loads on first use (PEP 562).
 # fmt: off
 _EXPORTS = {
+    "_advice": ("AdviceContext", "bound_hits", "bound_warning"),
     "_fitted": ("fitted_stages", "FittedStage"),
     "_payloads": (
-        "Convention", "ConventionCheck", "ConventionFit", "Convergence", "DESummary", "Diagnostics",
-        "FitWarning", "HeldOut", "LeaveOneOut", "LossInfo", "Mode", "PolishSummary", "PriorReport",
-        "Pull", "Recalibration", "Residual", "Scope", "SignTwin", "StageDiagnostics",
+        "BoundHit", "Convention", "ConventionCheck", "ConventionFit", "Convergence", "DESummary",
+        "Diagnostics", "FitWarning", "HeldOut", "LeaveOneOut", "LossInfo", "Mode", "PolishSummary",
+        "PriorReport", "Pull", "Recalibration", "Residual", "Scope", "SignTwin", "StageDiagnostics",
     ),
     "_pipeline": ("calibrate", "fit", "fit_correction", "recalibrate", "RESTART_LANDMARKS"),
     "_plans": ("full_plan", "Plan", "recalibration_plan"),
@@ -28,7 +29,7 @@ _EXPORTS = {
     "_settings": ("Settings",),
     "_stage": ("fit_stage", "POLISH", "Population", "StageFit", "with_prior"),
     "_starts": ("convention_index", "CONVENTIONS", "REFIT_STARTS", "uniform_starts"),
-    "_warnings": ("all_warnings", "bound_hits", "check_determined", "PULL_FLAG"),
+    "_warnings": ("all_warnings", "check_determined", "PULL_FLAG"),
 }
 # fmt: on
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

@@ -33,6 +33,7 @@ from ..problem import (
     height_summary,
     spread_landmarks,
 )
+from ._advice import AdviceContext, analyses_of
 from ._payloads import (
     Recalibration,
 )
@@ -109,6 +110,7 @@ def fit(
     fit2, stage2, centres = fit_correction_stage(run, fit1.model(), plan.space2, plan.search2,
                                                  keys2)  # fmt: skip
     spaces, stages = Stages(plan.space1, plan.space2), Stages(stage1, stage2)
+    fits = Stages(fit1, fit2)
     timings = {
         "stage1_de": fit1.timings["de"], "stage1_polish": fit1.timings["polish"],
         "stage2_de": fit2.timings["de"], "stage2_polish": fit2.timings["polish"],
@@ -121,8 +123,9 @@ def fit(
         model=fit1.model(), correction=fit2.model(), rig=obs.rig, centres_mm=np.asarray(centres),
         centre_index=obs.centre_index, stage1=stage1, stage2=stage2, settings=settings,
         data=dataset, dataset_name=dataset.name, timings_s=timings, sign_twin=_sign_twin(fit1),
-        warnings=all_warnings(n, spaces, stages, dataset.search, dataset.source),
-        recalibration=recal, fits=Stages(fit1, fit2), heights=height_summary(fit1.model(), obs),
+        warnings=all_warnings(n, spaces, stages, dataset.source,
+                              advice=AdviceContext(plan.search, obs, analyses_of(fits))),
+        recalibration=recal, fits=fits, heights=height_summary(fit1.model(), obs),
         search=plan.search,
     )  # fmt: skip
 

@@ -34,7 +34,7 @@ from ..problem import (
     analyse_jacobian,
     closed_form_estimate,
 )
-from ._programs import _error_jacobian
+from ._programs import _error_jacobian, _report
 
 #: Each range holds the estimates plus this many standard deviations on each side.
 BOX_SIGMAS = 4.0
@@ -69,12 +69,13 @@ class SearchReport:
         preset: ``"estimate"`` or ``"paper"``.
         stage1, stage2: each stage's ranges, by parameter.
         estimate: the closed-form estimate's parameters (the first candidate), or ``None``.
-        estimate_F_mm: F at the lowest end of its LM polish, mm, or ``None``.
+        estimate_F_mm: F (the paper's, x-y) at the lowest end of its LM polish, mm, or
+            ``None``.
         sigma: each parameter's standard deviation there (its unit; ``None``: not determined),
             which set the ranges' widths, or ``None``.
         box_sigmas: how many σ each range holds beyond the estimates.
-        candidates: how many candidates the estimate had (2: the views could not tell the
-            tablet tilt's sign).
+        candidates: how many polished candidates the box holds (2: the views could not tell
+            the tablet tilt's sign, or both signs led to about the same F).
         fallback: why the preset's ranges were searched instead of the estimate's, or
             ``None``.
     """
@@ -179,9 +180,9 @@ def estimate_box(
     sigma = analyse_jacobian(e, J, names, units).std
     half = _half_widths(model_cls, sigma)
     lower, upper = hull.min(axis=0) - half, hull.max(axis=0) + half
+    F = float(_report(objective, np.asarray(ends[best].x))[1][0])  # the paper's F, x-y
     info = dict(estimate=dict(zip(names, (float(v) for v in X[0]), strict=True)),
-                estimate_F_mm=float(values[best]), sigma=dict(sigma),
-                candidates=len(estimate.candidates))  # fmt: skip
+                estimate_F_mm=F, sigma=dict(sigma), candidates=len(keep))  # fmt: skip
     return lower, upper, np.array([ends[i].x for i in keep]), info
 
 

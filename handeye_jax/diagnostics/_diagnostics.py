@@ -17,6 +17,7 @@ from .._core import Stages
 from ..calibration import (
     CONVENTIONS,
     REFIT_STARTS,
+    AdviceContext,
     Convention,
     ConventionCheck,
     ConventionFit,
@@ -28,6 +29,7 @@ from ..calibration import (
     Mode,
     Population,
     Residual,
+    SearchReport,
     Settings,
     StageDiagnostics,
     StageResult,
@@ -178,7 +180,7 @@ def diagnostics_of(
     results: Stages[StageResult],
     settings: Settings,
     obs: Observations,
-    search: dict,
+    report: SearchReport | None = None,
 ) -> Diagnostics:
     """The diagnostics of a result, on each stage's free parameters (the scope aside:
     :func:`~handeye_jax.capture_scope` reads these).
@@ -190,7 +192,7 @@ def diagnostics_of(
             multi-starts draw from.
         obs: the observations fitted (depths explain a shift–tilt trade-off; the rig's
             convention is the declared one).
-        search: the dataset's ``[search]`` overrides.
+        report: where the result searched (for the advice on a parameter at a bound).
     """
     loss = get_loss(settings.loss, settings.loss_scale_mm)
     out = refits(stages, loss, settings.seed, REFIT_STARTS, REFIT_STEPS)
@@ -203,7 +205,8 @@ def diagnostics_of(
     for key, stage in stages.items():
         result = getattr(results, key)
         found[key] = replace(
-            _stage_diagnostics(stage, getattr(jacobians, key), depth, result, search),
+            _stage_diagnostics(stage, getattr(jacobians, key), depth, result, key,
+                               AdviceContext(report, obs)),
             loo=getattr(loo, key), loo_method=out.loo_method,
             outliers=outliers(result.residuals_mm, threshold),
         )  # fmt: skip
@@ -227,10 +230,11 @@ def diagnostics_of(
 
 
 def _stage_diagnostics(stage: FittedStage, jacobian: tuple[np.ndarray, np.ndarray],
-                       depth_mm: np.ndarray, result: StageResult,
-                       search: dict) -> StageDiagnostics:  # fmt: skip
+                       depth_mm: np.ndarray, result: StageResult, key: str,
+                       context: AdviceContext) -> StageDiagnostics:  # fmt: skip
     """One stage's uncertainty, weak directions (from its error vectors and their Jacobian at
-    the fit), the optima in its final DE population and its parameters on a bound."""
+    the fit), the optima in its final DE population and its parameters on a bound (with what
+    would help, from ``context``)."""
     space = stage.space
     cls = type(space.template)
     e, J = jacobian
@@ -247,5 +251,6 @@ def _stage_diagnostics(stage: FittedStage, jacobian: tuple[np.ndarray, np.ndarra
             sign_twin=tuple(n for n in cls.sign_twin if n in pop.searched),
             flat_steps=[st for st in steps if st], reference=np.asarray(stage.x)[idx],
         )  # fmt: skip
-    hits = tuple(h for h in bound_hits(result.params, cls, search) if h.param in space.free)
+    context = replace(context, analysis=lambda _: jac)
+    hits = bound_hits(result, space, key, context)
     return StageDiagnostics(**vars(jac), free=tuple(space.free), modes=modes, bound_hits=hits)

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from ..calibration import HALF_WIDTH, CalibrationResult
+from collections.abc import Sequence
+
+from ..calibration import HALF_WIDTH, BoundHit, CalibrationResult
 
 
 def search_lines(result: CalibrationResult) -> list[str]:
@@ -19,8 +21,8 @@ def search_lines(result: CalibrationResult) -> list[str]:
     if report.fallback is not None:
         return [f"search: no closed-form estimate ({report.fallback}){given}"]
     (mm_floor, mm_cap), (deg_floor, deg_cap) = HALF_WIDTH["mm"], HALF_WIDTH["deg"]
-    twin = ("; one capture cannot tell the tablet tilt's sign, so the box holds both "
-            "candidates" if report.candidates == 2 else "")  # fmt: skip
+    twin = ("; it holds both signs of the tablet's tilt, which the views could not tell apart"
+            if report.candidates == 2 else "")  # fmt: skip
     cells = ", ".join(
         f"{n} [{report.stage1[n].lower:.4g}, {report.stage1[n].upper:.4g}]"
         + ("" if u == "1" else f" {u}")
@@ -33,3 +35,22 @@ def search_lines(result: CalibrationResult) -> list[str]:
         f"{deg_floor:g} deg and at most {mm_cap:g} mm or {deg_cap:g} deg{twin}{given}",
         f"  ranges: {cells}",
     ]
+
+
+def bound_lines(hits: Sequence[BoundHit]) -> list[str]:
+    """The diagnostics' parameters on a bound of the range searched, each with what would
+    help (older results: the range to widen to)."""
+    if not hits:
+        return ["  on a search-range bound: none"]
+    lines = ["  on a search-range bound:"]
+    for h in hits:
+        u = "" if h.unit == "1" else f" {h.unit}"
+        lo, hi = h.range
+        head = f"    {h.param} = {h.value:.4g}{u} ({h.side} bound of [{lo:.4g}, {hi:.4g}]{u})"
+        if h.advice:
+            lines.append(f"{head}: {h.advice}")
+        elif h.widen_to is not None:
+            lines.append(f"{head}: widen to [{h.widen_to[0]:g}, {h.widen_to[1]:g}]{u}")
+        else:
+            lines.append(head)
+    return lines

@@ -20,7 +20,7 @@ _EXPORTS = {
     ),
     "_synthetic": ("seen_from", "synthesize_captures", "synthesize_dataset", "true_command"),
     "_truth": ("change_truth", "draw_truth", "load_truth", "TwinTruth"),
-    "_wide": ("aimed_position", "draw_wide_truth", "upright_angle", "WIDE_MODELS", "WIDE_RANGES"),
+    "_wide": ("aimed_position", "draw_wide_truth", "upright_angle", "WIDE_DOT_PX", "WIDE_RANGES"),
 }
 # fmt: on
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

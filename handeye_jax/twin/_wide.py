@@ -23,6 +23,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from .._core import WIDE_MODELS
 from .._jax import in_float64
 from ..data import snake_grid_px
 from ._truth import HAND_ANGLE_CONVENTIONS, RANGES, TwinTruth
@@ -42,8 +43,6 @@ WIDE_RANGES: dict[str, tuple[float, float]] = {
 UPRIGHT_DEG = 15.0
 #: Side of a wide rig's landmark dots, tablet px: the camera looks from up to ~290 mm.
 WIDE_DOT_PX = 2.0
-#: Models whose rigs :func:`draw_wide_truth` draws.
-WIDE_MODELS = ("htm", "dh")
 
 
 def _R_base_hand(phi_deg: float) -> np.ndarray:
