@@ -1,7 +1,8 @@
-"""The fit: settings, plans (what each stage fits), one stage's search for its best optimum
-(DE, LM polish, restarts, multi-start refits; the lowest wins), the two-stage pipelines
-(calibrate, recalibrate), the warnings, and the result with its file. The only place that
-joins the hand–eye problem to the optimisers."""
+"""The fit: settings, where each stage searches (a box around a closed-form estimate of the
+rig, or the paper's ranges), plans (what each stage fits), one stage's search for its best
+optimum (DE, LM polish, restarts, multi-start refits; the lowest wins), the two-stage
+pipelines (calibrate, recalibrate), the warnings with what would help, and the result with
+its file. The only place that joins the hand–eye problem to the optimisers."""
 
 from __future__ import annotations
 

@@ -26,13 +26,12 @@ import numpy as np
 from ..data import Observations
 from ..problem import JacobianAnalysis, ParameterSpace
 from ._payloads import BoundHit
+from ._plans import PRIOR_BOX_SIGMAS
 from ._result import StageResult
 from ._search import SearchReport, estimate_box
 
 #: A parameter closer than this fraction of its range to a bound is on the bound.
 BOUND_FRACTION = 1e-3
-#: A prior parameter's box is widened to hold its prior mean ± this many σ (the plans').
-PRIOR_BOX_SIGMAS = 6.0
 
 
 @dataclass

@@ -227,7 +227,8 @@ def recalibrate(
                          f"say {settings.model!r}")  # fmt: skip
     source = str(source) if source is not None else f"previous result ({previous.dataset_name})"
     with jax.enable_x64(True):
-        plan = recalibration_plan(dataset, previous, refit, fix=fix, source=source)
+        plan = recalibration_plan(dataset, previous, refit, fix=fix, source=source,
+                                  preset=settings.search)  # fmt: skip
     return fit(dataset, plan, settings, progress=progress)
 
 

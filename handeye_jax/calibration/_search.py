@@ -44,15 +44,16 @@ HALF_WIDTH: dict[str, tuple[float, float]] = {"mm": (10.0, 250.0), "deg": (5.0, 
 #: A polished candidate is kept in the box's hull when its F is at most this factor of the
 #: lowest (the sign twin's is equal); a worse one is a local optimum the box need not hold.
 KEEP_F_FACTOR = 1.5
-#: Where a range came from.
-SOURCES = ("estimate", "paper", "default", "[search]")
+#: Where a range came from: the box around the estimate, the paper's tables, the
+#: correction's (or the model's, for a parameter not searched) defaults, a recalibration's
+#: previous value ± half the paper's range, the dataset's ``[search]``.
+SOURCES = ("estimate", "paper", "default", "previous", "[search]")
 
 
 @dataclass(frozen=True)
 class SearchRange:
-    """One parameter's search range, in its unit, and where it came from: ``estimate`` (the
-    box around the closed-form estimate), ``paper`` (Tables 5–6), ``default`` (the
-    correction's) or ``[search]`` (the dataset's)."""
+    """One parameter's search range, in its unit, and where it came from (one of
+    :data:`SOURCES`)."""
 
     strict: ClassVar[bool] = True
 
