@@ -222,13 +222,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tol", type=float, default=1e-4, help="same optimum: |ΔF1st| <= tol, mm")
     ap.add_argument("--only", choices=("paper", "rigs"))
     ap.add_argument("--out", type=Path, default=OUT, help="per-rig results (JSON), resumed")
-    ap.add_argument("--quick", action="store_true", help="4 rigs, smaller DE; results not kept")
+    ap.add_argument("--quick", action="store_true", help="2 rigs, smaller DE; results not kept")
     args = ap.parse_args(argv)
     vectorise_small_loops()
     settings = Settings()
     if args.quick:
         settings = Settings(population=200, generations=300)
-        args.rigs, args.out = min(args.rigs, 4), None
+        args.rigs, args.out = min(args.rigs, 2), None
     print(f"# No search ranges to guess, {time.strftime('%Y-%m-%d')}")
     print(f"command: python benchmarks/search_study.py {' '.join(sys.argv[1:])}")
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores; load average at start "

@@ -67,7 +67,15 @@ def test_miss_rate_finds_de_and_lm_missing_twin_1_and_the_defaults_not():
 @pytest.mark.parametrize("seeds", [["--seeds", "1"]])
 def test_reproduce_paper_runs(seeds):
     out = run_in_process("reproduce_paper.py", *seeds, "--population", "60", "--generations", "80")
-    assert out.count("| seed 1 |") == 3
+    assert out.count("| seed 1 |") == 5  # 3 in the paper's ranges, 2 with the default search
+    assert "## DH, default search" in out
+
+
+def test_search_study_runs_the_moved_paper_data_and_wide_rigs(tmp_path):
+    out = run_in_process("search_study.py", "--quick")
+    for row in ("| shifted +300 mm in x | HTM | estimate |", "| turned 90° about z | DH | paper |"):
+        assert row in out
+    assert re.search(r"^\| all \| all \| 2 \| \d \| \d \|", out, re.M)
 
 
 def test_de_overhead_times_every_ablation_and_reads_xla_ir():

@@ -26,7 +26,7 @@ import numpy as np
 
 from .._core import SEARCH_PRESETS, spec
 from ..data import Dataset, Observations
-from ..models import AbstractParametric, AffinePair
+from ..models import AbstractParametric, AffinePair, HTMModel
 from ..optim import Box, minimise
 from ..problem import (
     ClosedFormEstimate,
@@ -79,6 +79,9 @@ class SearchReport:
             the tablet tilt's sign, or both signs led to about the same F).
         fallback: why the preset's ranges were searched instead of the estimate's, or
             ``None``.
+        frames_F_mm: for a model other than HTM, F of the closed-form frames themselves in
+            the six-DoF chain (which holds any frames), mm: far below the model's best F, the
+            model cannot hold the rig.
     """
 
     preset: str
@@ -90,6 +93,7 @@ class SearchReport:
     box_sigmas: float | None = spec(omit="none", default=None)
     candidates: int | None = spec(omit="none", default=None)
     fallback: str | None = spec(omit="none", default=None)
+    frames_F_mm: float | None = spec("frames_F", omit="none", default=None)
 
     def bounds(self, stage: str, names) -> tuple[np.ndarray, np.ndarray]:
         """``(lower, upper)`` of ``names`` in a stage (``"stage1"``, ``"stage2"``)."""
@@ -183,8 +187,22 @@ def estimate_box(
     lower, upper = hull.min(axis=0) - half, hull.max(axis=0) + half
     F = float(_report(objective, np.asarray(ends[best].x))[1][0])  # the paper's F, x-y
     info = dict(estimate=dict(zip(names, (float(v) for v in X[0]), strict=True)),
-                estimate_F_mm=F, sigma=dict(sigma), candidates=len(keep))  # fmt: skip
+                estimate_F_mm=F, sigma=dict(sigma), candidates=len(keep),
+                frames_F_mm=_frames_F(model_cls, obs, estimate))  # fmt: skip
     return lower, upper, np.array([ends[i].x for i in keep]), info
+
+
+def _frames_F(model_cls, obs: Observations, estimate: ClosedFormEstimate) -> float | None:
+    """F of the closed-form frames themselves, unpolished, in the six-DoF chain that holds any
+    frames (``None`` for that chain's own fits): a model whose best F is far above it cannot
+    hold the rig."""
+    if model_cls is HTMModel:
+        return None
+    general = Stage1Objective(HTMModel.nominal(), obs)
+    values = [float(_report(general, np.array([c.params(HTMModel)[n] for n in
+                                                HTMModel.param_names]))[1][0])
+              for c in estimate.candidates]  # fmt: skip
+    return min(values)
 
 
 def plan_search(dataset: Dataset, model_cls: type, preset: str | None,

@@ -88,6 +88,26 @@ def fit_warnings(stage1: StageResult, stage2: StageResult,
     )]  # fmt: skip
 
 
+#: A model whose best F1st is above this many times the closed-form frames' F (and 1 mm more)
+#: cannot hold the rig the data describe.
+MODEL_CANNOT_HOLD = 3.0
+
+
+def model_warnings(model_cls, stage1: StageResult, report) -> list[FitWarning]:
+    """A warning when the model cannot hold the rig: its best F1st far above the F of the
+    closed-form frames in the six-DoF chain (the search report's ``frames_F_mm``)."""
+    frames = None if report is None else report.frames_F_mm
+    if frames is None or stage1.F <= MODEL_CANNOT_HOLD * frames + 1.0:
+        return []
+    return [FitWarning(
+        f"the {model_cls.name.upper()} model cannot hold this rig: its best F1st is "
+        f"{stage1.F:.4g} mm, while the closed-form estimate of the rig's frames fits to "
+        f"{frames:.4g} mm in the six-DoF chain; a model's chain may fix some of the frames "
+        f"(DH, eqs. 12-16: the camera on the hand's x axis, the tablet's origin on the base's "
+        f"x axis), which another robot's base frame need not satisfy: use --model htm", "fit",
+    )]  # fmt: skip
+
+
 def prior_warnings(stage: StageResult, label: str) -> list[FitWarning]:
     """One warning per prior parameter the data pull more than :data:`PULL_FLAG` σ away,
     largest pull first (the likeliest to have changed; correlated ones follow it)."""
@@ -124,7 +144,11 @@ def all_warnings(
     outside = [h for h in hits if h.reason == "estimate outside"]
     if outside:  # the ranges do not hold this rig: the other bounds hit follow from that
         hits = outside
-    warnings = fit_warnings(stage1, stage2, outside)
+    report = None if advice is None else advice.report
+    held = model_warnings(type(spaces.stage1.template), stage1, report)
+    if held:  # the model cannot hold this rig: its bounds say nothing more
+        hits = []
+    warnings = held or fit_warnings(stage1, stage2, outside)
     warnings += check_determined(n, spaces.stage1, "stage 1", path)
     warnings += check_determined(n, spaces.stage2, "stage 2", path)
     warnings += [FitWarning(bound_warning(h), "bound", h.param) for h in hits]
