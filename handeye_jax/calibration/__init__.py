@@ -1,8 +1,9 @@
 """The fit: settings, where each stage searches (a box around a closed-form estimate of the
 rig, or the paper's ranges), plans (what each stage fits), one stage's search for its best
 optimum (DE, LM polish, restarts, multi-start refits; the lowest wins), the two-stage
-pipelines (calibrate, recalibrate), the warnings with what would help, and the result with
-its file. The only place that joins the hand–eye problem to the optimisers."""
+pipelines (calibrate, recalibrate, with a prior's rig checked against the new data), the
+warnings with what would help, and the result with its file. The only place that joins the
+hand–eye problem to the optimisers."""
 
 from __future__ import annotations
 
@@ -27,6 +28,7 @@ _EXPORTS = {
         "BOX_SIGMAS", "estimate_box", "HALF_WIDTH", "plan_search", "SearchPlan", "SearchRange",
         "SearchReport",
     ),
+    "_rig_change": ("change_line",),
     "_settings": ("Settings",),
     "_stage": ("fit_stage", "POLISH", "Population", "StageFit", "with_prior"),
     "_starts": ("convention_index", "CONVENTIONS", "REFIT_STARTS", "uniform_starts"),
