@@ -390,7 +390,10 @@ def test_published_data_passes_with_its_declared_convention(paper_result):
     fits = {(c.zero_deg, c.sign): c.F_mm for c in conv.fits}
     assert set(fits) == set(CONVENTIONS)
     assert fits[(90.0, -1)] == pytest.approx(paper_result.stage1.F, abs=1e-6)
-    assert min(f for k, f in fits.items() if k != (90.0, -1)) > 2 * fits[(90.0, -1)]
+    # Each convention is searched from its own closed-form estimate: the other sign fits
+    # nowhere; another zero, whose turn the mount and pen partly absorb, fits less well.
+    assert min(f for (_, sign), f in fits.items() if sign == 1) > 5 * fits[(90.0, -1)]
+    assert min(f for k, f in fits.items() if k != (90.0, -1)) > 1.05 * fits[(90.0, -1)]
 
 
 @pytest.mark.slow

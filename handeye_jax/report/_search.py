@@ -20,6 +20,9 @@ def search_lines(result: CalibrationResult) -> list[str]:
         return [f"search: the paper's ranges (Tables 5 and 6, preset paper){given}"]
     if report.fallback is not None:
         return [f"search: no closed-form estimate ({report.fallback}){given}"]
+    if report.estimate_F_mm is None:  # a recalibration's: around the previous values
+        return [f"search: around the previous result's values (each ± half its paper range, "
+                f"widened to hold the prior){given}"]
     (mm_floor, mm_cap), (deg_floor, deg_cap) = HALF_WIDTH["mm"], HALF_WIDTH["deg"]
     twin = ("; it holds both signs of the tablet's tilt, which the views could not tell apart"
             if report.candidates == 2 else "")  # fmt: skip
