@@ -71,10 +71,14 @@ def test_reproduce_paper_runs(seeds):
     assert "## DH, default search" in out
 
 
-def test_search_study_runs_the_moved_paper_data_and_wide_rigs(tmp_path):
-    out = run_in_process("search_study.py", "--quick")
+def test_moved_paper_runs_both_moves_models_and_presets():
+    out = run_in_process("moved_paper.py", "--quick")
     for row in ("| shifted +300 mm in x | HTM | estimate |", "| turned 90° about z | DH | paper |"):
         assert row in out
+
+
+def test_wide_rigs_runs_and_counts_its_rigs():
+    out = run_in_process("wide_rigs.py", "--quick")
     assert re.search(r"^\| all \| all \| 2 \| \d \| \d \|", out, re.M)
 
 

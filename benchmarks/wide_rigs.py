@@ -1,22 +1,20 @@
-"""No search ranges to guess (issue 25, section 1): the default search on moved paper data and
-on random wide rigs.
+"""No search ranges to guess on random wide rigs (issue 25's second acceptance).
 
-    python benchmarks/search_study.py [--rigs 200] [--first-seed 1] [--quick] [--only paper|rigs]
+    python benchmarks/wide_rigs.py [--rigs 200] [--first-seed 1] [--quick]
 
-**The paper's data, moved.** The published data with the robot's base frame shifted +300 mm
-in x (hand positions and capture pose), and separately turned 90° about its z axis (the
-capture and touch poses turned likewise, :func:`handeye_jax.moved_base`), calibrated with the
-defaults (no ``[search]``): F1st, against the paper's 1.673860 mm; and with the paper's
-ranges (``search="paper"``) for contrast. Both models, and the data unmoved.
+(The paper's data with the robot moved: ``benchmarks/moved_paper.py``.)
 
-**Random wide rigs.** Rig ``i`` (seed ``first + i``) is :func:`handeye_jax.draw_wide_truth`
-for model HTM or DH in turn, with one capture or three (every fourth rig alike), simulated
-with the ``paper`` noise preset (pictures rendered and the landmarks detected; three
-captures are aimed at the landmarks). Each is calibrated twice:
+Rig ``i`` (seed ``first + i``) is :func:`handeye_jax.draw_wide_truth` for model HTM or DH in
+turn, with one capture or three (every fourth rig alike), in the hand-angle convention it
+draws (any of four), simulated with the ``paper`` noise preset (pictures rendered and the
+landmarks detected; three captures are aimed at the landmarks). Each is fitted three ways:
 
 * **default**: ``calibrate`` with ``Settings(model=...)``, no ``[search]``;
-* **from the truth**: the same two stages, stage 1 a Levenberg–Marquardt polish from the
-  true parameters (DE and restarts off; a box of ±1000 mm / ±180° around them: unbounded in
+* **with the truth**: the default's plan with the true parameters as one more LM start of
+  stage 1 (its box widened to hold them): the fit started at the truth, whose answer is the
+  lower of that start's optimum and the default's;
+* **LM from the truth alone**: stage 1 a Levenberg–Marquardt polish from the true
+  parameters (DE and restarts off; a box of ±1000 mm / ±180° around them: unbounded in
   effect), stage 2 as the default's with no restarts.
 
 The default *finds the truth's optimum* when its F1st is within ``--tol`` (1e-4 mm) of the
@@ -54,38 +52,15 @@ from handeye_jax import (
     float64,
     full_plan,
     get_model,
-    load_dataset,
-    moved_base,
     simulate,
     vectorise_small_loops,
 )
 from handeye_jax._core import progress_bar
 from handeye_jax.calibration import HALF_WIDTH
 
-PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
-OUT = Path(__file__).resolve().parent / "results" / "search_study.json"
-PAPER_F1ST = 1.673860
+OUT = Path(__file__).resolve().parent / "results" / "wide_rigs.json"
 #: The fit from the truth searches this far around it (mm, deg): no bound in effect.
 TRUTH_BOX = {"mm": 1000.0, "deg": 180.0, "1": 1.0}
-
-
-def moved_paper_rows(settings: Settings) -> list[str]:
-    """The table of the paper's data moved, both models and presets."""
-    paper = load_dataset(PAPER)
-    cases = [("as published", paper), ("shifted +300 mm in x", moved_base(paper, (300.0, 0.0))),
-             ("turned 90° about z", moved_base(paper, turn_deg=90.0))]  # fmt: skip
-    rows = ["| data | model | search | F1st mm | F2nd mm | bound warnings | s |",
-            "|---|---|---|---|---|---|---|"]  # fmt: skip
-    for label, ds in cases:
-        for model in ("htm", "dh"):
-            for preset in ("estimate", "paper"):
-                t0 = time.perf_counter()
-                r = calibrate(ds, dataclasses.replace(settings, model=model, search=preset))
-                bounds = sum(w.kind == "bound" for w in r.warnings)
-                seconds = time.perf_counter() - t0
-                rows.append(f"| {label} | {model.upper()} | {preset} | {r.stage1.F:.6f} | "
-                            f"{r.stage2.F:.6f} | {bounds} | {seconds:.1f} |")  # fmt: skip
-    return rows
 
 
 def truth_params(truth, model_cls) -> dict[str, float]:
@@ -220,7 +195,6 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rigs", type=int, default=200)
     ap.add_argument("--first-seed", type=int, default=1)
     ap.add_argument("--tol", type=float, default=1e-4, help="same optimum: |ΔF1st| <= tol, mm")
-    ap.add_argument("--only", choices=("paper", "rigs"))
     ap.add_argument("--out", type=Path, default=OUT, help="per-rig results (JSON), resumed")
     ap.add_argument("--quick", action="store_true", help="2 rigs, smaller DE; results not kept")
     args = ap.parse_args(argv)
@@ -229,16 +203,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.quick:
         settings = Settings(population=200, generations=300)
         args.rigs, args.out = min(args.rigs, 2), None
-    print(f"# No search ranges to guess, {time.strftime('%Y-%m-%d')}")
-    print(f"command: python benchmarks/search_study.py {' '.join(sys.argv[1:])}")
+    print(f"# Random wide rigs, {time.strftime('%Y-%m-%d')}")
+    print(f"command: python benchmarks/wide_rigs.py {' '.join(sys.argv[1:])}")
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores; load average at start "
           f"{os.getloadavg()[0]:.2f}")  # fmt: skip
-    if args.only != "rigs":
-        print(f"\nThe paper's data moved; defaults but the model and search (paper's F1st "
-              f"{PAPER_F1ST} mm):\n")  # fmt: skip
-        print("\n".join(moved_paper_rows(settings)))
-    if args.only == "paper":
-        return 0
     kept = {}
     if args.out is not None and args.out.exists():
         kept = {int(k): v for k, v in json.loads(args.out.read_text()).items()}
