@@ -34,7 +34,7 @@ from handeye_jax import (
     synthesize_captures,
     synthesize_dataset,
 )
-from handeye_jax.calibration import CONVENTIONS, POLISH, plan_search
+from handeye_jax.calibration import CONVENTIONS, HALF_WIDTH, POLISH, plan_search
 from handeye_jax.cli import main
 from handeye_jax.data import dataset_from_document
 from handeye_jax.optim import Box, minimise
@@ -62,6 +62,15 @@ def _frames(model) -> tuple[np.ndarray, ...]:
         R_t, t_t = model.tablet_pose()
         return (np.asarray(R_c), np.asarray(t_c)[:2], np.asarray(R_t), np.asarray(t_t)[:2],
                 np.asarray(model.t_hand_pen())[:2])  # fmt: skip
+
+
+def _true_params(truth, cls) -> dict[str, float]:
+    """The truth's parameters in ``cls``'s terms."""
+    with float64():
+        R_c, t_c = truth.htm().camera_mount()
+        R_t, t_t = truth.htm().tablet_pose()
+        return cls.from_frames(*(np.asarray(a) for a in (R_c, t_c, R_t, t_t,
+                                                          truth.htm().t_hand_pen())))
 
 
 def _noise_free(seed: int, model: str, convention: tuple[float, int], captures: int):
@@ -108,6 +117,12 @@ def test_closed_form_estimate_recovers_a_noise_free_rig(seed, model, convention,
     with float64():
         F = Stage1Objective(cls, data.observations())(cls.from_dict(best.params(cls)).to_vector())
     assert float(F) < 1e-6
+    # The default box around it holds the truth, each parameter well inside its range.
+    ranges = plan_search(data, cls, "estimate").report.stage1
+    true = _true_params(truth, cls)
+    for n, u in zip(cls.param_names, cls.param_units, strict=True):
+        floor = HALF_WIDTH[u][0] / 2
+        assert ranges[n].lower + floor <= true[n] <= ranges[n].upper - floor, n
 
 
 def test_closed_form_estimate_refuses_data_that_cannot_give_one(paper):
@@ -253,11 +268,8 @@ def test_the_default_finds_a_wide_rigs_optimum_from_the_data_alone(seed, model, 
     twin = simulate(truth, PRESETS["paper"], seed, captures=captures, aim=True, n_heldout=2)
     cls = get_model(model)
     r = calibrate(twin.dataset, dataclasses.replace(FAST_SETTINGS, model=model))
+    true = _true_params(truth, cls)
     with float64():
-        R_c, t_c = truth.htm().camera_mount()
-        R_t, t_t = truth.htm().tablet_pose()
-        true = cls.from_frames(*(np.asarray(a) for a in (R_c, t_c, R_t, t_t,
-                                                          truth.htm().t_hand_pen())))
         x = np.array([true[n] for n in cls.param_names])
         half = np.array([1000.0 if u == "mm" else 180.0 for u in cls.param_units])
         objective = Stage1Objective(cls, twin.dataset.observations())
