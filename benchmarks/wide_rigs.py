@@ -220,7 +220,7 @@ def main(argv: list[str] | None = None) -> int:
                     args.out.write_text(json.dumps(kept, indent=1, sort_keys=True))
             rows.append(kept[seed])
             bar.update(1)
-    print(f"\nRandom wide rigs, seeds {seeds[0]}-{seeds[-1]}, preset paper; same optimum: "
+    print(f"\nRandom wide rigs, seeds {seeds[0]}-{seeds[-1]}, noise preset paper; same optimum: "
           f"|F1st - F1st from the truth| <= {args.tol:g} mm:\n")  # fmt: skip
     print("\n".join(rig_rows(rows, args.tol)))
     print(f"\nload average at end {os.getloadavg()[0]:.2f}")
