@@ -146,6 +146,15 @@ _EXPORTS = {
     "WeightedLengthBlock": "problem",
     "write_report": "report",
     "write_twin": "twin",
+    "closed_form_estimate": "problem",
+    "ClosedFormEstimate": "problem",
+    "RigEstimate": "problem",
+    "moved_base": "data",
+    "draw_wide_truth": "twin",
+    "WIDE_RANGES": "twin",
+    "SearchReport": "calibration",
+    "SearchRange": "calibration",
+    "plan_search": "calibration",
     "apply_poses": "data",
     "PoseReport": "data",
     "read_intrinsics": "data",
@@ -211,6 +220,7 @@ if TYPE_CHECKING:
     from .calibration._result import CalibrationResult, StageResult
     from .calibration._result_frames import compute_frames
     from .calibration._result_io import load_frames, load_result, save_result
+    from .calibration._search import SearchRange, SearchReport, plan_search
     from .calibration._settings import Settings
     from .calibration._stage import StageFit, fit_stage
     from .data._convert import convert_to_v2
@@ -220,6 +230,7 @@ if TYPE_CHECKING:
     from .data._intrinsics import read_intrinsics
     from .data._layouts import snake_grid_px
     from .data._lens import distort_px, undistort_px
+    from .data._moved import moved_base
     from .data._observations import Observations
     from .data._poses import ToolPose, read_poses_csv, tool_pose_of_hand
     from .data._read import load_dataset
@@ -236,6 +247,7 @@ if TYPE_CHECKING:
         get_model,
         hand_command,
     )
+    from .problem._estimate import ClosedFormEstimate, RigEstimate, closed_form_estimate
     from .problem._linearise import (
         JacobianAnalysis,
         WeakDirection,
@@ -284,6 +296,7 @@ if TYPE_CHECKING:
     from .twin._simulate import PRESETS, NoisePreset, Twin, simulate, simulate_captures, write_twin
     from .twin._synthetic import synthesize_captures, synthesize_dataset
     from .twin._truth import REALSENSE_LIKE, TwinTruth, change_truth, draw_truth, load_truth
+    from .twin._wide import WIDE_RANGES, draw_wide_truth
     from .vision._captures import PlannedView, plan_captures, planned_view
     from .vision._detect import (
         Detection,
@@ -418,6 +431,15 @@ __all__ = [
     "PointErrors",
     "simulate_captures",
     "synthesize_captures",
+    "closed_form_estimate",
+    "ClosedFormEstimate",
+    "RigEstimate",
+    "moved_base",
+    "draw_wide_truth",
+    "WIDE_RANGES",
+    "SearchReport",
+    "SearchRange",
+    "plan_search",
     "apply_poses",
     "PoseReport",
     "read_intrinsics",

@@ -67,7 +67,19 @@ def test_miss_rate_finds_de_and_lm_missing_twin_1_and_the_defaults_not():
 @pytest.mark.parametrize("seeds", [["--seeds", "1"]])
 def test_reproduce_paper_runs(seeds):
     out = run_in_process("reproduce_paper.py", *seeds, "--population", "60", "--generations", "80")
-    assert out.count("| seed 1 |") == 3
+    assert out.count("| seed 1 |") == 5  # 3 in the paper's ranges, 2 with the default search
+    assert "## DH, default search" in out
+
+
+def test_moved_paper_runs_both_moves_models_and_presets():
+    out = run_in_process("moved_paper.py", "--quick")
+    for row in ("| shifted +300 mm in x | HTM | estimate |", "| turned 90° about z | DH | paper |"):
+        assert row in out
+
+
+def test_wide_rigs_runs_and_counts_its_rigs():
+    out = run_in_process("wide_rigs.py", "--quick")
+    assert re.search(r"^\| all \| all \| 2 \| \d \| \d \|", out, re.M)
 
 
 def test_de_overhead_times_every_ablation_and_reads_xla_ir():

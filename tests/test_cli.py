@@ -231,8 +231,9 @@ def test_a_fit_that_does_not_fit_the_data_is_plainly_warned_about(tmp_path, caps
     out = tmp_path / "far.json"
     assert main(["calibrate", str(bad), "--out", str(out), "--no-diagnostics", *FAST]) == 0
     summary = capsys.readouterr().out
-    warning = next(w.text for w in load_result(out).warnings
-                   if w.text.startswith("the data do not fit"))  # fmt: skip
+    # Read as written: the result's own reach check may refuse a fit this far off the data.
+    warning = next(w for w in json.loads(out.read_text())["warnings"]
+                   if w.startswith("the data do not fit"))  # fmt: skip
     assert f"warning: {warning}" in summary and "do not use this result" in warning
     F = float(warning.split("F = ")[1].split(" mm")[0])
     assert F > 100

@@ -47,3 +47,9 @@ CHANGES: dict[str, dict[str, tuple[float, float]]] = {
 }
 #: The recommended further pictures: (rise above the first capture, mm; hand turn from it, deg).
 RECOMMENDED_CAPTURES = ((40.0, 30.0), (80.0, -30.0))
+
+#: Where a calibration's search ranges come from: ``estimate``, a box around a closed-form
+#: estimate from the data (the default); ``paper``, the paper's Tables 5 and 6.
+SEARCH_PRESETS = ("estimate", "paper")
+#: Models whose random wide rigs ``simulate --wide`` draws.
+WIDE_MODELS = ("htm", "dh")

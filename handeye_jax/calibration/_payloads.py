@@ -233,14 +233,21 @@ class Mode:
 
 @dataclass(frozen=True)
 class BoundHit:
-    """A parameter on a bound of its search range, and a wider range to try (its unit)."""
+    """A parameter on a bound of the range it was searched in (its unit), what would help
+    (``advice``) and a wider range to try where one would (``widen_to``; ``None``: widening
+    would not help, e.g. along a weak direction or for a prior's parameter), and why it is
+    there (``reason``: a prior's parameter pulled far, a weak direction, the closed-form
+    estimate outside or inside the range, or no estimate to tell)."""
 
     param: str
     value: float
     unit: str
     side: Literal["lower", "upper"]
     range: tuple[float, float]
-    widen_to: tuple[float, float]
+    widen_to: tuple[float, float] | None = None
+    advice: str | None = spec(omit="none", default=None)
+    reason: Literal["prior", "weak", "estimate outside", "estimate inside", "range"] | None = spec(
+        omit="none", default=None)
 
 
 @dataclass(frozen=True)

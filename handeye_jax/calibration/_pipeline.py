@@ -33,7 +33,10 @@ from ..problem import (
     height_summary,
     spread_landmarks,
 )
-from ._payloads import Recalibration
+from ._advice import AdviceContext, analyses_of
+from ._payloads import (
+    Recalibration,
+)
 from ._plans import Plan, full_plan, recalibration_plan
 from ._programs import _centres, _points, _stage_keys
 from ._result import CalibrationResult, StageResult
@@ -92,13 +95,20 @@ def fit(
     def build1(template, free):
         return with_loss(Stage1Objective(template, obs, free))
 
-    task1 = StageTask(build1, plan.space1, n, plan.search1, "stage 1 DE", subset1,
-                      refit_starts(settings.seed, plan.space1.box, obs.rig))  # fmt: skip
+    starts1 = refit_starts(settings.seed, plan.space1.box, obs.rig)
+    labels1 = None
+    if plan.starts1 is not None and len(plan.starts1):  # the closed-form estimate's, polished
+        labels1 = tuple(f"LM from a uniform start (refit {i + 1} of {len(starts1)})"
+                        for i in range(len(starts1))) + tuple(plan.labels1)  # fmt: skip
+        starts1 = np.concatenate([starts1, plan.space1.clip(plan.starts1)])
+    task1 = StageTask(build1, plan.space1, n, plan.search1, "stage 1 DE", subset1, starts1,
+                      labels1)  # fmt: skip
     fit1 = fit_stage(task1, settings, keys1, progress=progress)
     stage1 = _finished(fit1, "stage 1", dataset.source)
     fit2, stage2, centres = fit_correction_stage(run, fit1.model(), plan.space2, plan.search2,
                                                  keys2)  # fmt: skip
     spaces, stages = Stages(plan.space1, plan.space2), Stages(stage1, stage2)
+    fits = Stages(fit1, fit2)
     timings = {
         "stage1_de": fit1.timings["de"], "stage1_polish": fit1.timings["polish"],
         "stage2_de": fit2.timings["de"], "stage2_polish": fit2.timings["polish"],
@@ -111,8 +121,10 @@ def fit(
         model=fit1.model(), correction=fit2.model(), rig=obs.rig, centres_mm=np.asarray(centres),
         centre_index=obs.centre_index, stage1=stage1, stage2=stage2, settings=settings,
         data=dataset, dataset_name=dataset.name, timings_s=timings, sign_twin=_sign_twin(fit1),
-        warnings=all_warnings(n, spaces, stages, dataset.search, dataset.source),
-        recalibration=recal, fits=Stages(fit1, fit2), heights=height_summary(fit1.model(), obs),
+        warnings=all_warnings(n, spaces, stages, dataset.source,
+                              advice=AdviceContext(plan.search, obs, analyses_of(fits))),
+        recalibration=recal, fits=fits, heights=height_summary(fit1.model(), obs),
+        search=plan.search,
     )  # fmt: skip
 
 
@@ -221,7 +233,8 @@ def recalibrate(
     source = str(source) if source is not None else f"previous result ({previous.dataset_name})"
     changes = check_rig(dataset, previous, source, accept_rig_change)
     with jax.enable_x64(True):
-        plan = recalibration_plan(dataset, previous, refit, fix=fix, source=source)
+        plan = recalibration_plan(dataset, previous, refit, fix=fix, source=source,
+                                  preset=settings.search)  # fmt: skip
     result = fit(dataset, plan, settings, progress=progress)
     if changes:
         recal = replace(result.recalibration, rig_changes=changes)

@@ -43,6 +43,7 @@ from ._payloads import (
     SignTwin,
 )
 from ._result_frames import compute_frames
+from ._search import SearchReport
 from ._settings import Settings
 
 #: Largest magnitude of a fitted parameter: the widest search range a dataset admits (DE and
@@ -122,6 +123,8 @@ class CalibrationResult:
             diagnostics of a result just computed; not written to the file.
         heights: when the touches recorded the hand's heights, what they determine (the
             ``z_p − z_c`` a height command needs, and how well); else ``None``.
+        search: where each stage searched (the preset, the ranges and where they came from,
+            the closed-form estimate), or ``None`` (older results).
     """
 
     model: AbstractModel
@@ -141,6 +144,7 @@ class CalibrationResult:
     recalibration: Recalibration | None = None
     fits: Stages[Any] | None = field(default=None, repr=False)
     heights: Heights | None = None
+    search: SearchReport | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "centres_mm", np.asarray(self.centres_mm, dtype=float))

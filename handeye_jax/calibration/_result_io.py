@@ -12,6 +12,7 @@ The layout (every section but the first eight is optional; older files load)::
     content_sha256              # of all the rest: while it matches, the frames need no check
     recalibration{previous, refit[], others}
     heights{...}
+    search{preset, stage1{name: {lower, upper, source}}, stage2{...}, estimate{...}, ...}
     diagnostics{...}
     data{...}                   # the dataset fitted, as its own file's document (v1 or v2)
     observations{...}           # older results: the landmark arrays instead of ``data``
@@ -42,6 +43,7 @@ from .._core import (
     MAX_PX,
     MAX_RESULT_BYTES,
     MM_PER_TABLET_PX,
+    SEARCH_PRESETS,
     InputError,
     Reader,
     describe,
@@ -60,6 +62,7 @@ from ..robot import TRANSLATIONS, Frames, check_result_document, read_json
 from ._payloads import Diagnostics, FitWarning, Recalibration, SignTwin
 from ._result import MAX_PARAM, CalibrationResult, StageResult
 from ._result_frames import UNDETERMINED
+from ._search import SOURCES, SearchReport
 from ._settings import SEED_RANGE, read_settings
 
 FORMAT = "handeye-jax.result/1"
@@ -172,7 +175,7 @@ def result_to_document(result: CalibrationResult) -> dict[str, Any]:
         # The numbers a robot needs, for the NumPy predictor (handeye_jax.robot).
         "frames": result.frames().to_dict(),
     }
-    for key in ("recalibration", "heights", "diagnostics"):
+    for key in ("recalibration", "heights", "search", "diagnostics"):
         value = getattr(result, key)
         if value is not None:
             doc[key] = to_document(value)
@@ -238,10 +241,35 @@ def load_result(path: str | Path) -> CalibrationResult:
         warnings=_warnings(r, doc), diagnostics=_diagnostics(r, doc, n, stage1, stage2),
         recalibration=_optional(r, doc, "recalibration", Recalibration),
         heights=_optional(r, doc, "heights", Heights),
+        search=_search(r, doc, model_cls),
     )  # fmt: skip
     # Its parts agree (frames, parameters, rig, data, residuals), as predict checks them.
     check_result_document(doc, path, result.frames)
     return result
+
+
+def _search(r: Reader, doc: dict[str, Any], model_cls) -> SearchReport | None:
+    """The ``search`` section: a range for every parameter of both stages, lower < upper."""
+    report = _optional(r, doc, "search", SearchReport)
+    if report is None:
+        return None
+    for key, cls in (("stage1", model_cls), ("stage2", AffinePair)):
+        ranges = getattr(report, key)
+        r.table(ranges, f"search.{key}", cls.param_names)
+        for name in cls.param_names:
+            lo, hi = ranges[name].lower, ranges[name].upper
+            where = f"search.{key}.{name}"
+            r.number(lo, f"{where}.lower", limit=MAX_PARAM)
+            r.number(hi, f"{where}.upper", limit=MAX_PARAM)
+            if not lo < hi:
+                r.fail(where, f"must have lower < upper (got {lo}, {hi})")
+            if ranges[name].source not in SOURCES:
+                r.fail(f"{where}.source", f"must be one of {', '.join(SOURCES)} (got "
+                       f"{describe(ranges[name].source)})")  # fmt: skip
+    if report.preset not in SEARCH_PRESETS:
+        r.fail("search.preset", f"must be one of {', '.join(SEARCH_PRESETS)} (got "
+               f"{describe(report.preset)})")  # fmt: skip
+    return report
 
 
 def _model(r: Reader, doc: dict[str, Any]) -> str:

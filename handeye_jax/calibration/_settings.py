@@ -6,7 +6,14 @@ from collections.abc import Callable
 from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING, Any
 
-from .._core import MAX_GENERATIONS, MAX_POPULATION, MAX_RESTARTS, Reader, describe
+from .._core import (
+    MAX_GENERATIONS,
+    MAX_POPULATION,
+    MAX_RESTARTS,
+    SEARCH_PRESETS,
+    Reader,
+    describe,
+)
 
 if TYPE_CHECKING:  # JAX: imported on use, so that the command line's --help shows the defaults
     from ..optim import DifferentialEvolution
@@ -37,6 +44,11 @@ class Settings:
             landmarks.
         loss_scale_mm: the robust loss's scale, mm; landmarks with an error above
             ``OUTLIER_FACTOR`` (3) times it are flagged as outliers, whatever the loss.
+        search: where stage 1's search ranges come from: ``"estimate"``, a box around a
+            closed-form estimate of the rig from the data, as wide as its uncertainty and a
+            margin; ``"paper"``, the paper's Tables 5 and 6 (the model's ``default_ranges``);
+            ``None``, the dataset's ``[search] preset``, else ``"estimate"``. The dataset's
+            ``[search]`` ranges override either by name.
 
     The paper's settings are ``population=10000, generations=10000, early_stop=False``; the
     defaults reach the same optimum on the paper's data in seconds.
@@ -54,6 +66,7 @@ class Settings:
     restarts: int = 32
     loss: str = "l1"
     loss_scale_mm: float = 1.0
+    search: str | None = None
 
     def de(self) -> DifferentialEvolution:
         """The DE solver these settings configure."""
@@ -139,6 +152,8 @@ SETTINGS_SCHEMA: dict[str, Callable[[Reader, Any, str], Any]] = {
     "restarts": _integer(0, MAX_RESTARTS),
     "loss": _choice(_losses, "loss"),
     "loss_scale_mm": _number(positive=True),
+    "search": lambda r, x, where: x if x is None else _choice(lambda: SEARCH_PRESETS,
+                                                              "search preset")(r, x, where),
 }
 #: Settings older results recorded and the fit no longer has (checked, then ignored).
 LEGACY_SETTINGS = {"diagnostics": _boolean}

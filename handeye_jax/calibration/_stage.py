@@ -138,7 +138,8 @@ class StageTask:
         label: the progress bar's label.
         restart_landmarks: the landmarks the restarts and refits search on (default: all).
         refit_starts: start points of the multi-start refits in ``space``'s box (stage 1:
-            :func:`refit_starts`), or ``None``.
+            :func:`refit_starts`, and the closed-form estimate's), or ``None``.
+        refit_labels: what each refit start is (default: uniform starts).
     """
 
     build: Callable[[AbstractParametric, tuple[str, ...]], AbstractObjective]
@@ -148,6 +149,7 @@ class StageTask:
     label: str = "DE"
     restart_landmarks: np.ndarray | None = None
     refit_starts: np.ndarray | None = None
+    refit_labels: tuple[str, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -297,7 +299,8 @@ def _refits(task: StageTask, objective, best: Optimum,
     polished, replaces ``best`` if lower. Returns it and the value it replaced, if any."""
     starts = np.concatenate([task.refit_starts, np.asarray(best.x)[None]])
     k = len(task.refit_starts)
-    labels = [f"LM from a uniform start (refit {i + 1} of {k})" for i in range(k)]
+    uniform = [f"LM from a uniform start (refit {i + 1} of {k})" for i in range(k)]
+    labels = list(task.refit_labels or uniform)
     labels.append(f"{best.found_by.split(', refined')[0]}, refined by a refit from it")
     ends = _multistart(objective, task.space, starts, task.restart_landmarks, batch)
     out, _, _ = _best_end(objective, task.space.box, ends, labels, best,

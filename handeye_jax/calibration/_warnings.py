@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 
 from .._core import InputError, Stages
-from ..models import AbstractParametric, AffinePair
 from ..problem import (
     ParameterSpace,
 )
+from ._advice import AdviceContext, bound_hits, bound_warning
 from ._payloads import (
     BoundHit,
     FitWarning,
@@ -62,70 +62,49 @@ def check_determined(
     return []
 
 
-#: A parameter closer than this fraction of its range to a bound is on the bound.
-BOUND_FRACTION = 1e-3
-
-
-def bound_hits(
-    params: dict[str, float], cls: type[AbstractParametric], search: dict
-) -> tuple[BoundHit, ...]:
-    """Parameters on a bound of their search range, each with a wider range to try.
-
-    Args:
-        params: the fitted parameters, name → value (in each parameter's unit).
-        cls: the model or correction class (names, units, default ranges).
-        search: the dataset's ``[search]`` overrides.
-    """
-    lower, upper = cls.search_bounds(search)
-    out = []
-    for name, unit, lo, hi in zip(cls.param_names, cls.param_units, lower, upper, strict=True):
-        v, width = params[name], hi - lo
-        side = (
-            "lower"
-            if v - lo <= BOUND_FRACTION * width
-            else ("upper" if hi - v <= BOUND_FRACTION * width else None)
-        )
-        if side:
-            wider = (lo - width, hi) if side == "lower" else (lo, hi + width)
-            out.append(BoundHit(name, float(v), unit, side, (float(lo), float(hi)),
-                                (float(wider[0]), float(wider[1]))))  # fmt: skip
-    return tuple(out)
-
-
-def bound_warnings(
-    params: dict[str, float],
-    cls: type[AbstractParametric],
-    search: dict,
-    free: Sequence[str] | None = None,
-) -> list[FitWarning]:
-    """One warning per free parameter sitting on a bound of its search range."""
-    out = []
-    for hit in bound_hits(params, cls, search):
-        if free is not None and hit.param not in free:
-            continue
-        name, u = hit.param, "" if hit.unit == "1" else f" {hit.unit}"
-        (lo, hi), (wlo, whi) = hit.range, hit.widen_to
-        out.append(FitWarning(
-            f"{name} = {hit.value:.4g}{u} is on the {hit.side} bound of its search range "
-            f"[{lo:g}, {hi:g}]; the optimum may lie outside it: widen it in the dataset's "
-            f"[search] table, e.g. {name} = [{wlo:g}, {whi:g}]", "bound", name,
-        ))  # fmt: skip
-    return out
-
-
 #: A fit whose F is above this, mm, is no rig's: the paper's is 0.36 mm.
 F_DOES_NOT_FIT_MM = 100.0
 
 
-def fit_warnings(stage1: StageResult, stage2: StageResult) -> list[FitWarning]:
-    """A plain warning when F is so large that the data cannot be a rig's."""
+def fit_warnings(stage1: StageResult, stage2: StageResult,
+                 outside: Sequence[BoundHit] = ()) -> list[FitWarning]:  # fmt: skip
+    """A plain warning when F is so large that the data cannot be a rig's: the ranges
+    searched, when the closed-form estimate puts parameters ``outside`` them; else the data."""
     F = max(stage1.F, stage2.F)
     if F <= F_DOES_NOT_FIT_MM:
         return []
+    if outside:
+        names = ", ".join(h.param for h in outside)
+        return [FitWarning(
+            f"the data do not fit in the ranges searched: F = {F:.4g} mm, more than "
+            f"{F_DOES_NOT_FIT_MM:g} mm (a working rig fits to about 1 mm); do not use this "
+            f"result. The closed-form estimate from the data puts {names} outside the ranges "
+            "(below): the rig is not where they assume", "fit",
+        )]  # fmt: skip
     return [FitWarning(
         f"the data do not fit: F = {F:.4g} mm, more than {F_DOES_NOT_FIT_MM:g} mm (a working "
         "rig fits to about 1 mm); do not use this result. Check the dataset's units (mm, deg, "
         "px), [tablet] ppi and scale, [camera], and the hand-angle convention", "fit",
+    )]  # fmt: skip
+
+
+#: A model whose best F1st is above this many times the closed-form frames' F (and 1 mm more)
+#: cannot hold the rig the data describe.
+MODEL_CANNOT_HOLD = 3.0
+
+
+def model_warnings(model_cls, stage1: StageResult, report) -> list[FitWarning]:
+    """A warning when the model cannot hold the rig: its best F1st far above the F of the
+    closed-form frames in the six-DoF chain (the search report's ``frames_F_mm``)."""
+    frames = None if report is None else report.frames_F_mm
+    if frames is None or stage1.F <= MODEL_CANNOT_HOLD * frames + 1.0:
+        return []
+    return [FitWarning(
+        f"the {model_cls.name.upper()} model cannot hold this rig: its best F1st is "
+        f"{stage1.F:.4g} mm, while the closed-form estimate of the rig's frames fits to "
+        f"{frames:.4g} mm in the six-DoF chain; a model's chain may fix some of the frames "
+        f"(DH, eqs. 12-16: the camera on the hand's x axis, the tablet's origin on the base's "
+        f"x axis), which another robot's base frame need not satisfy: use --model htm", "fit",
     )]  # fmt: skip
 
 
@@ -151,19 +130,27 @@ def all_warnings(
     n: int,
     spaces: Stages[ParameterSpace],
     stages: Stages[StageResult],
-    search: dict,
     path: str | Path | None,
     extra: Sequence[FitWarning] = (),
+    advice: AdviceContext | None = None,
 ) -> list[FitWarning]:
     """Every warning of a fit of ``n`` landmarks: a fit that is no rig's, stages with no
-    residuals to spare, parameters on a bound, priors the data pull from, and ``extra`` ones
-    (the diagnostics'), one line each."""
-    model_cls = type(spaces.stage1.template)
+    residuals to spare, parameters on a bound of the range searched (with what would help,
+    from ``advice``), priors the data pull from, and ``extra`` ones (the diagnostics'), one
+    line each."""
     stage1, stage2 = stages.stage1, stages.stage2
-    warnings = fit_warnings(stage1, stage2)
+    hits = [*bound_hits(stage1, spaces.stage1, "stage1", advice),
+            *bound_hits(stage2, spaces.stage2, "stage2", advice)]  # fmt: skip
+    outside = [h for h in hits if h.reason == "estimate outside"]
+    if outside:  # the ranges do not hold this rig: the other bounds hit follow from that
+        hits = outside
+    report = None if advice is None else advice.report
+    held = model_warnings(type(spaces.stage1.template), stage1, report)
+    if held:  # the model cannot hold this rig: its bounds say nothing more
+        hits = []
+    warnings = held or fit_warnings(stage1, stage2, outside)
     warnings += check_determined(n, spaces.stage1, "stage 1", path)
     warnings += check_determined(n, spaces.stage2, "stage 2", path)
-    warnings += bound_warnings(stage1.params, model_cls, search, spaces.stage1.free)
-    warnings += bound_warnings(stage2.params, AffinePair, search, spaces.stage2.free)
+    warnings += [FitWarning(bound_warning(h), "bound", h.param) for h in hits]
     warnings += prior_warnings(stage1, "stage 1") + prior_warnings(stage2, "stage 2")
     return warnings + list(extra)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .._core import InputError, write_output
+from .._core import SEARCH_PRESETS, InputError, write_output
 from ._types import (
     MODELS,
     generations,
@@ -51,6 +51,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         restarts=args.restarts,
         loss=args.loss,
         loss_scale_mm=args.loss_scale_mm,
+        search=args.search,
     )
     if previous is None:
         result = calibrate(dataset, settings, progress=not args.quiet)
@@ -125,6 +126,13 @@ def add_calibrate_command(sub: argparse._SubParsersAction) -> None:
     cal.add_argument(
         "--loss-scale-mm", type=positive_mm, default=d.loss_scale_mm, metavar="MM",
         help="robust loss scale, mm; errors above 3x it are flagged",
+    )  # fmt: skip
+    cal.add_argument(
+        "--search", choices=SEARCH_PRESETS, default=None,
+        help="where stage 1's search ranges come from: estimate, a box around a closed-form "
+        "estimate of the rig from the data, as wide as its uncertainty (no ranges to guess); "
+        "paper, the paper's Tables 5 and 6; the dataset's [search] ranges override either "
+        "(default: the dataset's [search] preset, else estimate)",
     )  # fmt: skip
     cal.add_argument(
         "--restarts", type=restarts, default=d.restarts,

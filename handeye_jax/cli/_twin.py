@@ -16,6 +16,7 @@ from .._core import (
     MAX_DOT_PX,
     MAX_HELDOUT,
     TWIN_FILES,
+    WIDE_MODELS,
     InputError,
     check_folder_output,
 )
@@ -48,6 +49,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     out = Path(args.out_dir)
     if args.change and not args.truth:
         raise InputError(None, "--change", "needs --truth OLD_TRUTH.json, the rig that changed")
+    if args.wide and args.truth:
+        raise InputError(None, "--wide", "draws a rig: not with --truth, which gives one")
     check_folder_output(out, TWIN_FILES, "", [args.truth])
     stale = check_twin_folder(out, args.force)
     if args.truth:
@@ -59,10 +62,16 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
                 truth = change_truth(old, args.change, args.seed)
             except ValueError as e:
                 raise InputError(args.truth, "--change", str(e)) from None
+    elif args.wide:
+        from ..twin import WIDE_DOT_PX, draw_wide_truth
+
+        truth = draw_wide_truth(args.seed, model=args.wide,
+                                dot_px=WIDE_DOT_PX if args.dot_px is None else args.dot_px)
     else:
         truth = draw_truth(args.seed, dot_px=1.0 if args.dot_px is None else args.dot_px)
     twin = simulate(truth, PRESETS[args.preset], args.seed, exact=args.exact,
-                    n_heldout=args.heldout, captures=args.captures)  # fmt: skip
+                    n_heldout=args.heldout, captures=args.captures,
+                    aim=bool(args.wide))  # fmt: skip
     paths = write_twin(twin, out, force=args.force)
     how = "exact" if args.exact else "detected"
     if args.change:
@@ -118,6 +127,14 @@ def add_simulate_command(sub: argparse._SubParsersAction) -> None:
         "--truth", metavar="TRUTH.json", help="use this rig truth (default: a draw from --seed)"
     )
     sim.add_argument(
+        "--wide", choices=WIDE_MODELS, metavar="MODEL",
+        help="draw a random wide rig instead, one the model (htm or dh) holds: the tablet "
+        "anywhere in a 600 x 600 mm area at any yaw, tilted up to 5 deg; the camera up to "
+        "100 mm off the flange axis, tilted up to 20 deg, at any roll; the pen up to 80 mm off "
+        "the axis; any of four hand-angle conventions; pictures aimed at the landmarks, the "
+        "tablet upright in them (default: a rig near the paper's)",
+    )  # fmt: skip
+    sim.add_argument(
         "--change", choices=tuple(CHANGES),
         help="with --truth: the same rig after this part changed, drawn by --seed within the "
         "documented ranges: pen, the tip moved 3-15 mm; tablet, moved 10-40 mm, turned 2-8 deg, "
@@ -144,7 +161,7 @@ def add_simulate_command(sub: argparse._SubParsersAction) -> None:
         "--dot-px",
         type=_dot_px,
         help=f"side of the landmark dots, tablet px, at most {MAX_DOT_PX:g} (default 1, as the "
-        "paper; not with --truth)",
+        "paper; 2 with --wide, whose camera may look from further away; not with --truth)",
     )
     sim.add_argument(
         "--force",

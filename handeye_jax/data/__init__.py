@@ -15,6 +15,7 @@ _EXPORTS = {
     "_hand_poses": ("apply_poses", "PoseReport"),
     "_intrinsics": ("read_intrinsics", "realsense_difference_px"),
     "_layouts": ("snake_grid_px",),
+    "_moved": ("moved_base",),
     "_lens": ("distort_px", "DISTORTION_COEFFICIENTS", "DISTORTION_MODEL", "undistort_px"),
     "_observations": ("Observations",),
     "_poses": (

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import geometry as geo
-from .._core import MAX_MEMBER_LANDMARKS, InputError
+from .._core import MAX_MEMBER_LANDMARKS, SEARCH_PRESETS, InputError
 from .._jax import in_float64
 from ..models import Rig
 from ._lens import undistort_px
@@ -181,6 +181,9 @@ class Dataset:
         tablet_ppi, tablet_scale: the tablet's pixel density and display scale (eq. 9).
         hand_angle_zero_deg, hand_angle_sign: ``φ = zero + sign·θh`` (paper notes, item 3).
         search: search-range overrides ``name -> (lo, hi)``, in each parameter's unit.
+        search_preset: where the other search ranges come from (``[search] preset``):
+            ``"estimate"`` or ``"paper"``, or ``None`` (the settings decide; by default the
+            estimate).
         tablet_px: where each landmark is drawn on the tablet, px, ``(n, 2)``.
         captures: the pictures (at least one).
         touch_landmark: the landmark each touch touched, ``(t,)``.
@@ -219,6 +222,7 @@ class Dataset:
         image_px: np.ndarray | None = None,
         depth_mm: np.ndarray | None = None,
         capture_hand_angle_deg: float | None = None,
+        search_preset: str | None = None,
         version: int | None = None,
         source: str | Path | None = None,
     ):
@@ -233,6 +237,10 @@ class Dataset:
             sign = int(sign)
         put("hand_angle_sign", sign)
         put("search", {str(k): (float(v[0]), float(v[1])) for k, v in search.items()})
+        if search_preset is not None and search_preset not in SEARCH_PRESETS:
+            raise ValueError(f"search_preset must be one of {', '.join(SEARCH_PRESETS)} or None "
+                             f"(got {search_preset!r})")  # fmt: skip
+        put("search_preset", search_preset)
         tablet = np.array(tablet_px, dtype=np.float64)
         if tablet.ndim != 2 or tablet.shape[1] != 2:
             raise ValueError(f"tablet_px must have shape (n, 2), got {tablet.shape}")
@@ -270,8 +278,8 @@ class Dataset:
     #: The fields compared by ``==`` (every one but ``version`` and ``source``).
     FIELDS = (
         "name", "camera", "tablet_ppi", "tablet_scale", "hand_angle_zero_deg",
-        "hand_angle_sign", "search", "tablet_px", "captures", "touch_landmark", "hand_xy_mm",
-        "hand_z_mm", "hand_angle_deg", "touch_error_px",
+        "hand_angle_sign", "search", "search_preset", "tablet_px", "captures", "touch_landmark",
+        "hand_xy_mm", "hand_z_mm", "hand_angle_deg", "touch_error_px",
     )  # fmt: skip
 
     def __eq__(self, other: object) -> bool:

@@ -16,6 +16,7 @@ from .._core import (
     MAX_LANDMARKS,
     MAX_RAY_DEG,
     MM_PER_TABLET_PX,
+    SEARCH_PRESETS,
     InputError,
     Reader,
     describe,
@@ -116,6 +117,7 @@ def _common(r: Reader, doc: dict, path: Path | None) -> dict[str, Any]:
     if angle["sign"] not in (1.0, -1.0):
         r.fail("hand_angle.sign", f"must be 1 or -1 (got {doc['hand_angle']['sign']})")
     search: dict[str, tuple[float, float]] = {}
+    preset = None
     if "search" in doc:
         table = doc["search"]
         if not isinstance(table, dict):
@@ -123,6 +125,12 @@ def _common(r: Reader, doc: dict, path: Path | None) -> dict[str, Any]:
         known = known_search_names()
         for key, value in table.items():
             where = join_key("search", key)
+            if key == "preset":
+                if value not in SEARCH_PRESETS:
+                    r.fail(where, f"must be one of {', '.join(map(repr, SEARCH_PRESETS))} (got "
+                           f"{describe(value)})")  # fmt: skip
+                preset = value
+                continue
             if key not in known:
                 hint = difflib.get_close_matches(key, sorted(known), n=1)
                 more = f"did you mean {hint[0]!r}?" if hint else "no model has this parameter"
@@ -133,7 +141,7 @@ def _common(r: Reader, doc: dict, path: Path | None) -> dict[str, Any]:
             search[key] = (lo, hi)
     return dict(name=name, camera=camera, tablet_ppi=tablet["ppi"], tablet_scale=tablet["scale"],
                 hand_angle_zero_deg=angle["zero"], hand_angle_sign=int(angle["sign"]),
-                search=search, source=path)  # fmt: skip
+                search=search, search_preset=preset, source=path)  # fmt: skip
 
 
 def _distinct(r: Reader, tablet_px: Any, path: Path | None) -> None:

@@ -20,8 +20,9 @@ Version 2 (several captures, touches referencing their landmark, an optional han
     zero = 90.0
     sign = -1
 
-    [search]                        # optional: name = [lo, hi] overrides a search range
-    xt = [100.0, 250.0]
+    [search]                        # optional: where the search ranges come from
+    preset = "estimate"             # around a closed-form estimate (default), or "paper"
+    xt = [100.0, 250.0]             # name = [lo, hi] overrides one range
 
     [[landmarks]]                   # one per landmark drawn on the tablet
     tablet_px = [400.0, 150.0]      # px; no two alike

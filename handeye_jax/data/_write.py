@@ -44,7 +44,9 @@ def dataset_to_document(ds: Dataset, version: int | None = None) -> dict[str, An
     }  # fmt: skip
     tablet = _write_table(TABLET, {"ppi": ds.tablet_ppi, "scale": ds.tablet_scale})
     angle = {"zero": float(ds.hand_angle_zero_deg), "sign": int(ds.hand_angle_sign)}
-    search = {k: [float(lo), float(hi)] for k, (lo, hi) in ds.search.items()}
+    search: dict[str, Any] = {k: [float(lo), float(hi)] for k, (lo, hi) in ds.search.items()}
+    if ds.search_preset is not None:
+        search = {"preset": ds.search_preset, **search}
     if version == 1:
         cap = ds.captures[0]
         doc["capture"] = _write_table(CAPTURE_V1, {"hand_position": cap.hand_position_mm})
@@ -96,7 +98,7 @@ _TABLE_COMMENTS = {
     "[capture]": "# hand position when the picture was taken, mm, base frame",
     "[tablet]": "# one tablet px = 25.4 / ppi * scale mm (eq. 9)",
     "[hand_angle]": "# phi = zero + sign * hand_angle, deg",
-    "[search]": "# name = [lo, hi] overrides a model's default search range",
+    "[search]": "# preset = \"estimate\" or \"paper\"; name = [lo, hi] overrides a range",
     "[[landmarks]]": "# tablet_px, image_px, touch_error_px: px; depth, hand_xy: mm; "
     "hand_angle: deg",
     "[[captures]]": "# hand_position, depth: mm; hand_angle: deg; image_px: px",

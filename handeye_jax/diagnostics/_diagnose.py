@@ -7,7 +7,13 @@ from dataclasses import replace
 
 from .._core import Stages
 from .._jax import in_float64
-from ..calibration import CalibrationResult, FitWarning, all_warnings, fitted_stages
+from ..calibration import (
+    AdviceContext,
+    CalibrationResult,
+    FitWarning,
+    all_warnings,
+    fitted_stages,
+)
 from ._diagnostics import diagnostics_of
 from ._scope import capture_scope
 
@@ -33,11 +39,12 @@ def diagnose(result: CalibrationResult, *, search: dict | None = None) -> Calibr
     stages = fitted_stages(result, search)
     obs = result.data.observations()
     results = Stages(result.stage1, result.stage2)
-    diagnostics = diagnostics_of(stages, results, result.settings, obs, search)
+    diagnostics = diagnostics_of(stages, results, result.settings, obs, result.search)
     spaces = stages.map(lambda s: s.space)
     convention = diagnostics.convention.warning
     extra = [FitWarning(convention, "convention")] if convention else []
-    warnings = all_warnings(obs.n_landmarks, spaces, results, search, None, extra)
+    advice = AdviceContext(result.search, obs, lambda key: getattr(diagnostics, key))
+    warnings = all_warnings(obs.n_landmarks, spaces, results, None, extra, advice)
     timings = {**result.timings_s, "diagnostics": time.perf_counter() - t0}
     result = replace(result, diagnostics=diagnostics, warnings=warnings, timings_s=timings)
     # Where the calibration holds: from the covariance the diagnostics just found.

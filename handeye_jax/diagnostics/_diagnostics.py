@@ -11,12 +11,15 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import replace
 
+import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 
 from .._core import Stages
 from ..calibration import (
     CONVENTIONS,
     REFIT_STARTS,
+    AdviceContext,
     Convention,
     ConventionCheck,
     ConventionFit,
@@ -28,6 +31,7 @@ from ..calibration import (
     Mode,
     Population,
     Residual,
+    SearchReport,
     Settings,
     StageDiagnostics,
     StageResult,
@@ -35,7 +39,7 @@ from ..calibration import (
 )
 from ..data import Observations
 from ..optim import MAX_MODES, Box, mode_leaders
-from ..problem import ParameterSpace, analyse_jacobian, get_loss
+from ..problem import ParameterSpace, analyse_jacobian, closed_form_estimate, get_loss
 from ._refits import refits
 
 #: A distinct optimum is reported when its best F is within this many mm of the best.
@@ -48,6 +52,8 @@ OUTLIER_FACTOR = 3.0
 #: fraction of the declared one's, and at least CONVENTION_MARGIN_MM.
 CONVENTION_FRACTION = 0.1
 CONVENTION_MARGIN_MM = 0.05
+#: Conventions of one sign whose F1st are this close, mm, tie (their zero is not told apart).
+ZERO_TIE_MM = 1e-6
 #: Most LM iterations of each refit (the random starts per convention: REFIT_STARTS, the
 #: fit's own multi-start refits).
 REFIT_STEPS = 400
@@ -137,14 +143,24 @@ def convention_check(
         i_decl, F_decl = len(fits) - 1, F_fit
     i_best = int(np.argmin([c.F_mm for c in fits]))
     best = fits[i_best]
+    # The zero only turns the hand frame, which the pen offset and the camera mount absorb:
+    # zeros of one sign tie unless the search box tells them apart. Keep the declared zero.
+    ties = [c for c in fits if c.sign == best.sign and c.zero_deg == float(declared[0]) % 360.0
+            and c.F_mm <= best.F_mm + ZERO_TIE_MM]  # fmt: skip
+    tied_zero = bool(ties) and sum(c.sign == best.sign and c.F_mm <= best.F_mm + ZERO_TIE_MM
+                                   for c in fits) > 1  # fmt: skip
+    if ties:
+        best, i_best = ties[0], fits.index(ties[0])
     margin = max(CONVENTION_MARGIN_MM, CONVENTION_FRACTION * F_decl)
     warning = None
     if i_best != i_decl and best.F_mm < F_decl - margin:
+        zero_note = (" (its other zeros fit alike: the pen offset and the camera mount absorb "
+                     "the zero, so keep yours)" if tied_zero else "")  # fmt: skip
         warning = (
             f"hand-angle convention zero = {best.zero_deg:g} deg, sign = {best.sign:+d} "
-            f"fits markedly better (F1st = {best.F_mm:.4f} mm) than the dataset's zero = "
-            f"{declared[0]:g} deg, sign = {declared[1]:+d} (F1st = {F_decl:.4f} mm): check "
-            "[hand_angle] in the dataset"
+            f"fits markedly better (F1st = {best.F_mm:.4f} mm){zero_note} than the dataset's "
+            f"zero = {declared[0]:g} deg, sign = {declared[1]:+d} (F1st = {F_decl:.4f} mm): "
+            "check [hand_angle] in the dataset"
         )
     return ConventionCheck(
         declared=Convention(float(declared[0]), int(declared[1])),
@@ -163,6 +179,29 @@ def convention_check(
     )
 
 
+def convention_estimates(space: ParameterSpace, obs: Observations) -> np.ndarray | None:
+    """The closed-form estimate under each of :data:`CONVENTIONS`, in ``space``'s free
+    parameters, ``(8, d)`` (NaN where the data or the model give none), for a fit of every
+    parameter without a prior; else ``None``.
+
+    A box around the declared convention's estimate need not hold another convention's
+    optimum (its pen and camera turned): each convention's refits also start from its own
+    estimate."""
+    cls = type(space.template)
+    if space.prior is not None or space.free != cls.param_names:
+        return None
+    out = np.full((len(CONVENTIONS), space.d), np.nan)
+    for i, (zero, sign) in enumerate(CONVENTIONS):
+        other = eqx.tree_at(lambda o: (o.rig.angle_zero_deg, o.rig.angle_sign), obs,
+                            (jnp.asarray(zero, dtype=float), jnp.asarray(float(sign))))  # fmt: skip
+        try:
+            params = closed_form_estimate(other).candidates[0].params(cls)
+        except (ValueError, NotImplementedError):
+            continue
+        out[i] = [params[n] for n in space.free]
+    return out
+
+
 def _prior_precision(space: ParameterSpace) -> np.ndarray | None:
     """The prior's precision in the space's free coordinates (zeros elsewhere), or None."""
     if space.prior is None:
@@ -178,7 +217,7 @@ def diagnostics_of(
     results: Stages[StageResult],
     settings: Settings,
     obs: Observations,
-    search: dict,
+    report: SearchReport | None = None,
 ) -> Diagnostics:
     """The diagnostics of a result, on each stage's free parameters (the scope aside:
     :func:`~handeye_jax.capture_scope` reads these).
@@ -190,10 +229,13 @@ def diagnostics_of(
             multi-starts draw from.
         obs: the observations fitted (depths explain a shift–tilt trade-off; the rig's
             convention is the declared one).
-        search: the dataset's ``[search]`` overrides.
+        report: where the result searched (for the advice on a parameter at a bound).
     """
     loss = get_loss(settings.loss, settings.loss_scale_mm)
-    out = refits(stages, loss, settings.seed, REFIT_STARTS, REFIT_STEPS)
+    extra = None
+    if report is not None and report.preset == "estimate":
+        extra = convention_estimates(stages.stage1.space, obs)
+    out = refits(stages, loss, settings.seed, REFIT_STARTS, REFIT_STEPS, convention_starts=extra)
     loo = Stages(_loo(out.loo1_image_vs_tablet, out.loo1_hand, results.stage1.F),
                  _loo(out.loo2_image_vs_tablet, out.loo2_hand, results.stage2.F))  # fmt: skip
     jacobians = Stages((out.errors1, out.jacobian1), (out.errors2, out.jacobian2))
@@ -203,7 +245,8 @@ def diagnostics_of(
     for key, stage in stages.items():
         result = getattr(results, key)
         found[key] = replace(
-            _stage_diagnostics(stage, getattr(jacobians, key), depth, result, search),
+            _stage_diagnostics(stage, getattr(jacobians, key), depth, result, key,
+                               AdviceContext(report, obs)),
             loo=getattr(loo, key), loo_method=out.loo_method,
             outliers=outliers(result.residuals_mm, threshold),
         )  # fmt: skip
@@ -227,10 +270,11 @@ def diagnostics_of(
 
 
 def _stage_diagnostics(stage: FittedStage, jacobian: tuple[np.ndarray, np.ndarray],
-                       depth_mm: np.ndarray, result: StageResult,
-                       search: dict) -> StageDiagnostics:  # fmt: skip
+                       depth_mm: np.ndarray, result: StageResult, key: str,
+                       context: AdviceContext) -> StageDiagnostics:  # fmt: skip
     """One stage's uncertainty, weak directions (from its error vectors and their Jacobian at
-    the fit), the optima in its final DE population and its parameters on a bound."""
+    the fit), the optima in its final DE population and its parameters on a bound (with what
+    would help, from ``context``)."""
     space = stage.space
     cls = type(space.template)
     e, J = jacobian
@@ -247,5 +291,6 @@ def _stage_diagnostics(stage: FittedStage, jacobian: tuple[np.ndarray, np.ndarra
             sign_twin=tuple(n for n in cls.sign_twin if n in pop.searched),
             flat_steps=[st for st in steps if st], reference=np.asarray(stage.x)[idx],
         )  # fmt: skip
-    hits = tuple(h for h in bound_hits(result.params, cls, search) if h.param in space.free)
+    context = replace(context, analysis=lambda _: jac)
+    hits = bound_hits(result, space, key, context)
     return StageDiagnostics(**vars(jac), free=tuple(space.free), modes=modes, bound_hits=hits)

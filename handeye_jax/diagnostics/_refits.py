@@ -82,6 +82,8 @@ class _Pair:
     x2: np.ndarray
     box1: Box
     box2: Box
+    convention_starts: np.ndarray | None = None
+    lm_box1: Box | None = None
 
 
 @dataclass(frozen=True)
@@ -311,6 +313,7 @@ def refits(
     *,
     exact_loo_landmarks: int = EXACT_LOO_LANDMARKS,
     refit_landmarks: int = REFIT_LANDMARKS,
+    convention_starts: np.ndarray | None = None,
 ) -> Refits:
     """Leave-one-out refits of both stages and the convention refits of stage 1.
 
@@ -326,28 +329,43 @@ def refits(
             takes one Newton step (:func:`one_step_loo`); at most ``refit_landmarks``.
         refit_landmarks: above this many landmarks the convention refits search on this
             many.
+        convention_starts: one more start per convention, ``(8, d)`` (a row of NaN: none),
+            e.g. the closed-form estimate under each; the stage-1 refits' box is widened to
+            hold them (the uniform starts are still drawn from the fit's box).
     """
     if exact_loo_landmarks > refit_landmarks:
         raise ValueError("exact_loo_landmarks must not exceed refit_landmarks")
     one, two = stages.stage1, stages.stage2
+    box1 = lm_box1 = one.space.box
+    if convention_starts is not None:
+        ok = np.isfinite(convention_starts).all(axis=1)
+        rows = convention_starts[ok]
+        lm_box1 = Box(np.minimum(box1.lower, rows.min(axis=0, initial=np.inf)),
+                      np.maximum(box1.upper, rows.max(axis=0, initial=-np.inf)))  # fmt: skip
     pair = _Pair(one.objective, two.objective, loss, np.asarray(one.x, float),
-                 np.asarray(two.x, float), one.space.box, two.space.box)  # fmt: skip
+                 np.asarray(two.x, float), box1, two.space.box, convention_starts,
+                 lm_box1)  # fmt: skip
     if _obs(pair.stage1).n_landmarks > exact_loo_landmarks:
         return _refits_one_step(pair, seed, starts, max_steps, refit_landmarks)
     return _refits_exact(pair, seed, starts, max_steps)
 
 
-def _convention_problems(obs, x1, box: Box, seed, starts):
+def _convention_problems(obs, x1, box: Box, seed, starts, extra: np.ndarray | None = None):
     """Each convention's zero and sign, and the LM starts: ``starts`` uniform draws per
-    convention, then the declared convention from the fit (the fit's own refits drew the
-    declared convention's, the same points)."""
+    convention (the fit's own refits drew the declared convention's, the same points), the
+    ``extra`` start of each convention that has one, then the declared convention from the
+    fit (last)."""
     n_conv = len(CONVENTIONS)
     zero = np.array([c[0] for c in CONVENTIONS])
     sign = np.array([float(c[1]) for c in CONVENTIONS])
     declared = convention_index(float(obs.rig.angle_zero_deg), float(obs.rig.angle_sign))
-    conv_of = np.concatenate([np.repeat(np.arange(n_conv), starts), [declared]])
-    x_random = uniform_starts(seed, box, n_conv * starts)
-    return zero, sign, declared, conv_of, np.concatenate([x_random, x1[None]])
+    conv_of = np.repeat(np.arange(n_conv), starts)
+    x0 = uniform_starts(seed, box, n_conv * starts)
+    if extra is not None:
+        ok = np.flatnonzero(np.isfinite(extra).all(axis=1))
+        conv_of, x0 = np.concatenate([conv_of, ok]), np.concatenate([x0, extra[ok]])
+    return zero, sign, declared, np.concatenate([conv_of, [declared]]), \
+        np.concatenate([x0, x1[None]])  # fmt: skip
 
 
 def _best_per_convention(F_conv, conv_of):
@@ -361,7 +379,9 @@ def _refits_one_step(p: _Pair, seed, starts, max_steps, refit_landmarks) -> Refi
                                                      p.box1, p.box2)  # fmt: skip
     obs = _obs(stage1)
     n = obs.n_landmarks
-    zero, sign, declared, conv_of, x0 = _convention_problems(obs, x1, bounds1, seed, starts)
+    zero, sign, declared, conv_of, x0 = _convention_problems(obs, x1, bounds1, seed, starts,
+                                                             p.convention_starts)  # fmt: skip
+    bounds1 = bounds1 if p.lm_box1 is None else p.lm_box1
     searched = stage1
     if n > refit_landmarks:
         searched = _subset1(stage1, spread_landmarks(n, refit_landmarks))
@@ -449,7 +469,9 @@ def _refits_exact(p: _Pair, seed, starts, max_steps) -> Refits:
                                                      p.box1, p.box2)  # fmt: skip
     obs = _obs(stage1)
     n, d1 = obs.n_landmarks, x1.shape[0]
-    zero, sign, declared, conv_of, x0 = _convention_problems(obs, x1, bounds1, seed, starts)
+    zero, sign, declared, conv_of, x0 = _convention_problems(obs, x1, bounds1, seed, starts,
+                                                             p.convention_starts)  # fmt: skip
+    bounds1 = bounds1 if p.lm_box1 is None else p.lm_box1
 
     # Problems: n leave-one-out, then `starts` per convention, then the declared one from x1.
     leave_out = 1.0 - np.eye(n)

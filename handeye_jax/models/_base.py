@@ -102,6 +102,30 @@ class AbstractModel(AbstractParametric):
     def t_hand_pen(self) -> Float[Array, "3"]:
         """The pen tip in the hand frame at φ = 0, mm (``z_p`` is not identifiable: 0)."""
 
+    @classmethod
+    def from_frames(
+        cls,
+        R_hand_camera: Float[np.ndarray, "3 3"],
+        t_hand_camera_mm: Float[np.ndarray, "3"],
+        R_base_tablet: Float[np.ndarray, "3 3"],
+        t_base_tablet_mm: Float[np.ndarray, "3"],
+        t_hand_pen_mm: Float[np.ndarray, "3"],
+    ) -> dict[str, float]:
+        """The parameters whose chain is nearest these frames (exactly them where the model
+        can hold them), name → value: what turns a closed-form estimate of the rig
+        (:func:`handeye_jax.closed_form_estimate`) into a start and a search box.
+
+        Only the x and y of the translations enter (the chain never sees a z). A model
+        without this conversion raises :class:`NotImplementedError`, and its searches keep its
+        ``default_ranges``.
+
+        Args:
+            R_hand_camera, t_hand_camera_mm: the camera in the hand frame (mm).
+            R_base_tablet, t_base_tablet_mm: the tablet in the base frame (mm).
+            t_hand_pen_mm: the pen tip in the hand frame at φ = 0, mm.
+        """
+        raise NotImplementedError(f"model {cls.name!r} has no conversion from frames")
+
     def image_to_base(
         self,
         image_px: Float[Array, "n 2"],

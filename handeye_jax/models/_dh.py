@@ -5,10 +5,12 @@ from __future__ import annotations
 from typing import ClassVar
 
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from .. import geometry as geo
 from ._base import AbstractModel
+from ._euler import wrap_deg, zyx_angles_deg
 
 
 def _tablet_dh_frame(theta_deg: Float[Array, ""]) -> Float[Array, "3 3"]:
@@ -84,3 +86,22 @@ class DHModel(AbstractModel):
 
     def t_hand_pen(self):
         return jnp.stack([self.xp, self.yp, jnp.zeros_like(self.xp)])
+
+    @classmethod
+    def from_frames(cls, R_hand_camera, t_hand_camera_mm, R_base_tablet, t_base_tablet_mm,
+                    t_hand_pen_mm):  # fmt: skip
+        # The camera: Rz(180 + θc1 + γc)·Ry(βc)·Rx(αc). The tablet: D(θ) = Rz(−θ)·Rx(180), so
+        # D(θt1)·Rz(γt)·Ry(βt)·Rx(αt) = Rz(−(θt1 + γt))·Ry(−βt)·Rx(180 + αt). Only the sums
+        # θc1 + γc and θt1 + γt enter: each is split in halves. The translations lie on the
+        # hand's and the base's x axes: their x is kept, a y the model cannot hold is dropped.
+        g, b, a = zyx_angles_deg(R_hand_camera)
+        gt, bt, at = zyx_angles_deg(R_base_tablet)
+        camera_turn, tablet_turn = wrap_deg(g - 180.0), wrap_deg(-gt)
+        t_c, t_t, t_p = (np.asarray(t, dtype=float) for t in
+                         (t_hand_camera_mm, t_base_tablet_mm, t_hand_pen_mm))  # fmt: skip
+        return {
+            "theta_c1": camera_turn / 2, "a_c1": float(t_c[0]), "alpha_c": a, "beta_c": b,
+            "gamma_c": camera_turn / 2, "theta_t1": tablet_turn / 2, "a_t1": float(t_t[0]),
+            "alpha_t": wrap_deg(at - 180.0), "beta_t": -bt, "gamma_t": tablet_turn / 2,
+            "xp": float(t_p[0]), "yp": float(t_p[1]),
+        }  # fmt: skip

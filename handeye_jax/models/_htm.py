@@ -5,10 +5,12 @@ from __future__ import annotations
 from typing import ClassVar
 
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from .. import geometry as geo
 from ._base import AbstractModel
+from ._euler import wrap_deg, zyx_angles_deg
 
 
 class HTMModel(AbstractModel):
@@ -68,3 +70,19 @@ class HTMModel(AbstractModel):
 
     def t_hand_pen(self):
         return jnp.stack([self.xp, self.yp, jnp.zeros_like(self.xp)])
+
+    @classmethod
+    def from_frames(cls, R_hand_camera, t_hand_camera_mm, R_base_tablet, t_base_tablet_mm,
+                    t_hand_pen_mm):  # fmt: skip
+        # Rz(γ)·Ry(β + 180)·Rx(α + 180) = Rz(γ + 180)·Ry(−β)·Rx(α): the triple with the small
+        # tilts of a camera that looks along the hand's axis.
+        g, b, a = zyx_angles_deg(R_hand_camera)
+        gt, bt, at = zyx_angles_deg(R_base_tablet)
+        t_c, t_t, t_p = (np.asarray(t, dtype=float) for t in
+                         (t_hand_camera_mm, t_base_tablet_mm, t_hand_pen_mm))  # fmt: skip
+        return {
+            "xc": float(t_c[0]), "yc": float(t_c[1]), "alpha_c": wrap_deg(a), "beta_c": -b,
+            "gamma_c": wrap_deg(g - 180.0), "xt": float(t_t[0]), "yt": float(t_t[1]),
+            "alpha_t": wrap_deg(at - 180.0), "beta_t": bt, "gamma_t": wrap_deg(gt),
+            "xp": float(t_p[0]), "yp": float(t_p[1]),
+        }  # fmt: skip

@@ -1,6 +1,7 @@
 """What a fit minimises: parameter spaces (free, fixed, with a Gaussian prior), the named
-residual blocks of each stage's objective, robust losses, and the linearisation at an optimum
-(Jacobian, covariance, weak directions)."""
+residual blocks of each stage's objective, robust losses, the linearisation at an optimum
+(Jacobian, covariance, weak directions), and a closed-form first estimate of the rig from
+the data alone."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from .._core import lazy_exports
 # What the layers above may use, by module; each loads on first use (PEP 562).
 # fmt: off
 _EXPORTS = {
+    "_estimate": ("closed_form_estimate", "ClosedFormEstimate", "RigEstimate"),
     "_linearise": (
         "analyse_jacobian", "error_jacobian", "jacobian_diagnostics", "JacobianAnalysis",
         "std_of_precision", "WeakDirection",

@@ -16,6 +16,7 @@ from ..calibration import (
 )
 from ..diagnostics import scope_lines
 from ..models import AffinePair
+from ._search import bound_lines, search_lines
 
 
 def _unit(u: str) -> str:
@@ -125,6 +126,7 @@ def found_by_line(polish: PolishSummary) -> str:
 def format_summary(result: CalibrationResult) -> str:
     """A few dozen lines: parameters, f1 / f2 / F per stage, residuals, twin, warnings, time."""
     lines = _head(result)
+    lines += search_lines(result)
     lines += _stage1_block(result)
     lines.append("")
     lines += _stage2_block(result)
@@ -249,14 +251,7 @@ def diagnostic_lines(
         lines.append("  weak directions: none (every parameter is determined by the data)")
     lines += _modes_line("distinct optima in the final DE population", d.modes, units)
     lines += _modes_line("local optima of the multi-start LM refits", d.local_optima or (), units)
-    hits = d.bound_hits
-    lines.append(
-        "  on a search-range bound: "
-        + (", ".join(f"{h.param} = {h.value:.4g}{_unit(h.unit)} ({h.side} bound; "
-                     f"widen to [{h.widen_to[0]:g}, {h.widen_to[1]:g}]{_unit(h.unit)})"
-                     for h in hits)
-           or "none")
-    )  # fmt: skip
+    lines += bound_lines(d.bound_hits)
     loo = d.loo
     if loo is not None:
         what = "stage 1 refitted" if stage == "stage1" else "stages 1 and 2 refitted"

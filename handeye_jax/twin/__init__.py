@@ -1,6 +1,6 @@
-"""A synthetic twin of the rig with known truth: draw or change a truth, synthesize the
-observations, render the pictures, simulate a twin folder, and evaluate a calibration on its
-held-out targets."""
+"""A synthetic twin of the rig with known truth: draw or change a truth (near the paper's
+rig, or a random wide rig anywhere in the workspace), synthesize the observations, render the
+pictures, simulate a twin folder, and evaluate a calibration on its held-out targets."""
 
 from __future__ import annotations
 
@@ -21,6 +21,7 @@ _EXPORTS = {
     "_synthetic": ("seen_from", "synthesize_captures", "synthesize_dataset", "true_command"),
     "_poses": ("tool_poses",),
     "_truth": ("change_truth", "draw_truth", "load_truth", "REALSENSE_LIKE", "TwinTruth"),
+    "_wide": ("aimed_position", "draw_wide_truth", "upright_angle", "WIDE_DOT_PX", "WIDE_RANGES"),
 }
 # fmt: on
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

@@ -49,6 +49,7 @@ from ..vision import BlobCountError, DetectSettings, depth_at, find_blobs, order
 from ._render import DepthSensing, Imaging, render_capture, render_depth
 from ._synthetic import synthesize_dataset
 from ._truth import TwinTruth
+from ._wide import aimed_position, capture_distance_mm
 
 HELDOUT_HEADER = ("u", "v", "depth", "hand_angle", "tablet_x", "tablet_y")
 #: A multi-capture twin's held-out targets also carry the capture pose they were seen from
@@ -159,6 +160,7 @@ def simulate(
     n_heldout: int = 20,
     detect_settings: DetectSettings | None = None,
     captures: int = 1,
+    aim: bool = False,
 ) -> Twin:
     """Run the twin once.
 
@@ -175,6 +177,8 @@ def simulate(
             on the display with hand angles uniform in [0, 180) deg.
         detect_settings: how to detect the landmarks.
         captures: how many pictures (1 to 8).
+        aim: point the further captures' cameras at the landmarks (a wide rig's; see
+            :func:`draw_capture_poses`).
 
     Raises:
         BlobCountError: the detector does not find one blob per landmark in the picture.
@@ -187,8 +191,8 @@ def simulate(
         raise ValueError(f"captures must be 1 to {MAX_CAPTURES} (got {captures})")
     detect_settings = detect_settings or DetectSettings()
     if captures > 1:
-        return simulate_captures(truth, preset, seed, captures, exact=exact,
-                                 n_heldout=n_heldout, detect_settings=detect_settings)  # fmt: skip
+        return simulate_captures(truth, preset, seed, captures, exact=exact, n_heldout=n_heldout,
+                                 detect_settings=detect_settings, aim=aim)  # fmt: skip
     rng_image, rng_depth, rng_touch, rng_held = np.random.default_rng(seed).spawn(4)
     capture = render_capture(truth, preset.imaging, rng_image)
     depth = render_depth(truth, preset.depth, rng_depth)
@@ -261,20 +265,31 @@ def _detected(truth: TwinTruth, capture: np.ndarray, depth: np.ndarray,
 
 
 def draw_capture_poses(
-    truth: TwinTruth, k: int, rng: np.random.Generator, rise_mm: float = CAPTURE_RISE_MM
-) -> list[tuple[np.ndarray, float]]:
+    truth: TwinTruth, k: int, rng: np.random.Generator, rise_mm: float = CAPTURE_RISE_MM,
+    *, aim: bool = False,
+) -> list[tuple[np.ndarray, float]]:  # fmt: skip
     """``k`` capture poses ``(hand position mm, hand angle deg)`` that see every landmark.
 
     The first is the truth's own. The others rise evenly to ``rise_mm`` above it (±5 mm),
-    move up to 15 mm sideways, and turn the hand by 8 to 25 deg either way.
+    move up to 15 mm sideways, and turn the hand by 8 to 25 deg either way. With ``aim`` (a
+    wide rig's camera, far off the flange axis and tilted, swings out of view as the hand
+    turns), or when 1,000 such draws all lose a landmark, each pose instead points the
+    camera at the landmarks' centre from that much further away (:func:`aimed_position`),
+    moved up to 15 mm sideways.
     """
     first = np.asarray(truth.capture_position_mm, dtype=float)
     angle0 = truth.capture_angle_deg
     poses = [(first, angle0)]
+    distance0 = capture_distance_mm(truth) if aim else None
     for rise in np.linspace(0.0, rise_mm, k)[1:]:
-        for _ in range(1000):
-            position = first + [*rng.uniform(-15.0, 15.0, 2), rise + rng.uniform(-5.0, 5.0)]
+        for attempt in range(1000 if aim else 2000):
+            shift, up = rng.uniform(-15.0, 15.0, 2), rise + rng.uniform(-5.0, 5.0)
             angle = angle0 + rng.choice([-1.0, 1.0]) * rng.uniform(8.0, 25.0)
+            if aim or attempt >= 1000:
+                distance0 = capture_distance_mm(truth) if distance0 is None else distance0
+                position = aimed_position(truth, angle, distance0 + up, tuple(shift))
+            else:
+                position = first + [*shift, up]
             if truth.at_capture(position, angle).sees(truth.landmarks_tablet_px):
                 break
         else:
@@ -309,11 +324,13 @@ def simulate_captures(
     exact: bool = False,
     n_heldout: int = 20,
     detect_settings: DetectSettings | None = None,
+    aim: bool = False,
 ) -> Twin:
     """A multi-capture twin (see :func:`simulate`): ``captures`` pictures from the poses of
-    :func:`draw_capture_poses`, the touches with the hand's height (rounded as the hand's
-    x-y), and ``n_heldout`` held-out targets for each capture rise of
-    :data:`HELDOUT_RISES_MM` and each height of :data:`HELDOUT_ABOVE_MM` above the display.
+    :func:`draw_capture_poses` (aimed at the landmarks with ``aim``), the touches with the
+    hand's height (rounded as the hand's x-y), and ``n_heldout`` held-out targets for each
+    capture rise of :data:`HELDOUT_RISES_MM` and each height of :data:`HELDOUT_ABOVE_MM`
+    above the display.
 
     A held-out target above the display is the top of an object standing there, parallel to
     the display; the depth image of such a target is rendered with the object's top as the
@@ -321,7 +338,7 @@ def simulate_captures(
     """
     settings = detect_settings or DetectSettings()
     rng_pose, rng_image, rng_touch, rng_held = np.random.default_rng(seed).spawn(4)
-    poses = draw_capture_poses(truth, captures, rng_pose)
+    poses = draw_capture_poses(truth, captures, rng_pose, aim=aim)
     shots = [_pictures(truth.at_capture(p, a), preset, rng_image, exact, settings)
              for p, a in poses]  # fmt: skip
     mm = truth.mm_per_tablet_px
@@ -342,7 +359,7 @@ def simulate_captures(
         hand_angle_deg=truth.landmarks_hand_angle_deg, touch_error_px=np.round(touch_px),
         version=2,
     )  # fmt: skip
-    held = heldout_targets(truth, preset, rng_held, n_heldout, exact, settings)
+    held = heldout_targets(truth, preset, rng_held, n_heldout, exact, settings, aim=aim)
     first_px, first_depth = truth.project(truth.landmarks_tablet_px)
     return Twin(
         truth=truth, preset=preset, dataset=dataset, capture=shots[0][0], depth=shots[0][1],
@@ -361,11 +378,13 @@ def heldout_targets(
     settings: DetectSettings | None = None,
     rises_mm: tuple[float, ...] = HELDOUT_RISES_MM,
     above_mm: tuple[float, ...] = HELDOUT_ABOVE_MM,
+    aim: bool = False,
 ) -> dict[str, np.ndarray]:
     """Held-out targets for each capture rise (mm above the truth's capture; 0 is that
     capture, any other a new position and hand angle) and each height above the display (mm),
     ``n_each`` of each, uniform over the landmarks' area where the picture sees them; as
-    :class:`Twin`'s ``heldout_*`` fields."""
+    :class:`Twin`'s ``heldout_*`` fields. With ``aim`` (or when the picture from the new pose
+    sees too little) the new pose points the camera at the landmarks (:func:`aimed_position`)."""
     settings = settings or DetectSettings()
     lo, hi = truth.landmark_area_px()
     first = np.asarray(truth.capture_position_mm, dtype=float)
@@ -373,20 +392,27 @@ def heldout_targets(
                                             "cap_angle", "true", "above")}  # fmt: skip
     for rise in rises_mm:
         position, angle = first, truth.capture_angle_deg
+        aimed = None
         if rise:
-            position = first + [*rng.uniform(-15.0, 15.0, 2), rise]
+            shift = rng.uniform(-15.0, 15.0, 2)
+            position = first + [*shift, rise]
             angle = angle + rng.choice([-1.0, 1.0]) * rng.uniform(10.0, 30.0)
+            # A wide rig's camera swings away as the hand turns: pointed at the landmarks.
+            aimed = aimed_position(truth, angle, capture_distance_mm(truth) + rise,
+                                   (shift[0], shift[1]))  # fmt: skip
+            position = aimed if aim else position
         for above in above_mm:
             seen = replace(truth.at_capture(position, angle),
                            tablet_height_mm=truth.tablet_height_mm + above)  # fmt: skip
             depth_image = None if exact else render_depth(seen, preset.depth, rng)
-            tab = np.empty((0, 2))
-            for _ in range(1000):  # targets the picture sees
-                cand = rng.uniform(lo, hi, (n_each, 2))
-                tab = np.vstack([tab, [p for p in cand if seen.sees(p[None])]])[:n_each]
-                if len(tab) == n_each:
-                    break
-            else:
+            tab = _seen_targets(seen, lo, hi, n_each, rng)
+            if tab is None and aimed is not None and position is not aimed:
+                position = aimed
+                seen = replace(truth.at_capture(position, angle),
+                               tablet_height_mm=truth.tablet_height_mm + above)  # fmt: skip
+                depth_image = None if exact else render_depth(seen, preset.depth, rng)
+                tab = _seen_targets(seen, lo, hi, n_each, rng)
+            if tab is None:
                 raise ValueError("the picture sees too little of the landmarks' area")
             true_px, true_depth = seen.project(tab)
             image_px = true_px + rng.normal(0.0, 1.0, true_px.shape) * preset.target_sigma_px
@@ -410,6 +436,18 @@ def heldout_targets(
         heldout_capture_position_mm=cat["position"], heldout_capture_angle_deg=cat["cap_angle"],
         heldout_true_mm=cat["true"], heldout_above_mm=cat["above"],
     )  # fmt: skip
+
+
+def _seen_targets(seen: TwinTruth, lo, hi, n: int, rng: np.random.Generator) -> np.ndarray | None:
+    """``n`` targets uniform over ``[lo, hi]`` (tablet px) that the picture sees, or ``None``
+    when 1,000 draws do not find them."""
+    tab = np.empty((0, 2))
+    for _ in range(1000):
+        cand = rng.uniform(lo, hi, (n, 2))
+        tab = np.vstack([tab, [p for p in cand if seen.sees(p[None])]])[:n]
+        if len(tab) == n:
+            return tab
+    return None
 
 
 def check_seed(seed: int) -> int:

@@ -64,10 +64,12 @@ def synthesize_dataset(
     offset = truth.pen_offset(rig.phi_deg(jnp.asarray(hand_angle_deg, dtype=float)))[:, :2]
     hand_xy = touched - offset
 
+    angle = rig.capture_hand_angle_deg  # None: the paper's capture, at φ = 0
     return Dataset(
         name=name,
         camera=Camera(float(rig.fx_px), float(rig.fy_px), float(rig.cx_px), float(rig.cy_px)),
         capture_position_mm=np.asarray(rig.capture_position_mm, dtype=float),
+        capture_hand_angle_deg=None if angle is None else float(angle),
         tablet_ppi=float(ppi),
         tablet_scale=float(scale),
         hand_angle_zero_deg=float(rig.angle_zero_deg),
