@@ -52,6 +52,7 @@ _EXPORTS = {
     "AffinePair": "models",
     "analyse_jacobian": "problem",
     "calibrate": "calibration",
+    "calibrate_batch": "calibration",
     "CalibrationResult": "calibration",
     "Camera": "data",
     "change_truth": "twin",
@@ -178,6 +179,7 @@ if TYPE_CHECKING:
     from ._core._errors import InputError
     from ._jax._x64 import float64
     from ._jax._xla import store_programs, vectorise_small_loops
+    from .calibration._batch import calibrate_batch
     from .calibration._payloads import (
         ConventionCheck,
         Convergence,
@@ -200,8 +202,9 @@ if TYPE_CHECKING:
     from .calibration._result import CalibrationResult, StageResult
     from .calibration._result_frames import compute_frames
     from .calibration._result_io import load_frames, load_result, save_result
+    from .calibration._search import fit_stage
     from .calibration._settings import Settings
-    from .calibration._stage import StageFit, fit_stage
+    from .calibration._stage import StageFit
     from .data._convert import convert_to_v2
     from .data._dataset import Camera, Capture, Dataset
     from .data._edit import update_dataset
@@ -343,6 +346,7 @@ __all__ = [
     "WeightedLengthBlock",
     "analyse_jacobian",
     "calibrate",
+    "calibrate_batch",
     "chain_points",
     "change_truth",
     "compute_frames",

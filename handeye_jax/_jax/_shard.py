@@ -48,29 +48,40 @@ class Blocks:
     Attributes:
         mesh: the devices.
         blocks: each device's block, a pytree of arrays on that device, in the mesh's order.
+        n: how many of the batch's problems are real (the rest fill it, see :meth:`of`).
     """
 
-    def __init__(self, mesh: Mesh, blocks: list[Any]):
+    def __init__(self, mesh: Mesh, blocks: list[Any], n: int | None = None):
         self.mesh = mesh
         self.blocks = blocks
+        self.n = n
 
     @classmethod
-    def of(cls, tree: Any, mesh: Mesh) -> Blocks:
-        """``tree`` (array leaves with a leading axis of problems, a multiple of the mesh's
-        size) sharded over the mesh along that axis."""
+    def of(cls, tree: Any, mesh: Mesh, minimum: int = 1) -> Blocks:
+        """``tree`` (array leaves with a leading axis of problems) sharded over the mesh along
+        that axis; copies of its first problem fill it up to a multiple of the mesh's size
+        and to at least ``minimum`` problems per device (:meth:`gather` leaves them out)."""
         sharding = NamedSharding(mesh, P(PROBLEMS))
         leaves, treedef = jax.tree.flatten(tree)
+        n = leaves[0].shape[0]
+        devices = mesh.devices.size
+        size = max(-(-n // devices), minimum) * devices
+        if size != n:
+            rows = np.concatenate([np.arange(n), np.zeros(size - n, int)])
+            leaves = [np.asarray(x)[rows] for x in leaves]
         placed = [jax.device_put(np.asarray(x), sharding) for x in leaves]
         per_device = {d: i for i, d in enumerate(mesh.devices.flat)}
         blocks: list[list[Any]] = [[None] * len(leaves) for _ in per_device]
         for j, x in enumerate(placed):
             for shard in x.addressable_shards:
                 blocks[per_device[shard.device]][j] = shard.data
-        return cls(mesh, [jax.tree.unflatten(treedef, b) for b in blocks])
+        return cls(mesh, [jax.tree.unflatten(treedef, b) for b in blocks], n)
 
     def gather(self) -> Any:
-        """The batch as one host (NumPy) pytree, the blocks joined in order."""
-        return jax.tree.map(lambda *b: np.concatenate([np.asarray(x) for x in b]), *self.blocks)
+        """The batch as one host (NumPy) pytree, the blocks joined in order (the real
+        problems only)."""
+        return jax.tree.map(lambda *b: np.concatenate([np.asarray(x) for x in b])[: self.n],
+                            *self.blocks)  # fmt: skip
 
     def sharded(self) -> Any:
         """The batch as global arrays sharded over the mesh (``NamedSharding``)."""
@@ -97,4 +108,4 @@ def per_device(program: Callable[..., Any], blocks: Blocks, *shared: Any) -> Blo
     for device, block in zip(blocks.mesh.devices.flat, blocks.blocks, strict=True):
         with jax.default_device(device):
             out.append(program(block, *shared))
-    return Blocks(blocks.mesh, out)
+    return Blocks(blocks.mesh, out, blocks.n)

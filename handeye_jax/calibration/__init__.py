@@ -10,6 +10,7 @@ from .._core import lazy_exports
 # What the layers above may use, by module; each loads on first use (PEP 562).
 # fmt: off
 _EXPORTS = {
+    "_batch": ("calibrate_batch", "fit_batch", "WAVE"),
     "_fitted": ("fitted_stages", "FittedStage"),
     "_payloads": (
         "Convention", "ConventionCheck", "ConventionFit", "Convergence", "DESummary", "Diagnostics",
@@ -20,10 +21,13 @@ _EXPORTS = {
     "_plans": ("full_plan", "Plan", "recalibration_plan"),
     "_result": ("CalibrationResult", "StageResult"),
     "_result_frames": ("compute_frames",),
-    "_result_io": ("load_frames", "load_result", "result_to_json", "save_result"),
+    "_result_io": (
+        "load_frames", "load_result", "result_from_json", "result_to_json", "save_result",
+    ),
     "_rig_change": ("change_line",),
     "_settings": ("Settings",),
-    "_stage": ("fit_stage", "POLISH", "Population", "StageFit", "with_prior"),
+    "_search": ("fit_stage", "fit_stages"),
+    "_stage": ("POLISH", "Population", "StageFit", "with_prior"),
     "_starts": ("convention_index", "CONVENTIONS", "REFIT_STARTS", "uniform_starts"),
     "_warnings": ("all_warnings", "bound_hits", "check_determined", "PULL_FLAG"),
 }

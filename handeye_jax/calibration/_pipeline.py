@@ -24,6 +24,7 @@ from .._jax import in_float64
 from ..data import Dataset, Observations, check_distinct, check_population
 from ..models import AbstractCorrection, AbstractModel, AffinePair, get_model
 from ..problem import (
+    ChainPoints,
     L1Loss,
     LossObjective,
     ParameterSpace,
@@ -38,8 +39,9 @@ from ._plans import Plan, full_plan, recalibration_plan
 from ._programs import _centres, _points, _stage_keys
 from ._result import CalibrationResult, StageResult
 from ._rig_change import check_rig
+from ._search import fit_stage
 from ._settings import Settings
-from ._stage import StageFit, StageTask, fit_stage
+from ._stage import StageFit, StageTask
 from ._stage_result import _finished, _sign_twin
 from ._starts import refit_starts
 from ._warnings import all_warnings, check_determined
@@ -82,37 +84,58 @@ def fit(
     :func:`recalibrate`. The result holds the best optimum the search found; the diagnostics
     (:func:`handeye_jax.diagnose`) only read it."""
     t_start = time.perf_counter()
-    obs = _checked(dataset, plan, settings)
-    run = Run(obs, settings, progress, dataset.source)
-    n = obs.n_landmarks
+    run = Run(_checked(dataset, plan, settings), settings, progress, dataset.source)
     keys1, keys2 = _stage_keys(np.int64(settings.seed))
-    with_loss = _loss_wrapper(settings, n)
+    fit1 = fit_stage(stage1_task(run, plan), settings, keys1, progress=progress)
+    stage1 = _finished(fit1, "stage 1", dataset.source)
+    fit2, stage2, centres = fit_correction_stage(run, fit1.model(), plan.space2, plan.search2,
+                                                 keys2)  # fmt: skip
+    return assemble(dataset, plan, run, Stages(fit1, fit2), Stages(stage1, stage2), centres,
+                    time.perf_counter() - t_start)  # fmt: skip
+
+
+def stage1_task(run: Run, plan: Plan, obs: Observations | None = None) -> StageTask:
+    """Stage 1's task for a run (on ``obs``, default the run's: a batch pads them)."""
+    n = run.obs.n_landmarks
+    obs = run.obs if obs is None else obs
+    with_loss = _loss_wrapper(run.settings, obs.n_landmarks)
     subset1 = spread_landmarks(n, RESTART_LANDMARKS) if n > RESTART_LANDMARKS else None
 
     def build1(template, free):
         return with_loss(Stage1Objective(template, obs, free))
 
-    task1 = StageTask(build1, plan.space1, n, plan.search1, "stage 1 DE", subset1,
-                      refit_starts(settings.seed, plan.space1.box, obs.rig))  # fmt: skip
-    fit1 = fit_stage(task1, settings, keys1, progress=progress)
-    stage1 = _finished(fit1, "stage 1", dataset.source)
-    fit2, stage2, centres = fit_correction_stage(run, fit1.model(), plan.space2, plan.search2,
-                                                 keys2)  # fmt: skip
-    spaces, stages = Stages(plan.space1, plan.space2), Stages(stage1, stage2)
+    return StageTask(build1, plan.space1, n, plan.search1, "stage 1 DE", subset1,
+                     refit_starts(run.settings.seed, plan.space1.box, run.obs.rig))  # fmt: skip
+
+
+def assemble(
+    dataset: Dataset,
+    plan: Plan,
+    run: Run,
+    fits: Stages[StageFit],
+    stages: Stages[StageResult],
+    centres: np.ndarray,
+    total_s: float,
+) -> CalibrationResult:
+    """The result of both stages' fits (``total_s``: the seconds the whole fit took)."""
+    fit1, fit2 = fits.stage1, fits.stage2
     timings = {
         "stage1_de": fit1.timings["de"], "stage1_polish": fit1.timings["polish"],
         "stage2_de": fit2.timings["de"], "stage2_polish": fit2.timings["polish"],
-        "total": time.perf_counter() - t_start,
+        "total": total_s,
     }  # fmt: skip
     recal = None
     if plan.previous is not None:
         recal = Recalibration(plan.previous, tuple(plan.refit), "fixed" if plan.fixed else "prior")
+    obs, n = run.obs, run.obs.n_landmarks
+    spaces = Stages(plan.space1, plan.space2)
     return CalibrationResult(
         model=fit1.model(), correction=fit2.model(), rig=obs.rig, centres_mm=np.asarray(centres),
-        centre_index=obs.centre_index, stage1=stage1, stage2=stage2, settings=settings,
-        data=dataset, dataset_name=dataset.name, timings_s=timings, sign_twin=_sign_twin(fit1),
+        centre_index=obs.centre_index, stage1=stages.stage1, stage2=stages.stage2,
+        settings=run.settings, data=dataset, dataset_name=dataset.name, timings_s=timings,
+        sign_twin=_sign_twin(fit1),
         warnings=all_warnings(n, spaces, stages, dataset.search, dataset.source),
-        recalibration=recal, fits=Stages(fit1, fit2), heights=height_summary(fit1.model(), obs),
+        recalibration=recal, fits=fits, heights=height_summary(fit1.model(), obs),
     )  # fmt: skip
 
 
@@ -144,21 +167,31 @@ def fit_correction_stage(
 ) -> tuple[StageFit, StageResult, np.ndarray]:
     """Stage 2 on the chain points of a stage-1 ``model``: its fit, its result and its
     centres of rotation (rows: A1, A2), mm."""
+    task, points = stage2_task(run, model, space2, search2)
+    fit2 = fit_stage(task, run.settings, keys2, progress=run.progress)
+    stage2 = _finished(fit2, "stage 2", run.source)
+    return fit2, stage2, np.asarray(_centres(fit2.model(), points, run.obs.centre_index))
+
+
+def stage2_task(
+    run: Run, model: AbstractModel, space2: ParameterSpace, search2: Sequence[str],
+    rows: np.ndarray | None = None,
+) -> tuple[StageTask, ChainPoints]:  # fmt: skip
+    """Stage 2's task on the chain points of a stage-1 ``model``, and those points (with
+    ``rows``, the task's objective is on the points of those rows: a batch pads them)."""
     obs, settings = run.obs, run.settings
     n = obs.n_landmarks
     points = _points(model, obs)
-    with_loss = _loss_wrapper(settings, n)
+    on = points if rows is None else jax.tree.map(lambda a: np.asarray(a)[rows], points)
+    with_loss = _loss_wrapper(settings, n if rows is None else len(rows))
     subset = None
     if n > RESTART_LANDMARKS:
         subset = spread_landmarks(n, RESTART_LANDMARKS, include=obs.centre_index)
 
     def build2(template, free):
-        return with_loss(Stage2Objective(template, points, obs.centre_index, free))
+        return with_loss(Stage2Objective(template, on, obs.centre_index, free))
 
-    task = StageTask(build2, space2, n, tuple(search2), "stage 2 DE", subset)
-    fit2 = fit_stage(task, settings, keys2, progress=run.progress)
-    stage2 = _finished(fit2, "stage 2", run.source)
-    return fit2, stage2, np.asarray(_centres(fit2.model(), points, obs.centre_index))
+    return StageTask(build2, space2, n, tuple(search2), "stage 2 DE", subset), points
 
 
 def calibrate(

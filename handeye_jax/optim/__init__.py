@@ -13,7 +13,7 @@ batch sharded over the devices; it returns the same Solution with a leading axis
 from ._box import Box
 from ._de import CHUNK_GENERATIONS, DifferentialEvolution, latin_hypercube
 from ._lm import LevenbergMarquardt, minimise_batch, residuals_and_jacobian
-from ._many import minimise_many, minimise_starts_many, take, values_many
+from ._many import LOOPED, minimise_many, minimise_starts_many, take, values_many
 from ._modes import MAX_MODES, mode_leaders
 from ._multistart import minimise_starts
 from ._solvers import (
@@ -28,6 +28,7 @@ from ._solvers import (
 
 __all__ = [
     "CHUNK_GENERATIONS",
+    "LOOPED",
     "MAX_MODES",
     "AbstractSolver",
     "BatchSolution",

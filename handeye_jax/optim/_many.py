@@ -115,6 +115,17 @@ def _de_solutions(state, best, median, population: int) -> DESolution:
 
 # -- LM ----------------------------------------------------------------------------------
 
+#: Problems per device, at least, in a program that runs them one after another: XLA takes a
+#: loop of one trip out, and its body then compiles (and rounds) as another program would.
+LOOPED = 2
+
+
+def _padded_run(run: np.ndarray, mesh: Mesh) -> np.ndarray:
+    """``run`` with False for the copies :meth:`Blocks.of` fills a batch with."""
+    devices = mesh.devices.size
+    size = max(-(-len(run) // devices), LOOPED) * devices
+    return np.concatenate([np.asarray(run, bool), np.zeros(size - len(run), bool)])
+
 
 @fast_compile
 def _values(block):
@@ -128,7 +139,7 @@ def values_many(fns: Problem, x: Float[ArrayLike, "b *s d"], mesh: Mesh | None =
     x = np.asarray(x, float)
     if x.ndim == 3:  # the points of a problem one after another, as the single run does
         return np.stack([values_many(fns, x[:, j], mesh) for j in range(x.shape[1])], axis=1)
-    return per_device(_values, Blocks.of((fns, x), mesh)).gather()
+    return per_device(_values, Blocks.of((fns, x), mesh, LOOPED)).gather()
 
 
 @fast_compile
@@ -149,8 +160,8 @@ def _polish(block, lm):
 
 def _lm_many(fns, lm: LevenbergMarquardt, lower, upper, x0, run, mesh) -> LMSolution:
     x0 = np.clip(np.asarray(x0, float), lower, upper)
-    x, steps, ok = per_device(_polish, Blocks.of((fns, x0, lower, upper, run), mesh),
-                              lm).gather()
+    block = Blocks.of((fns, x0, lower, upper, _padded_run(run, mesh)), mesh, LOOPED)
+    x, steps, ok = per_device(_polish, block, lm).gather()
     steps = steps.astype(int)
     return LMSolution(
         x=x, value=values_many(fns, x, mesh), steps=steps, evaluations=steps + 1,
@@ -191,7 +202,8 @@ def minimise_starts_many(
     mesh = problem_mesh() if mesh is None else mesh
     x0 = np.asarray(starts, float)
     run = np.ones(x0.shape[0], bool) if run is None else np.asarray(run, bool)
-    block = Blocks.of((fns, x0, np.asarray(lower, float), np.asarray(upper, float), run), mesh)
+    block = Blocks.of((fns, x0, np.asarray(lower, float), np.asarray(upper, float),
+                       _padded_run(run, mesh)), mesh, LOOPED)  # fmt: skip
     x, cost, steps, ok = per_device(_starts, block, _multistart._config(solver)).gather()
     steps = steps.astype(int)
     return BatchSolution(x=x, value=cost, steps=steps, evaluations=steps + 1, converged=ok)
