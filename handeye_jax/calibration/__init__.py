@@ -17,7 +17,7 @@ _EXPORTS = {
         "FitWarning", "HeldOut", "LeaveOneOut", "LossInfo", "Mode", "PolishSummary", "PriorReport",
         "Pull", "Recalibration", "Residual", "Scope", "SignTwin", "StageDiagnostics",
     ),
-    "_pipeline": ("calibrate", "fit", "fit_correction", "recalibrate", "RESTART_LANDMARKS"),
+    "_pipeline": ("calibrate", "fit", "fit_correction", "recalibrate"),
     "_plans": ("full_plan", "Plan", "recalibration_plan"),
     "_result": ("CalibrationResult", "StageResult"),
     "_result_frames": ("compute_frames",),
@@ -28,6 +28,7 @@ _EXPORTS = {
     "_settings": ("Settings",),
     "_search": ("fit_stage", "fit_stages"),
     "_stage": ("POLISH", "Population", "StageFit", "with_prior"),
+    "_tasks": ("EXACT_ROWS", "padded_rows", "RESTART_LANDMARKS"),
     "_starts": ("convention_index", "CONVENTIONS", "REFIT_STARTS", "uniform_starts"),
     "_warnings": ("all_warnings", "bound_hits", "check_determined", "PULL_FLAG"),
 }

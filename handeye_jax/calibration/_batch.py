@@ -1,14 +1,16 @@
 """Many calibrations at once: :func:`calibrate_batch` fits B datasets in one batch, each step
 of both stages one compiled program for all of them, sharded over the devices, and under
 ``jax.distributed`` split over the processes. Each result is the one :func:`calibrate` gives
-for its dataset alone, bit for bit, however the batch is made up or split.
+for its dataset alone, bit for bit, however the batch is made up or split: :func:`fit` is a
+batch of one.
 
 The batch runs in waves of at most ``wave`` problems per device (so memory stays bounded and
 the progress bar moves). Problems of one structure (model, free and searched parameters,
-prior, loss, captures, hand heights, centre landmark) share a wave; datasets with fewer rows
-are padded to the wave's most with rows of weight 0 (up to the restarts' 64 landmarks, and
-without hand heights; others share a wave with problems of their own size). A wave is filled
-up to a size the devices share, with copies of its first problem that LM skips.
+prior, loss, captures, hand heights, centre landmark) and one padded size share a wave: a
+problem's rows are padded with rows of weight 0 to a size that depends on it alone
+(:func:`~._tasks.padded_rows`: its own up to 16 rows, then the next multiple of 8), alone as
+in a batch. A wave is filled up to a size the devices share, with copies of its first problem
+that LM skips.
 """
 
 from __future__ import annotations
@@ -27,8 +29,6 @@ from .._core import InputError, Stages, progress_bar
 from .._jax import in_float64, padded_size, problem_mesh
 from ..data import Dataset
 from ..models import get_model
-from ..problem import pad_rows
-from ._pipeline import RESTART_LANDMARKS, Run, _checked, assemble, stage1_task, stage2_task
 from ._plans import Plan, full_plan
 from ._programs import _centres, _stage_keys
 from ._result import CalibrationResult
@@ -37,6 +37,7 @@ from ._search import fit_stages
 from ._settings import Settings
 from ._stage import with_prior
 from ._stage_result import _finished
+from ._tasks import Run, assemble, checked, padded_obs, padded_rows, stage1_task, stage2_task
 
 #: Problems per device in one wave of a batch.
 WAVE = 64
@@ -106,21 +107,27 @@ def fit_batch(
     progress: bool = False,
     wave: int = WAVE,
     mesh: Mesh | None = None,
+    stage_progress: bool = False,
 ) -> list[CalibrationResult | InputError]:
     """:func:`~handeye_jax.fit` of every dataset with its plan and settings, in one batch:
-    each result, or the :class:`InputError` its dataset raised."""
-    if jax.process_count() > 1:
-        return _distributed(datasets, plans, settings, progress, wave, mesh)
-    return _local(datasets, plans, settings, progress, wave, mesh)
+    each result, or the :class:`InputError` its dataset raised.
 
-
-def _local(datasets, plans, settings, progress: bool, wave: int, mesh):
+    Args:
+        datasets, plans, settings: one of each per problem (settings differing in seed only).
+        progress: a progress bar over the problems on stderr.
+        wave: the most problems per device fitted at once.
+        mesh: the devices (default: all of this process's; under ``jax.distributed``, each
+            process fits its share on its own).
+        stage_progress: each stage's DE progress bar on stderr.
+    """
+    if jax.process_count() > 1 and mesh is None:
+        return _distributed(datasets, plans, settings, progress, wave)
     mesh = problem_mesh() if mesh is None else mesh
     out: list[CalibrationResult | InputError | None] = [None] * len(datasets)
     runs: dict[int, Run] = {}
     for i, (d, p, s) in enumerate(zip(datasets, plans, settings, strict=True)):
         try:
-            runs[i] = Run(_checked(d, p, s), s, False, d.source)
+            runs[i] = Run(checked(d, p, s), s, stage_progress, d.source)
         except InputError as e:
             out[i] = e
     per_wave = max(wave, 1) * mesh.devices.size
@@ -145,55 +152,51 @@ class _Problem:
 
 
 def _groups(runs: dict[int, Run], plans: Sequence[Plan]) -> dict[tuple, list[int]]:
-    """The problems that can share a wave, by their structure (see the module docstring)."""
+    """The problems that can share a wave, by their structure and padded size (see the module
+    docstring)."""
     groups: dict[tuple, list[int]] = {}
     for i, run in runs.items():
         plan, obs = plans[i], run.obs
-        task = stage1_task(run, plan)
         space = plan.space1
+        task = stage1_task(run, plan)
         objective = with_prior(task.build(space.template, space.free), space, obs.n_landmarks)
-        paddable = obs.hand_z_mm is None and obs.n_landmarks <= RESTART_LANDMARKS
+        rows = padded_rows(obs)
         prior2 = None if plan.space2.prior is None else plan.space2.prior.names
         key = (jax.tree.structure(objective), tuple(plan.search1), plan.space2.free,
-               tuple(plan.search2), prior2, None if paddable else obs.n_landmarks)  # fmt: skip
+               tuple(plan.search2), prior2, obs.n_landmarks if rows is None else rows)  # fmt: skip
         groups.setdefault(key, []).append(i)
     return groups
 
 
 def _wave(problems: list[_Problem], mesh: Mesh) -> list[CalibrationResult | InputError]:
-    """Both stages of one wave's problems (of one structure)."""
+    """Both stages of one wave's problems (of one structure and padded size)."""
     t_start = time.perf_counter()
     real = len(problems)
     filled = problems + [problems[0]] * (padded_size(real, mesh) - real)
     live = np.arange(len(filled)) < real
-    settings = filled[0].run.settings
+    settings, progress = filled[0].run.settings, filled[0].run.progress
     keys = [_stage_keys(np.int64(p.run.settings.seed)) for p in filled]
-    rows = max(p.run.obs.n_landmarks for p in filled)
-    pads = [_padding(p.run, rows) for p in filled]
-    padded = None if all(r is None for r, _ in pads) else [r for r, _ in pads]
-    mask = None if padded is None else np.stack([m for _, m in pads])
+    pads = [padded_obs(p.run) for p in filled]
+    mask = None if pads[0] is None else np.stack([m for _, m, _ in pads])
     tasks1 = [stage1_task(p.run, p.plan) for p in filled]
-    padded1 = None
-    if padded is not None:
-        padded1 = [stage1_task(p.run, p.plan, p.run.obs if r is None else
-                               pad_rows(p.run.obs, rows)[0]).build
-                   for p, (r, _) in zip(filled, pads, strict=True)]  # fmt: skip
+    padded1 = None if mask is None else [stage1_task(p.run, p.plan, o).build
+                                         for p, (o, _, _) in zip(filled, pads, strict=True)]
     fits1 = fit_stages(tasks1, settings, [k[0] for k in keys], padded=padded1, mask=mask,
-                       mesh=mesh, live=live)  # fmt: skip
+                       mesh=mesh, live=live, progress=progress)  # fmt: skip
     stages1 = [_finish(f, "stage 1", p) for f, p in zip(fits1[:real], problems, strict=True)]
     # Stage 2 on each real problem's stage-1 model; the fillers copy the first one's.
     models = [f.model() for f in fits1[:real]] + [fits1[0].model()] * (len(filled) - real)
     tasks2, points, padded2 = [], [], []
-    for p, model, (r, _) in zip(filled, models, pads, strict=True):
+    for p, model, pad in zip(filled, models, pads, strict=True):
         task, pts = stage2_task(p.run, model, p.plan.space2, p.plan.search2)
         tasks2.append(task)
         points.append(pts)
-        if padded is not None:
+        if mask is not None:
             padded2.append(stage2_task(p.run, model, p.plan.space2, p.plan.search2,
-                                       np.arange(rows) if r is None else r)[0].build)
+                                       pad[2])[0].build)  # fmt: skip
     fits2 = fit_stages(tasks2, settings, [k[1] for k in keys],
-                       padded=padded2 if padded is not None else None, mask=mask, mesh=mesh,
-                       live=live)  # fmt: skip
+                       padded=None if mask is None else padded2, mask=mask, mesh=mesh,
+                       live=live, progress=progress)  # fmt: skip
     share = (time.perf_counter() - t_start) / real
     out: list[CalibrationResult | InputError] = []
     for j, p in enumerate(problems):
@@ -207,15 +210,6 @@ def _wave(problems: list[_Problem], mesh: Mesh) -> list[CalibrationResult | Inpu
     return out
 
 
-def _padding(run: Run, rows: int) -> tuple[np.ndarray | None, np.ndarray]:
-    """A problem's rows padded to ``rows`` (``None``: it has them) and its row weights."""
-    n = run.obs.n_landmarks
-    mask = np.concatenate([np.ones(n), np.zeros(rows - n)])
-    if n == rows:
-        return None, mask
-    return np.concatenate([np.arange(n), np.zeros(rows - n, int)]), mask
-
-
 def _finish(fit, name: str, problem: _Problem):
     try:
         return _finished(fit, name, problem.dataset.source)
@@ -226,15 +220,16 @@ def _finish(fit, name: str, problem: _Problem):
 # -- several processes (jax.distributed) -------------------------------------------------------
 
 
-def _distributed(datasets, plans, settings, progress: bool, wave: int, mesh):
+def _distributed(datasets, plans, settings, progress: bool, wave: int):
     """Each process fits its contiguous share; every process gets every result."""
     from jax.experimental import multihost_utils
 
     count, me = jax.process_count(), jax.process_index()
     share = -(-len(datasets) // count)
     mine = range(me * share, min(len(datasets), (me + 1) * share))
-    local = _local([datasets[i] for i in mine], [plans[i] for i in mine],
-                   [settings[i] for i in mine], progress and me == 0, wave, mesh)  # fmt: skip
+    local = fit_batch([datasets[i] for i in mine], [plans[i] for i in mine],
+                      [settings[i] for i in mine], progress=progress and me == 0, wave=wave,
+                      mesh=problem_mesh())  # fmt: skip
     texts = [json.dumps({"error": [str(r.path), r.field, r.message]})
              if isinstance(r, InputError) else result_to_json(r) for r in local]  # fmt: skip
     blob = np.frombuffer(json.dumps(texts).encode(), np.uint8)
