@@ -435,8 +435,8 @@ def _subcommands():
     return sub.choices
 
 
-SUBCOMMANDS = ["calibrate", "predict", "report", "tablet", "simulate", "detect", "evaluate",
-               "export", "convert", "plan"]  # fmt: skip
+SUBCOMMANDS = ["calibrate", "calibrate-batch", "predict", "report", "tablet", "simulate",
+               "detect", "evaluate", "export", "convert", "plan"]  # fmt: skip
 
 
 @pytest.mark.parametrize("name", SUBCOMMANDS)

@@ -47,3 +47,6 @@ CHANGES: dict[str, dict[str, tuple[float, float]]] = {
 }
 #: The recommended further pictures: (rise above the first capture, mm; hand turn from it, deg).
 RECOMMENDED_CAPTURES = ((40.0, 30.0), (80.0, -30.0))
+#: Problems per device in one wave of a batch (``calibrate_batch``, ``calibrate-batch
+#: --wave``): the most fitted at once, so that memory stays bounded and the progress bar moves.
+BATCH_WAVE = 64

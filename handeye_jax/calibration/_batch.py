@@ -25,7 +25,7 @@ import jax
 import numpy as np
 from jax.sharding import Mesh
 
-from .._core import InputError, Stages, progress_bar
+from .._core import BATCH_WAVE, InputError, Stages, progress_bar
 from .._jax import in_float64, padded_size, problem_mesh
 from ..data import Dataset
 from ..models import get_model
@@ -40,7 +40,7 @@ from ._stage_result import _finished
 from ._tasks import Run, assemble, checked, padded_obs, padded_rows, stage1_task, stage2_task
 
 #: Problems per device in one wave of a batch.
-WAVE = 64
+WAVE = BATCH_WAVE
 
 #: Fields of :class:`Settings` every problem of a batch shares (the compiled programs' shapes
 #: and the search): they may differ in ``seed`` only.
