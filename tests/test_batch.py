@@ -228,3 +228,25 @@ def test_the_command_refuses_a_pattern_that_matches_nothing(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and "no dataset files" in err
     assert not (tmp_path / "r").exists()
+
+
+def test_the_command_refuses_processes_without_a_coordinator_in_one_line(tmp_path, capsys):
+    from handeye_jax.cli import main
+
+    code = main(["calibrate-batch", str(tmp_path), "--out", str(tmp_path / "r"),
+                 "--processes", "2"])  # fmt: skip
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "--processes" in err
+    assert "--coordinator" in err and not (tmp_path / "r").exists()
+
+
+def test_a_folder_of_bad_datasets_writes_only_the_summary(twins, tmp_path, capsys):
+    from handeye_jax.cli import main
+    from handeye_jax.data import dataset_to_toml
+
+    (tmp_path / "bad.toml").write_text(dataset_to_toml(twins[0]).replace("depth = ", "depth = -"))
+    out = tmp_path / "results"
+    assert main(["calibrate-batch", str(tmp_path), "--out", str(out), "--quiet"]) == 2
+    said = capsys.readouterr()
+    assert "0 of 1 datasets calibrated" in said.out
+    assert [p.name for p in out.iterdir()] == ["summary.csv"]

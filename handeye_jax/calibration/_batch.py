@@ -76,6 +76,8 @@ def calibrate_batch(
             ``"return"`` it in that dataset's place, so that the others' results still come.
         mesh: the devices (default: all of this process's).
     """
+    if not datasets:
+        return []
     each = _settings_of(datasets, settings)
     get_model(each[0].model)  # an unknown name fails here, before any work
     outcomes = fit_batch(datasets, [full_plan(d, s) for d, s in zip(datasets, each,

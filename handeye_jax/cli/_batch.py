@@ -43,8 +43,14 @@ def result_names(files: list[Path]) -> list[str]:
     shared = 0
     while all(len(p) > shared and p[shared] == parents[0][shared] for p in parents):
         shared += 1
-    return ["-".join((*f.resolve().parent.parts[shared:], f.stem)) + ".result.json"
-            for f in files]  # fmt: skip
+    names = ["-".join((*f.resolve().parent.parts[shared:], f.stem)) + ".result.json"
+             for f in files]  # fmt: skip
+    seen: dict[str, Path] = {}
+    for f, name in zip(files, names, strict=True):
+        if name in seen:
+            raise InputError(f, "", f"its result would be {name}, as {seen[name]}'s: rename one")
+        seen[name] = f
+    return names
 
 
 def _cmd_calibrate_batch(args: argparse.Namespace) -> int:
