@@ -1,6 +1,6 @@
 """How the package runs JAX: float64 without touching the user's global configuration, XLA's
 options per kind of program, the programs kept between runs (``jax.export``), and a batch of
-problems split over the devices (``jax.shard_map``)."""
+problems split over the devices (``jax.sharding``)."""
 
 from __future__ import annotations
 
