@@ -1,4 +1,4 @@
-"""The package's folders are its layers: the rules of the README's "Layout", read from the code.
+"""The package's folders are its layers: the rules of docs/layout.md, read from the code.
 
 Every import of every module (at the top, inside functions and under ``TYPE_CHECKING``) is
 read with :mod:`ast`, and the test fails on

@@ -435,17 +435,16 @@ class _Robot:
 
 
 def test_the_readme_pick_loop_touches_what_the_predictor_says(case_file):
-    """The README's "Use it on the robot" examples run as written, the pick loop with a fake
+    """docs/use-on-the-robot.md's examples run as written, the pick loop with a fake
     robot and camera: it captures from the calibration's pose and goes to each command."""
-    readme = (ROOT / "README.md").read_text()
-    section = readme.split("## Use it on the robot\n", 1)[1].split("\n## ", 1)[0]
+    section = (ROOT / "docs" / "use-on-the-robot.md").read_text()
     blocks = re.findall(r"```python\n(.*?)```", section, flags=re.S)
     assert len(blocks) == 2
     import handeye_jax as hj
 
     ns = {"hj": hj}
     code = "\n".join(blocks).replace('"paper.result.json"', repr(str(case_file)))
-    exec(compile(code, "README.md", "exec"), ns)
+    exec(compile(code, "docs/use-on-the-robot.md", "exec"), ns)
     assert ns["xy_mm"].shape == (1, 2)
     uv, depth, angle = PAPER_POINTS
     robot = _Robot()

@@ -1,7 +1,7 @@
 """Named frames from a fitted model: :func:`compute_frames`.
 
-:class:`~handeye_jax.Frames` itself is NumPy only (``handeye_jax._frames``); this module is the
-JAX side that evaluates a model's ``camera_mount()``, ``tablet_pose()`` and ``t_hand_pen()``.
+:class:`~handeye_jax.Frames` itself is NumPy only (``handeye_jax.robot._frames``); this module
+is the JAX side that evaluates a model's ``camera_mount()``, ``tablet_pose()`` and ``t_hand_pen()``.
 """
 
 from __future__ import annotations
@@ -44,6 +44,7 @@ def compute_frames(
     *,
     known: Mapping[str, float] | None = None,
     pen_minus_camera_z_mm: float | None = None,
+    distortion: tuple[float, float, float, float, float] | None = None,
 ) -> Frames:
     """The frames of a fitted model, as plain numbers.
 
@@ -57,6 +58,8 @@ def compute_frames(
             ``{"t_hand_camera_mm.z": 12.0}``.
         pen_minus_camera_z_mm: ``z_p − z_c``, mm, when the hand's heights at the touches
             determined it (see :class:`~handeye_jax.HeightOffsets`).
+        distortion: the lens's plumb_bob ``(k1, k2, p1, p2, k3)`` (the dataset's camera), or
+            ``None``.
     """
     known = dict(known or {})
     unknown = sorted(set(known) - set(UNDETERMINED))
@@ -92,4 +95,5 @@ def compute_frames(
         undetermined=tuple(n for n in UNDETERMINED if n not in known),
         model=getattr(model, "name", ""),
         pen_minus_camera_z_mm=pen_minus_camera_z_mm,
+        distortion=distortion,
     )  # fmt: skip

@@ -449,6 +449,7 @@ def _frame_numbers(f: Frames) -> np.ndarray:
              f.A1.as_tuple(), f.A2.as_tuple(), f.camera_px,
              (f.hand_angle_zero_deg, f.hand_angle_sign, f.capture_hand_angle_deg,
               math.nan if f.pen_minus_camera_z_mm is None else f.pen_minus_camera_z_mm),
+             f.distortion or (math.nan,) * 5,
              *(getattr(f, t) for t in TRANSLATIONS)]  # fmt: skip
     return np.concatenate([np.ravel(np.asarray(p, dtype=np.float64)) for p in parts])
 

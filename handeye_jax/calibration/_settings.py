@@ -33,7 +33,8 @@ class Settings:
             alone can settle in a basin that is not the lowest (6 of 50 ``paper`` twins with
             these DE settings, ``benchmarks/miss_rate.py``).
         loss: ``"l1"`` (the paper's mean error length), ``"huber"`` or ``"cauchy"``
-            (:mod:`handeye_jax._losses`); a robust loss limits the pull of outlier landmarks.
+            (:mod:`handeye_jax.problem._losses`); a robust loss limits the pull of outlier
+            landmarks.
         loss_scale_mm: the robust loss's scale, mm; landmarks with an error above
             ``OUTLIER_FACTOR`` (3) times it are flagged as outliers, whatever the loss.
 

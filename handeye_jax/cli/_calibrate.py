@@ -10,6 +10,8 @@ from .._core import InputError, write_output
 from ._types import (
     MODELS,
     generations,
+    landmark_indices,
+    landmarks_named,
     output_path,
     population,
     positive_mm,
@@ -38,6 +40,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         raise InputError(args.prior, "model",
                          f"is {previous.model_name!r}; --model says {model!r}")  # fmt: skip
     dataset = load_dataset(args.dataset)
+    if args.landmarks is not None:
+        dataset = _landmarks_of(dataset, args.landmarks, args.dataset)
     settings = settings_from(args, model)
     if previous is None:
         result = calibrate(dataset, settings, progress=not args.quiet)
@@ -55,11 +59,24 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
                              accept_rig_change=args.accept_rig_change)  # fmt: skip
     if not args.no_diagnostics:
         result = diagnose(result, search=dataset.search)
-    print(format_summary(result))
-    if out is not None:
+    summary = format_summary(result)
+    if out is not None:  # before printing: a closed pipe on stdout must not lose the result
         write_output(out, result_to_json(result), "--out")
+    print(summary)
+    if out is not None:
         print(f"result written to {out}")
     return 0
+
+
+def _landmarks_of(dataset, ms: tuple[int, ...], path):
+    """The dataset of landmarks ``ms`` alone (their views and touches), said in one line."""
+    n = dataset.n_landmarks
+    missing = [m for m in ms if m >= n]
+    if missing:
+        raise InputError(path, "--landmarks", f"{landmarks_named(missing)}: the dataset has "
+                         f"{n} landmarks, m = 0 to {n - 1}")  # fmt: skip
+    print(f"fitting {landmarks_named(ms)} of the {n} in {Path(path).name} (--landmarks)")
+    return dataset.landmark_subset(ms)
 
 
 def add_calibrate_command(sub: argparse._SubParsersAction) -> None:
@@ -80,6 +97,11 @@ def add_calibrate_command(sub: argparse._SubParsersAction) -> None:
         f"Denavit-Hartenberg variant (eqs. 12-16) (default: {d.model}, or --prior's)",
     )  # fmt: skip
     add_settings_options(cal)
+    cal.add_argument(
+        "--landmarks", type=landmark_indices, metavar="M,M,...",
+        help="fit these landmarks of the dataset alone, e.g. 0,4,8 (their views and touches; "
+        "default: every landmark)",
+    )  # fmt: skip
     _add_prior_options(cal)
     cal.add_argument(
         "--no-diagnostics", action="store_true",

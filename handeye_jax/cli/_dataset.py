@@ -6,7 +6,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .._core import MAX_DEG, MAX_IMAGE_PIXELS, MAX_MM, InputError, check_output, same_file
+from .._core import (
+    MAX_DEG,
+    MAX_IMAGE_PIXELS,
+    MAX_MM,
+    InputError,
+    check_output,
+    same_file,
+    write_output,
+)
 from .._core import RECOMMENDED_CAPTURES as RECOMMENDED
 from ._types import landmarks_named, numbers
 
@@ -48,11 +56,13 @@ def _image_size(text: str) -> tuple[int, int]:
 
 
 def _cmd_plan(args: argparse.Namespace) -> int:
-    from ..data import backup_path, load_dataset, save_dataset, update_dataset
+    from ..data import backup_path, load_dataset, poses_csv_text, save_dataset, update_dataset
     from ..vision import plan_captures
 
     path = Path(args.dataset)
     out = None if args.out is None else check_output(args.out, "--out", [path])
+    if args.poses_csv is not None:
+        check_output(args.poses_csv, "--poses-csv", [path, *([out] if out else [])])
     if out is None:
         check_output(path, "--dataset")
         check_output(backup_path(path), "--dataset")
@@ -84,6 +94,12 @@ def _cmd_plan(args: argparse.Namespace) -> int:
               "0, then plan again.")  # fmt: skip
     elif views:
         print(_views_line(views, size, args.image_size_px is not None))
+    if args.poses_csv is not None:
+        write_output(args.poses_csv, poses_csv_text([_tool_pose(new, k) for k in [0, *indices]]),
+                     "--poses-csv")  # fmt: skip
+        print(f"their tool0 poses written to {args.poses_csv} (kind,index,x_m,y_m,z_m,qx,qy,qz,"
+              "qw; after the pictures, the poses the robot reports go back in with handeye-jax "
+              "poses)")  # fmt: skip
     return 0
 
 
@@ -102,13 +118,30 @@ def _views(new, indices: list[int], size: tuple[int, int]) -> tuple[dict, str]:
     return views, ""
 
 
+def _tool_pose(new, k: int):
+    """Capture ``k``'s flange (tool0 = hand frame) pose in the base frame."""
+    from ..data import ToolPose, tool_pose_of_hand
+
+    c = new.captures[k]
+    R, t = tool_pose_of_hand(c.hand_position_mm, c.hand_angle_deg, new.hand_angle_zero_deg,
+                             new.hand_angle_sign)  # fmt: skip
+    return ToolPose("capture", k, R, t, 0)
+
+
 def _picture_line(new, k: int, target: Path) -> str:
-    """Capture ``k``'s pose and the detect command that fills it."""
+    """Capture ``k``'s pose (as the hand's and as tool0's) and the detect command that fills
+    it."""
+    from ..data import quaternion_from_rotation
+
     c = new.captures[k]
     x, y, z = (f"{v:g}" for v in c.hand_position_mm)
     seen = f"{len(c.landmarks)} of {new.n_landmarks} landmarks"
+    pose = _tool_pose(new, k)
+    q = " ".join(f"{v:.6f}" for v in quaternion_from_rotation(pose.R_base_tool))
+    m = " ".join(f"{v / 1000:.4f}" for v in pose.t_base_tool_mm)
     return (f"  capture {k}: hand at ({x}, {y}, {z}) mm, hand angle {c.hand_angle_deg:g} deg "
-            f"({seen}): handeye-jax detect CAP{k}.png DEP{k}.png --dataset {target} "
+            f"({seen}); tool0 in the base frame at [{m}] m, quaternion (x y z w) [{q}]: "
+            f"handeye-jax detect CAP{k}.png DEP{k}.png --dataset {target} "
             f"--capture {k}")  # fmt: skip
 
 
@@ -169,6 +202,11 @@ def add_dataset_commands(sub: argparse._SubParsersAction) -> None:
         "--out", metavar="NEW.toml",
         help="write here (default: update DATASET in place, the old one kept as "
         "DATASET.<UTC time>.bak)",
+    )  # fmt: skip
+    p.add_argument(
+        "--poses-csv", metavar="POSES.csv",
+        help="also write each picture's tool0 pose (the hand frame; metres, quaternion x y z w) "
+        "as a poses CSV, to drive the robot there (default: none, printed only)",
     )  # fmt: skip
     p.set_defaults(func=_cmd_plan, imports=("data.load_dataset", "vision.plan_captures"))
 

@@ -31,6 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
     from ._dataset import add_dataset_commands
     from ._report import add_report_command
     from ._robot import add_export_command, add_predict_command
+    from ._robot_input import add_robot_input_commands
     from ._tablet import add_tablet_command
     from ._twin import add_evaluate_command, add_simulate_command
     from ._vision import add_detect_command
@@ -42,8 +43,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
     for add in (add_calibrate_command, add_calibrate_batch_command, add_simulate_command,
-                add_detect_command, add_evaluate_command, add_export_command, add_dataset_commands,
-                add_predict_command, add_tablet_command, add_report_command):  # fmt: skip
+                add_detect_command, add_evaluate_command, add_export_command,
+                add_dataset_commands, add_robot_input_commands, add_predict_command,
+                add_tablet_command, add_report_command):  # fmt: skip
         add(sub)  # in this order in --help
     return parser
 
@@ -74,6 +76,9 @@ def _run_command(argv: Sequence[str] | None) -> int:
     except InputError as e:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # `... | head`: the reader has what it wanted; files are complete
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141  # 128 + SIGPIPE, as a shell tool killed by the closed pipe reports
     except Exception as e:  # the user gets one line; developers can ask for the traceback
         if interrupts.pending():  # a Ctrl-C that C++ code turned into another error
             raise KeyboardInterrupt from None

@@ -8,21 +8,19 @@ import argparse
 import sys
 from pathlib import Path
 
-from .._core import write_output
+from .._core import MAX_MM, InputError, write_output
 
-# constants only: the formats import their libraries on use
+# names only: the exports (and NumPy) load when a command runs, not for --help
 from ..robot import (
+    DEFAULT_BASE_FRAME,
     DEFAULT_CAMERA_FRAME,
     DEFAULT_PARENT_LINK,
     DEFAULT_PEN_FRAME,
     FORMATS,
     NAME_PATTERN,
-    check_parses,
-    export_text,
-    zero_filled,
 )
 from ._runtime import start_jax
-from ._types import PROG, output_path, whole_number
+from ._types import PROG, numbers, output_path, whole_number
 
 
 def _name(text: str) -> str:
@@ -67,7 +65,26 @@ def add_export_command(sub: argparse._SubParsersAction) -> None:
         "--pen-frame", type=_name, default=DEFAULT_PEN_FRAME, metavar="NAME",
         help=f"the pen tip frame (urdf, ros2; default {DEFAULT_PEN_FRAME})",
     )  # fmt: skip
+    p.add_argument(
+        "--base-frame", type=_name, default=DEFAULT_BASE_FRAME, metavar="NAME",
+        help=f"the robot's base frame (easy_handeye; default {DEFAULT_BASE_FRAME})",
+    )  # fmt: skip
+    p.add_argument(
+        "--camera-z-mm", type=_length_mm, metavar="MM",
+        help="the camera's optical centre along the flange's z axis, mm, measured: the data "
+        "does not determine it; with the touches' hand heights the pen tip's z follows (default: "
+        "none; the file writes 0 there and says so)",
+    )  # fmt: skip
+    p.add_argument(
+        "--pen-z-mm", type=_length_mm, metavar="MM",
+        help="the pen tip along the flange's z axis, mm, measured (instead of --camera-z-mm "
+        "when the calibration determined z_pen - z_camera; else as well; default: none)",
+    )  # fmt: skip
     p.set_defaults(func=_cmd_export, imports=("calibration.load_frames", "robot.export_text"))
+
+
+def _length_mm(text: str) -> float:
+    return numbers(MAX_MM, "mm", 1)(text)[0]
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
@@ -78,17 +95,34 @@ def _cmd_export(args: argparse.Namespace) -> int:
               f"(got {', '.join(names)})", file=sys.stderr)  # fmt: skip
         return 2
     from ..calibration import load_frames  # JAX: not imported for --help
+    from ..robot import (
+        check_parses,
+        export_text,
+        filled_translations_mm,
+        with_heights,
+        zero_filled,
+    )
 
     frames = load_frames(args.result)
+    try:
+        frames = with_heights(frames, args.camera_z_mm, args.pen_z_mm)
+    except ValueError as e:
+        flag = "--pen-z-mm" if args.camera_z_mm is None else "--camera-z-mm"
+        raise InputError(args.result, flag, str(e)) from None
     text = export_text(
         frames, args.fmt, parent_link=args.parent_link, camera_frame=args.camera_frame,
-        pen_frame=args.pen_frame, source=str(args.result),
+        pen_frame=args.pen_frame, base_frame=args.base_frame, source=str(args.result),
     )  # fmt: skip
     check_parses(text, args.fmt)
     zeros = zero_filled(frames, args.fmt)
     if zeros:
         print(f"{PROG}: warning: {', '.join(zeros)} not determined by the data: written as 0 "
-              f"in the {args.fmt} file, which says so", file=sys.stderr)  # fmt: skip
+              f"in the {args.fmt} file, which says so; give --camera-z-mm (the camera's "
+              "optical centre along the flange's z, measured)" + (
+                  f"; t_hand_pen_mm.z written as z_pen - z_camera = "
+                  f"{frames.pen_minus_camera_z_mm:.3f} mm above it"
+                  if filled_translations_mm(frames)[3] and args.fmt != "easy_handeye" else ""),
+              file=sys.stderr)  # fmt: skip
     return _emit(text, out, f"{args.fmt} export")
 
 

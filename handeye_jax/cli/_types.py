@@ -13,6 +13,7 @@ from pathlib import Path
 
 from .._core import (
     MAX_GENERATIONS,
+    MAX_LANDMARKS,
     MAX_POPULATION,
     MAX_RESTARTS,
     check_output,
@@ -161,6 +162,17 @@ def numbers(limit: float, unit: str, n: int | None = None) -> Callable[[str], li
             raise argparse.ArgumentTypeError(str(e)) from None
 
     return parse
+
+
+def landmark_indices(text: str) -> tuple[int, ...]:
+    """Comma-separated landmark numbers m (``"0,4,8"``): whole numbers, each once. Whether
+    the dataset has them is checked once it is read."""
+    parts = [part.strip() for part in text.split(",")]
+    ms = tuple(whole_number(part, 0, MAX_LANDMARKS - 1) for part in parts)
+    twice = sorted({m for m in ms if ms.count(m) > 1})
+    if twice:
+        raise argparse.ArgumentTypeError(f"{landmarks_named(twice)} given twice")
+    return ms
 
 
 def landmarks_named(ms) -> str:

@@ -1,6 +1,7 @@
 """The robot's side, NumPy only (no JAX): the fitted frames as plain numbers
-(:class:`Frames`), the hand command from them (:class:`Predictor`), and their exports (URDF,
-ROS 2, OpenCV, YAML, JSON, a NumPy module). A robot PC needs nothing above this folder."""
+(:class:`Frames`), a result file's parts checked against each other and the rig's reach, the
+hand command from them (:class:`Predictor`), and their exports (URDF, ROS 2, OpenCV, YAML,
+JSON, a NumPy module). A robot PC needs nothing above this folder."""
 
 from __future__ import annotations
 
@@ -10,10 +11,15 @@ from .._core import lazy_exports
 # fmt: off
 _EXPORTS = {
     "_export": (
-        "check_parses", "DEFAULT_CAMERA_FRAME", "DEFAULT_PARENT_LINK", "DEFAULT_PEN_FRAME",
-        "export_text", "FORMATS", "NAME_PATTERN", "zero_filled",
+        "check_parses", "EASY_HANDEYE_PARAMETERS", "export_text", "quaternion_xyzw",
+        "zero_filled",
     ),
     "_frames": ("Affine", "Frames", "TRANSLATIONS"),
+    "_names": (
+        "DEFAULT_BASE_FRAME", "DEFAULT_CAMERA_FRAME", "DEFAULT_PARENT_LINK", "DEFAULT_PEN_FRAME",
+        "FORMATS", "NAME_PATTERN",
+    ),
+    "_heights": ("filled_translations_mm", "with_heights"),
     "_predictor": ("Predictor", "read_json", "result_reach", "stored_frames", "stored_result"),
     "_trust": ("check_reach", "check_result_document"),
 }

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from .._core import MAX_DEG, MAX_MM, MAX_PX, InputError
+from ..data import DISTORTION_COEFFICIENTS, DISTORTION_MODEL
 
 FORMAT = "handeye-jax.frames/1"
 UNITS = {"length": "mm", "angle": "deg", "image": "px"}
@@ -66,6 +67,17 @@ HEIGHT_RULE = (
     "with t_hand_camera z taken as 0: only z_pen − z_camera is determined (from the hand's "
     "heights at the touches), not each"
 )
+GIVEN_NOTE = (
+    "not determined by the calibration data: given by the user (export --camera-z-mm or "
+    "--pen-z-mm), or following from the one given and heights.pen_minus_camera_mm"
+)
+DISTORTION_RULE = (
+    "plumb_bob (Brown–Conrady, OpenCV's distCoeffs order): a measured image point is first "
+    "undistorted to the pixel a pinhole camera with camera_px would record "
+    "(cv2.undistortPoints with P = K), then back-projected"
+)
+#: Largest magnitude of a distortion coefficient read from a file.
+MAX_DISTORTION = 100.0
 #: Largest file :func:`read_json` reads: a result with its data is well under 1 MB.
 MAX_FILE_BYTES = 64 * 1024 * 1024
 #: How far from orthonormal a rotation read from a file may be.
@@ -122,6 +134,11 @@ class Frames:
         pen_minus_camera_z_mm: ``z_p − z_c``, the pen tip's minus the camera's offset along
             the hand's z, mm: what commanding a height needs (:data:`HEIGHT_RULE`); ``None``
             when the touches recorded no hand height.
+        distortion: the lens's Brown–Conrady (``plumb_bob``) ``(k1, k2, p1, p2, k3)``, or
+            ``None``; image points are undistorted with it before the chain.
+        given: components the data leaves undetermined whose values were given by the user
+            (a measured camera height, :func:`~handeye_jax.robot.with_heights`), or follow from
+            one given and ``z_p − z_c``.
     """
 
     R_hand_camera: np.ndarray
@@ -143,6 +160,8 @@ class Frames:
     undetermined: tuple[str, ...] = ()
     model: str = ""
     pen_minus_camera_z_mm: float | None = None
+    distortion: tuple[float, float, float, float, float] | None = None
+    given: tuple[str, ...] = ()
 
     def __post_init__(self):
         shapes = {"R_hand_camera": (3, 3), "R_base_tablet": (3, 3), "capture_position_mm": (3,),
@@ -153,7 +172,11 @@ class Frames:
             raise ValueError(f"hand_angle_sign must be 1 or -1, got {self.hand_angle_sign}")
         object.__setattr__(self, "hand_angle_sign", int(self.hand_angle_sign))
         object.__setattr__(self, "undetermined", tuple(self.undetermined))
+        object.__setattr__(self, "given", tuple(self.given))
         known = {f"{t}.{a}" for t in TRANSLATIONS for a in AXIS_NAMES}
+        for name in self.given:
+            if name not in known or name in self.undetermined:
+                raise ValueError(f"given: {name!r} must be a known component with a value")
         for name in self.undetermined:
             if name not in known:
                 raise ValueError(f"unknown component {name!r}; known: {sorted(known)}")
@@ -173,6 +196,11 @@ class Frames:
             object.__setattr__(self, "pen_minus_camera_z_mm", float(self.pen_minus_camera_z_mm))
             if not math.isfinite(self.pen_minus_camera_z_mm):
                 raise ValueError("pen_minus_camera_z_mm must be finite or None (undetermined)")
+        if self.distortion is not None:
+            d = tuple(float(c) for c in self.distortion)
+            if len(d) != 5 or not all(math.isfinite(c) for c in d):
+                raise ValueError("distortion must be five finite numbers (k1, k2, p1, p2, k3)")
+            object.__setattr__(self, "distortion", d)
 
     @property
     def has_height(self) -> bool:
@@ -252,6 +280,12 @@ class Frames:
         if self.has_height:
             doc["heights"] = {"pen_minus_camera_mm": self.pen_minus_camera_z_mm,
                               "rule": HEIGHT_RULE}  # fmt: skip
+        if self.given:
+            doc["given"] = [{"component": c, "note": GIVEN_NOTE} for c in self.given]
+        if self.distortion is not None:
+            doc["distortion"] = {"model": DISTORTION_MODEL,
+                                 **dict(zip(DISTORTION_COEFFICIENTS, self.distortion, strict=True)),
+                                 "rule": DISTORTION_RULE}  # fmt: skip
         return doc
 
     @classmethod
@@ -266,7 +300,8 @@ class Frames:
         r = _Check(path)
         d = r.table(doc, where, ("format", "model", "units", "T_hand_camera", "T_base_tablet",
                                  "pen_tip", "camera_px", "hand_angle", "capture", "stage2",
-                                 "undetermined"), ("axes", "convention", "heights"))  # fmt: skip
+                                 "undetermined"), ("axes", "convention", "heights",
+                                                   "distortion", "given"))  # fmt: skip
         at = lambda key: f"{where}.{key}" if where else key  # noqa: E731
         if d["format"] != FORMAT:
             r.fail(at("format"), f"expected {FORMAT!r} (got {d['format']!r:.60})")
@@ -293,6 +328,15 @@ class Frames:
             hd = r.table(d["heights"], at("heights"), ("pen_minus_camera_mm",), ("rule",))
             height = r.number(hd["pen_minus_camera_mm"], at("heights.pen_minus_camera_mm"),
                               MAX_MM)  # fmt: skip
+        distortion = None
+        if "distortion" in d:
+            dd = r.table(d["distortion"], at("distortion"), ("model", *DISTORTION_COEFFICIENTS),
+                         ("rule",))  # fmt: skip
+            if dd["model"] != DISTORTION_MODEL:
+                r.fail(at("distortion.model"), f"must be {DISTORTION_MODEL!r} (got "
+                       f"{dd['model']!r:.40})")  # fmt: skip
+            distortion = tuple(r.number(dd[k], at(f"distortion.{k}"), MAX_DISTORTION)
+                               for k in DISTORTION_COEFFICIENTS)  # fmt: skip
         return cls(
             R_hand_camera=r.rotation(T_hc["R"], at("T_hand_camera.R")),
             t_hand_camera_mm=values["t_hand_camera_mm"],
@@ -317,6 +361,9 @@ class Frames:
             undetermined=tuple(undetermined),
             model=d["model"],
             pen_minus_camera_z_mm=height,
+            distortion=distortion,
+            given=tuple(r.table(g, at(f"given[{i}]"), ("component",), ("note",))["component"]
+                        for i, g in enumerate(r.table_list(d.get("given", []), at("given")))),
         )  # fmt: skip
 
 

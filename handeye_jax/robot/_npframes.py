@@ -5,16 +5,21 @@ What each model's ``camera_mount()``, ``tablet_pose()`` and ``t_hand_pen()`` giv
 tell whether a result's ``frames`` section is what its parameters give. The tests hold these
 to the JAX models, for every registered model, within 1e-12 over the models' search ranges.
 A model defined elsewhere has no entry here: its frames are checked on the JAX side.
+:func:`chain_of` gives the hand-command chain its numbers from fitted frames.
 Lengths in mm, angles in degrees.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ._npchain import sincos_deg
+from ._npchain import Chain, sincos_deg
+
+if TYPE_CHECKING:
+    from ._frames import Frames
 
 #: The stage-2 correction's parameters (``AffinePair.param_names``), as the result stores them.
 AFFINE_PARAMS = ("X1", "Y1", "theta1", "Sx1", "Sy1", "X2", "Y2", "theta2", "Sx2", "Sy2")
@@ -72,3 +77,12 @@ def mount_pose_pen(model: str, params: Mapping[str, float]) -> Mount | None:
     if model not in MODELS:
         return None
     return MODELS[model][1](params)
+
+
+def chain_of(frames: Frames) -> Chain:
+    """The numbers the NumPy hand-command chain reads (:class:`~._npchain.Chain`), from fitted
+    frames: of the camera's and the pen's translations, their x and y (their z may be
+    undetermined, NaN; the chain never reads it)."""
+    return Chain(frames.camera_px, frames.R_hand_camera, frames.t_hand_camera_mm[:2].copy(),
+                 frames.t_hand_pen_mm[:2].copy(), frames.A1.as_tuple(), frames.A2.as_tuple(),
+                 frames.centres_mm)  # fmt: skip

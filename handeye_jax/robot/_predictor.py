@@ -15,10 +15,11 @@ from typing import Any
 import numpy as np
 
 from .._core import DIGEST_KEY, InputError, document_digest, read_text
+from ..data import undistort_px
 from . import _npchain
 from ._frames import FORMAT as FRAMES_FORMAT
 from ._frames import MAX_FILE_BYTES, Frames
-from ._npframes import MODELS
+from ._npframes import MODELS, chain_of
 from ._trust import Checked, Reach, check_result_document
 
 RESULT_FORMAT = "handeye-jax.result/1"
@@ -116,9 +117,7 @@ class Predictor:
             raise TypeError(f"expected Frames, got {type(frames).__name__}")
         self._frames = frames
         self._reach = Reach.of_frames(frames) if reach is None else reach
-        # x and y of the camera and the pen: the chain's x-y never reads a z (_npchain says why).
-        self._t_hand_camera = frames.t_hand_camera_mm[:2].copy()
-        self._t_hand_pen = frames.t_hand_pen_mm[:2].copy()
+        self._chain = chain_of(frames)
 
     @classmethod
     def from_frames(cls, frames: Frames, reach: Reach | None = None) -> Predictor:
@@ -203,32 +202,44 @@ class Predictor:
         if uv.ndim != 2 or uv.shape[1] != 2:
             raise ValueError(f"image_px must have shape (n, 2), got {uv.shape}")
         n = uv.shape[0]
+        f = self._frames
+        uv = undistort_px(uv, f.camera_px, f.distortion)  # the chain is a pinhole's
+        if not np.isfinite(uv).all():
+            bad = int(np.flatnonzero(~np.isfinite(uv).all(axis=1))[0])
+            raise ValueError(f"image_px[{bad}] cannot be undistorted with the calibration's "
+                             "lens distortion (the model does not invert there)")  # fmt: skip
         depth = _finite(depth_mm, "depth_mm", (n,))
         if (depth <= 0).any():
             raise ValueError("depth_mm must be > 0")
-        f = self._frames
         phi = f.phi_deg(_finite(hand_angle_deg, "hand_angle_deg", (n,)))
-        cap = f.capture_position_mm
-        if capture_position_mm is not None:
-            cap = _finite(capture_position_mm, "capture_position_mm")
-            if cap.shape not in ((3,), (n, 3)):
-                raise ValueError(f"capture_position_mm must have shape (3,) or ({n}, 3), got "
-                                 f"{cap.shape}")  # fmt: skip
-        cap_angle = f.capture_hand_angle_deg
-        if capture_hand_angle_deg is not None:
-            cap_angle = _finite(capture_hand_angle_deg, "capture_hand_angle_deg")
-            if cap_angle.shape not in ((), (n,)):
-                raise ValueError(f"capture_hand_angle_deg must be a scalar or have shape "
-                                 f"({n},), got {cap_angle.shape}")  # fmt: skip
-        xy = _npchain.hand_command_xy(
-            uv, depth, phi, stage, f.camera_px, f.R_hand_camera, self._t_hand_camera,
-            self._t_hand_pen, cap, f.phi_deg(cap_angle), f.A1.as_tuple(), f.A2.as_tuple(),
-            f.centres_mm,
-        )  # fmt: skip
+        cap, cap_angle = _capture_pose(f, n, capture_position_mm, capture_hand_angle_deg)
+        xy = _npchain.hand_command_xy(self._chain, uv, depth, phi, cap, f.phi_deg(cap_angle),
+                                      stage=stage)  # fmt: skip
         if axes == "xy":
             return xy
-        z = _npchain.image_to_base_z(uv, depth, f.camera_px, f.R_hand_camera, cap)
+        z = _npchain.image_to_base_z(self._chain, uv, depth, cap)
         return np.column_stack([xy, z + f.pen_minus_camera_z_mm])
+
+
+def _capture_pose(
+    frames: Frames, n: int, position_mm: Any, hand_angle_deg: Any
+) -> tuple[np.ndarray, Any]:
+    """The capture pose of ``n`` targets, checked: the hand position, mm, ``(3,)`` or
+    ``(n, 3)``, and its hand angle θh, deg, scalar or ``(n,)``; the calibration's for each
+    one not given."""
+    position = frames.capture_position_mm
+    if position_mm is not None:
+        position = _finite(position_mm, "capture_position_mm")
+        if position.shape not in ((3,), (n, 3)):
+            raise ValueError(f"capture_position_mm must have shape (3,) or ({n}, 3), got "
+                             f"{position.shape}")  # fmt: skip
+    angle = frames.capture_hand_angle_deg
+    if hand_angle_deg is not None:
+        angle = _finite(hand_angle_deg, "capture_hand_angle_deg")
+        if angle.shape not in ((), (n,)):
+            raise ValueError(f"capture_hand_angle_deg must be a scalar or have shape "
+                             f"({n},), got {angle.shape}")  # fmt: skip
+    return position, angle
 
 
 def _finite(x: Any, name: str, shape: tuple[int, ...] | None = None) -> np.ndarray:

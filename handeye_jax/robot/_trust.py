@@ -20,16 +20,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 
 from .._core import MAX_DEG, MAX_MM, MAX_PX, InputError, Reader
+from ..data import undistort_px
 from . import _npchain
 from ._frames import TRANSLATIONS, Affine, Frames
-from ._npframes import AFFINE_PARAMS, MODELS, mount_pose_pen
+from ._npframes import AFFINE_PARAMS, MODELS, chain_of, mount_pose_pen
 
 #: How far beyond the hand positions a calibration recorded (its captures and touches) a hand
 #: command may lie, mm: a camera's view from those poses at a rig's working depths, with room
@@ -38,7 +39,7 @@ REACH_MARGIN_MM = 500.0
 #: How closely the recorded residuals must match the replayed ones, mm (float64 gives 1e-10).
 RESIDUAL_TOL_MM = 1e-6
 #: How closely the frames must match those the parameters give (relative to max(1, |value|)),
-#: as :func:`~handeye_jax._compute_frames.load_frames` checks them with JAX.
+#: as :func:`~handeye_jax.calibration.load_frames` checks them with JAX.
 FRAMES_TOL = 1e-9
 UNDETERMINED = tuple(f"{t}.z" for t in TRANSLATIONS)
 EDITED = "the file was edited after the fit"
@@ -152,8 +153,14 @@ def check_result_document(
         c.fail("model", f"{doc.get('model')!r:.40} has no NumPy twin and the file no frames")
     data = doc.get("data")
     if not isinstance(data, dict):  # an older result, or one made without its data
+        if stored is not None:
+            frames = replace(frames, distortion=stored.distortion)
         return Checked(frames, Reach.of_frames(frames))
     rows = _rows(c, data)
+    if stored is not None and stored.distortion != rows.distortion:
+        c.fail("frames.distortion", f"is {stored.distortion} but the data's camera has "
+               f"{rows.distortion}: {EDITED}")  # fmt: skip
+    frames = replace(frames, distortion=rows.distortion)
     _compare_rig(c, doc, rows)
     reach = Reach.around(rows.positions_mm)
     for key, (e1, e2, command) in (_replay(frames, rows) if rows.n else {}).items():
@@ -322,81 +329,139 @@ class _Rows:
     first_capture_phi_deg: float
     #: every hand position recorded (captures; touches, z NaN where not recorded).
     positions_mm: np.ndarray
+    #: the camera's lens distortion (plumb_bob k1 k2 p1 p2 k3), or None; image_px above are
+    #: undistorted with it, as the fit's observations are.
+    distortion: tuple[float, ...] | None = None
+
+
+class _DataRig(NamedTuple):
+    """The camera, tablet scale and hand-angle convention a result's data record."""
+
+    camera_px: tuple[float, float, float, float]
+    mm_per_tablet_px: float
+    zero_deg: float
+    sign: float
+    distortion: tuple[float, ...] | None
+
+    def phi_deg(self, hand_angle_deg: Any) -> Any:
+        return self.zero_deg + self.sign * hand_angle_deg
+
+
+def _data_rig(c: _Doc, data: dict[str, Any]) -> _DataRig:
+    cam = c.get(data, "camera", "data")
+    camera = tuple(c.number(c.get(cam, k, "data.camera"), f"data.camera.{k}", limit=MAX_PX)
+                   for k in ("fx", "fy", "cx", "cy"))  # fmt: skip
+    lens = cam.get("distortion") if isinstance(cam, dict) else None
+    lens = None if lens is None else tuple(c.vector(lens, "data.camera.distortion", 5, 100.0))
+    tab = c.get(data, "tablet", "data")
+    ppi = c.number(c.get(tab, "ppi", "data.tablet"), "data.tablet.ppi", positive=True)
+    mm_px = 25.4 / ppi * c.number(c.get(tab, "scale", "data.tablet"), "data.tablet.scale")
+    angle = c.get(data, "hand_angle", "data")
+    zero = c.number(c.get(angle, "zero", "data.hand_angle"), "data.hand_angle.zero")
+    sign = c.number(c.get(angle, "sign", "data.hand_angle"), "data.hand_angle.sign")
+    return _DataRig(camera, mm_px, zero, sign, lens)
 
 
 def _rows(c: _Doc, data: dict[str, Any]) -> _Rows:
-    w = "data"
-    cam = c.get(data, "camera", w)
-    camera = tuple(c.number(c.get(cam, k, "data.camera"), f"data.camera.{k}", limit=MAX_PX)
-                   for k in ("fx", "fy", "cx", "cy"))  # fmt: skip
-    tab = c.get(data, "tablet", w)
-    ppi = c.number(c.get(tab, "ppi", "data.tablet"), "data.tablet.ppi", positive=True)
-    mm_px = 25.4 / ppi * c.number(c.get(tab, "scale", "data.tablet"), "data.tablet.scale")
-    angle = c.get(data, "hand_angle", w)
-    zero = c.number(c.get(angle, "zero", "data.hand_angle"), "data.hand_angle.zero")
-    sign = c.number(c.get(angle, "sign", "data.hand_angle"), "data.hand_angle.sign")
-    landmarks = c.get(data, "landmarks", w)
+    """The rows of a result's data (version 1 or 2), each field checked as it is read."""
+    rig = _data_rig(c, data)
+    landmarks = c.get(data, "landmarks", "data")
     tablet_px = c.column(landmarks, "tablet_px", "data.landmarks", (2,), MAX_PX)
-    if "captures" not in data:  # version 1: one capture at φ = 0 seeing every landmark in order
-        cap = c.vector(c.get(c.get(data, "capture", w), "hand_position", "data.capture"),
-                       "data.capture.hand_position", 3, MAX_MM)  # fmt: skip
-        n = len(landmarks)
-        capture = np.tile(cap, (n, 1))
-        arrays = {k: c.column(landmarks, k, "data.landmarks", s, lim) for k, s, lim in (
-            ("image_px", (2,), MAX_PX), ("depth", (), MAX_MM), ("hand_xy", (2,), MAX_MM),
-            ("hand_angle", (), MAX_DEG), ("touch_error_px", (2,), MAX_PX))}  # fmt: skip
-        return _Rows(
-            n, arrays["image_px"], arrays["depth"], capture, np.zeros(n), tablet_px * mm_px,
-            arrays["hand_xy"], zero + sign * arrays["hand_angle"],
-            arrays["touch_error_px"] * mm_px, camera, zero, sign, np.asarray(cap), 0.0,
-            np.vstack([capture[:1], np.column_stack([arrays["hand_xy"], np.full(n, np.nan)])]),
-        )  # fmt: skip
-    touches = c.get(data, "touches", w)
+    if "captures" not in data:
+        rows = _rows_v1(c, data, rig, landmarks, tablet_px)
+    else:
+        rows = _rows_v2(c, data, rig, len(landmarks), tablet_px)
+    if rig.distortion is None:
+        return rows
+    # the fit's observations are undistorted
+    image = undistort_px(rows.image_px, rig.camera_px, rig.distortion)
+    if not np.isfinite(image).all():
+        c.fail("data.camera.distortion", "cannot undistort the data's image points")
+    return replace(rows, image_px=image, distortion=rig.distortion)
+
+
+def _rows_v1(c: _Doc, data: dict[str, Any], rig: _DataRig, landmarks: Any,
+             tablet_px: np.ndarray) -> _Rows:  # fmt: skip
+    """Version 1: one capture at φ = 0 seeing every landmark, each touched once in order."""
+    cap = c.vector(c.get(c.get(data, "capture", "data"), "hand_position", "data.capture"),
+                   "data.capture.hand_position", 3, MAX_MM)  # fmt: skip
+    n = len(landmarks)
+    capture = np.tile(cap, (n, 1))
+    arrays = {k: c.column(landmarks, k, "data.landmarks", s, lim) for k, s, lim in (
+        ("image_px", (2,), MAX_PX), ("depth", (), MAX_MM), ("hand_xy", (2,), MAX_MM),
+        ("hand_angle", (), MAX_DEG), ("touch_error_px", (2,), MAX_PX))}  # fmt: skip
+    mm_px = rig.mm_per_tablet_px
+    return _Rows(
+        n=n, image_px=arrays["image_px"], depth_mm=arrays["depth"], capture_mm=capture,
+        capture_phi_deg=np.zeros(n), tablet_mm=tablet_px * mm_px, hand_xy_mm=arrays["hand_xy"],
+        phi_deg=rig.phi_deg(arrays["hand_angle"]), touch_error_mm=arrays["touch_error_px"] * mm_px,
+        camera_px=rig.camera_px, zero_deg=rig.zero_deg, sign=rig.sign,
+        first_capture_mm=np.asarray(cap), first_capture_phi_deg=0.0,
+        positions_mm=np.vstack([capture[:1],
+                                np.column_stack([arrays["hand_xy"], np.full(n, np.nan)])]),
+    )  # fmt: skip
+
+
+def _rows_v2(c: _Doc, data: dict[str, Any], rig: _DataRig, n_landmarks: int,
+             tablet_px: np.ndarray) -> _Rows:  # fmt: skip
+    """Version 2: one row per view of a touched landmark and touch of it, capture by capture
+    (as ``Dataset.observations`` orders them)."""
+    touches = c.get(data, "touches", "data")
     touched = _indices(c, c.column(touches, "landmark", "data.touches", ()), "data.touches",
-                       "landmark", len(landmarks))  # fmt: skip
+                       "landmark", n_landmarks)  # fmt: skip
     hand_xy = c.column(touches, "hand_xy", "data.touches", (2,))
     hand_angle = c.column(touches, "hand_angle", "data.touches", (), MAX_DEG)
     touch_error = c.column(touches, "touch_error_px", "data.touches", (2,), MAX_PX)
     hand_z = np.array([t.get("hand_z", np.nan) if isinstance(t.get("hand_z"), int | float)
                        else np.nan for t in touches], dtype=np.float64)  # fmt: skip
-    captures = c.get(data, "captures", w)
+    captures = c.get(data, "captures", "data")
     if not isinstance(captures, list) or not captures:
         c.fail("data.captures", "must be a non-empty array")
-    image, depth, cap_mm, cap_phi, rows_t = [], [], [], [], []
-    positions = []
-    for i, cap in enumerate(captures):
-        cw = f"data.captures[{i}]"
-        position = c.vector(c.get(cap, "hand_position", cw), f"{cw}.hand_position", 3, MAX_MM)
-        phi = zero + sign * c.number(c.get(cap, "hand_angle", cw), f"{cw}.hand_angle",
-                                     limit=MAX_DEG)  # fmt: skip
-        seen = _indices(c, c.column(c.get(cap, "landmarks", cw), None, f"{cw}.landmarks", ()),
-                        f"{cw}.landmarks", "", len(landmarks))  # fmt: skip
-        uv = c.column(c.get(cap, "image_px", cw), None, f"{cw}.image_px", (2,), MAX_PX)
-        d = c.column(c.get(cap, "depth", cw), None, f"{cw}.depth", ())
-        if not len(seen) == len(uv) == len(d):
-            c.fail(f"{cw}.image_px", "must have one entry per landmark seen")
-        positions.append(position)
-        where = {int(m): k for k, m in enumerate(seen)}
-        touched_list = touched.tolist()
-        for t, m in enumerate(touched_list):
-            if m in where:
-                k = where[m]
-                image.append(uv[k])
-                depth.append(d[k])
-                cap_mm.append(position)
-                cap_phi.append(phi)
-                rows_t.append(t)
-    t = np.asarray(rows_t, dtype=np.int64)
-    landmark = touched[t]
+    views = [_views(c, i, cap, rig, touched.tolist(), n_landmarks)
+             for i, cap in enumerate(captures)]  # fmt: skip
+    t = np.asarray([k for v in views for k in v.touch], dtype=np.int64)
     n = len(t)
-    first_phi = zero + sign * float(captures[0]["hand_angle"])
+    positions = np.asarray([v.position_mm for v in views])
+    mm_px = rig.mm_per_tablet_px
     return _Rows(
-        n, np.reshape(image, (n, 2)), np.asarray(depth, float), np.reshape(cap_mm, (n, 3)),
-        np.asarray(cap_phi, float), tablet_px[landmark] * mm_px, hand_xy[t],
-        zero + sign * hand_angle[t], touch_error[t] * mm_px, camera, zero, sign,
-        np.asarray(positions[0]), first_phi,
-        np.vstack([np.asarray(positions), np.column_stack([hand_xy, hand_z])]),
+        n=n, image_px=np.reshape([x for v in views for x in v.image_px], (n, 2)),
+        depth_mm=np.asarray([x for v in views for x in v.depth_mm], float),
+        capture_mm=np.reshape([v.position_mm for v in views for _ in v.touch], (n, 3)),
+        capture_phi_deg=np.asarray([v.phi_deg for v in views for _ in v.touch], float),
+        tablet_mm=tablet_px[touched[t]] * mm_px, hand_xy_mm=hand_xy[t],
+        phi_deg=rig.phi_deg(hand_angle[t]), touch_error_mm=touch_error[t] * mm_px,
+        camera_px=rig.camera_px, zero_deg=rig.zero_deg, sign=rig.sign,
+        first_capture_mm=positions[0],
+        first_capture_phi_deg=rig.phi_deg(float(captures[0]["hand_angle"])),
+        positions_mm=np.vstack([positions, np.column_stack([hand_xy, hand_z])]),
     )  # fmt: skip
+
+
+class _Views(NamedTuple):
+    """One capture's rows: for each touch of a landmark it sees, the touch's number and the
+    landmark's picture point (px) and depth (mm); and the capture's pose (mm, φ deg)."""
+
+    touch: list[int]
+    image_px: list[np.ndarray]
+    depth_mm: list[float]
+    position_mm: np.ndarray
+    phi_deg: float
+
+
+def _views(c: _Doc, i: int, cap: Any, rig: _DataRig, touched: list[int], n: int) -> _Views:
+    cw = f"data.captures[{i}]"
+    position = c.vector(c.get(cap, "hand_position", cw), f"{cw}.hand_position", 3, MAX_MM)
+    phi = rig.phi_deg(c.number(c.get(cap, "hand_angle", cw), f"{cw}.hand_angle", limit=MAX_DEG))
+    seen = _indices(c, c.column(c.get(cap, "landmarks", cw), None, f"{cw}.landmarks", ()),
+                    f"{cw}.landmarks", "", n)  # fmt: skip
+    uv = c.column(c.get(cap, "image_px", cw), None, f"{cw}.image_px", (2,), MAX_PX)
+    d = c.column(c.get(cap, "depth", cw), None, f"{cw}.depth", ())
+    if not len(seen) == len(uv) == len(d):
+        c.fail(f"{cw}.image_px", "must have one entry per landmark seen")
+    where = {int(m): k for k, m in enumerate(seen)}
+    rows = [(t, where[m]) for t, m in enumerate(touched) if m in where]
+    return _Views([t for t, _ in rows], [uv[k] for _, k in rows], [d[k] for _, k in rows],
+                  position, phi)  # fmt: skip
 
 
 def _indices(c: _Doc, x: np.ndarray, where: str, key: str, n: int) -> np.ndarray:
@@ -439,15 +504,15 @@ def _compare_rig(c: _Doc, doc: dict[str, Any], rows: _Rows) -> None:
 def _replay(f: Frames, rows: _Rows) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Each stage's error vectors (image vs tablet, hand) and hand commands at the data's
     rows, as the fit computes them (``_objective.stage1_errors``, ``stage2_errors``), mm."""
-    x_bi = _npchain.image_to_base_xy(rows.image_px, rows.depth_mm, f.camera_px, f.R_hand_camera,
-                                     f.t_hand_camera_mm, rows.capture_mm,
+    chain = chain_of(f)
+    x_bi = _npchain.image_to_base_xy(chain, rows.image_px, rows.depth_mm, rows.capture_mm,
                                      rows.capture_phi_deg)  # fmt: skip
     R = f.R_base_tablet[:2, :2]
     x_bt = rows.tablet_mm @ R.T + f.t_base_tablet_mm[:2]
     target = rows.hand_xy_mm - rows.touch_error_mm @ R.T
-    offset = _npchain.pen_offset_xy(f.t_hand_pen_mm, rows.phi_deg)
-    a1 = _npchain.affine_about(x_bi, f.centres_mm[0], f.A1.as_tuple())
-    command2 = _npchain.affine_about(a1 - offset, f.centres_mm[1], f.A2.as_tuple())
+    offset = _npchain.pen_offset_xy(chain.t_hand_pen_mm, rows.phi_deg)
+    a1 = _npchain.affine_about(x_bi, chain.centres_mm[0], chain.A1)
+    command2 = _npchain.affine_about(a1 - offset, chain.centres_mm[1], chain.A2)
     command1 = x_bi - offset
     return {"stage1": (x_bi - x_bt, command1 - target, command1),
             "stage2": (a1 - x_bt, command2 - target, command2)}  # fmt: skip

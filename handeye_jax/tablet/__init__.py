@@ -1,7 +1,11 @@
-"""The tablet app: a page that draws the landmarks, records the pen, and measures touch errors.
+"""The tablet app: a page that draws the landmarks, records the pen, and measures touch errors;
+and its server: the app's state and the files it writes (touch errors into the dataset with
+bounded backups, trials), HTTP on asyncio and h11 with a cap on connections and a deadline per
+request, the answers to each route, the guard (the secret, ``Host`` and ``Origin``), the posts'
+validation, a printable, rate-bounded log, and the start-up that checks every file first.
 
-:func:`make_server` binds the HTTP server (asyncio and h11: a cap on connections, a deadline
-for each request); :func:`serve` runs it until Ctrl-C. Only whoever has the secret the server
+:func:`make_server` checks the inputs and binds the server; :func:`serve` runs it until
+Ctrl-C. Only whoever has the secret the server
 prints (in its URL and QR code) can use it (:mod:`.guard`). The page lives in ``static/``
 (HTML, JS and CSS; no build step).
 """

@@ -21,7 +21,7 @@ import ipaddress
 import socket
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -37,6 +37,9 @@ from ._handler import TabletHandler
 from ._http import HTTPServer
 from ._log import Log, printable
 from ._targets import load_targets
+
+if TYPE_CHECKING:
+    from ..data import Dataset
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
@@ -183,41 +186,21 @@ def make_server(
     except ValueError as e:
         raise InputError(None, "token", str(e)) from None
     ds_path = Path(dataset) if dataset is not None else None
-    ds = load_dataset(ds_path) if ds_path is not None else None
-    if ds is not None and ds.n_landmarks > posts.MAX_TOUCHES:
-        raise InputError(ds_path, "landmarks", f"{ds.n_landmarks} landmarks; the tablet page "
-                         f"takes at most {posts.MAX_TOUCHES} in a run")  # fmt: skip
-    if ppi is None and ds is not None:
-        ppi = ds.tablet_ppi
-    if scale is None and ds is not None:
-        scale = ds.tablet_scale
-    for name, v in (("--ppi", ppi), ("--scale", scale)):
-        if v is None:
-            raise InputError(None, name, "needed without --dataset, to turn tablet px into mm")
-        if not np.isfinite(v) or v <= 0:
-            raise InputError(None, name, f"must be a finite number > 0 (got {v})")
+    ds = _dataset(ds_path) if ds_path is not None else None
+    ppi, scale = _tablet_scale(ds, ppi, scale)
     default_trials = trials_path is None
-    if trials_path is None:
-        trials_path = (
-            ds_path.with_name(ds_path.stem + ".trials.json") if ds_path else "tablet-trials.json"
-        )
-    trials_path = Path(trials_path)
+    trials_path = Path(_default_trials(ds_path) if default_trials else trials_path)
     _check_outputs(ds_path, trials_path, default_trials, [targets, result])
-    info = _result_info(result) if result is not None else None
-    if info is not None and ds is not None and info["dataset"] != ds.name:
-        info["note"] = (
-            f"the result was fitted on dataset {info['dataset']!r}, not on {ds.name!r}: "
-            "its landmarks are not these"
-        )
+    info = _result_info(result, ds) if result is not None else None
     app = TabletApp(
         dataset_path=ds_path,
-        ppi=float(ppi),
-        scale=float(scale),
+        ppi=ppi,
+        scale=scale,
         trials_path=trials_path,
         targets_path=Path(targets) if targets is not None else None,
         targets_px=load_targets(targets) if targets is not None else None,
         result=info,
-        trials_doc=trials.load_trials(trials_path, float(ppi), float(scale)),
+        trials_doc=trials.load_trials(trials_path, ppi, scale),
     )
     if not 0 <= port <= 65535:
         raise InputError(None, "--port", f"must be 0 to 65535 (got {port})")
@@ -229,6 +212,38 @@ def make_server(
         raise InputError(None, "--host", f"cannot use {host!r}: {e.strerror}") from None
     except OSError as e:
         raise _bind_error(e, host, port) from None
+
+
+def _dataset(path: Path) -> Dataset:
+    """The dataset to draw, with no more landmarks than a run may touch."""
+    ds = load_dataset(path)
+    if ds.n_landmarks > posts.MAX_TOUCHES:
+        raise InputError(path, "landmarks", f"{ds.n_landmarks} landmarks; the tablet page "
+                         f"takes at most {posts.MAX_TOUCHES} in a run")  # fmt: skip
+    return ds
+
+
+def _default_trials(dataset: Path | None) -> Path:
+    """Where trials go without ``--trials``: beside the dataset, else in the current folder."""
+    return (
+        dataset.with_name(dataset.stem + ".trials.json") if dataset else Path("tablet-trials.json")
+    )
+
+
+def _tablet_scale(
+    ds: Dataset | None, ppi: float | None, scale: float | None
+) -> tuple[float, float]:
+    """The tablet's px per inch and display scale: as given, else the dataset's."""
+    if ppi is None and ds is not None:
+        ppi = ds.tablet_ppi
+    if scale is None and ds is not None:
+        scale = ds.tablet_scale
+    for name, v in (("--ppi", ppi), ("--scale", scale)):
+        if v is None:
+            raise InputError(None, name, "needed without --dataset, to turn tablet px into mm")
+        if not np.isfinite(v) or v <= 0:
+            raise InputError(None, name, f"must be a finite number > 0 (got {v})")
+    return float(ppi), float(scale)
 
 
 def _check_outputs(
@@ -274,11 +289,19 @@ def _bind_error(e: OSError, host: str, port: int) -> InputError:
     return InputError(None, "--host", f"cannot listen on {where}: {e.strerror or e}")
 
 
-def _result_info(path: str | Path) -> dict[str, Any]:
+def _result_info(path: str | Path, ds: Dataset | None) -> dict[str, Any]:
+    """What the page shows of the result being evaluated, with a note if it was fitted on
+    another dataset than ``ds``."""
     from ..calibration import load_result
 
     r = load_result(path)
-    return {"path": str(path), "model": r.model_name, "seed": r.seed, "dataset": r.dataset_name}
+    info = {"path": str(path), "model": r.model_name, "seed": r.seed, "dataset": r.dataset_name}
+    if ds is not None and info["dataset"] != ds.name:
+        info["note"] = (
+            f"the result was fitted on dataset {info['dataset']!r}, not on {ds.name!r}: "
+            "its landmarks are not these"
+        )
+    return info
 
 
 def serve(dataset: str | Path | None = None, **kwargs: Any) -> int:

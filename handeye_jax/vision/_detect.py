@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import io
 import itertools
+import math
 import os
 import struct
 import sys
@@ -66,6 +67,8 @@ class DetectSettings:
         min_area_px, max_area_px: blobs outside these areas (image px²) are ignored.
         centroid_window_px: the centroid is taken over ``±centroid_window_px`` pixels.
         depth_window_px: depth is the median over ``±depth_window_px`` pixels.
+        depth_scale_mm: mm per unit of the 16-bit depth image (RealSense's ``depth_scale``
+            in mm: 1 for its default 0.001 m units, 0.1 for 0.0001 m).
     """
 
     threshold: str = "otsu"
@@ -79,8 +82,12 @@ class DetectSettings:
     max_area_px: int = MAX_AREA_PX
     centroid_window_px: int = 1
     depth_window_px: int = 2
+    depth_scale_mm: float = 1.0
 
     def __post_init__(self):
+        if not (math.isfinite(self.depth_scale_mm) and 0 < self.depth_scale_mm <= 100):
+            raise ValueError(f"depth_scale_mm must be > 0 and at most 100 mm per unit (got "
+                             f"{self.depth_scale_mm})")  # fmt: skip
         if self.threshold not in ("otsu", "adaptive"):
             raise ValueError(f"threshold must be 'otsu' or 'adaptive' (got {self.threshold!r})")
         for name in ("background_px", "adaptive_block_px"):
@@ -274,27 +281,9 @@ def order_blobs(
         # whole layout as a part is matched.
         return match_blobs(blobs_px, layout_px)[1]
     spacing = np.min([np.linalg.norm(a - b) for a, b in itertools.combinations(blobs_px, 2)])
-    candidates = []
-    for mirror in (False, True):
-        ring = q_blobs[::-1] if mirror else q_blobs
-        for turn in range(4):
-            dst = np.roll(ring, turn)
-            H = cv2.getPerspectiveTransform(
-                layout_px[q_layout].astype(np.float32), blobs_px[dst].astype(np.float32)
-            )
-            mapped = cv2.perspectiveTransform(layout_px[None].astype(np.float64), H)[0]
-            dist = np.linalg.norm(mapped[:, None] - blobs_px[None], axis=2)
-            order = dist.argmin(axis=1)
-            if len(set(order.tolist())) != n:
-                continue
-            rms = float(np.sqrt(np.mean(dist[np.arange(n), order] ** 2)))
-            # Direction of tablet +x in the picture, at the layout's centre.
-            c = layout_px.mean(axis=0)
-            ends = cv2.perspectiveTransform(np.array([[c, c + [1.0, 0.0]]]), H)[0]
-            x_dir = ends[1] - ends[0]
-            cos_u = x_dir[0] / (np.linalg.norm(x_dir) + 1e-300)
-            det = np.linalg.det(H[:2, :2])
-            candidates.append((rms, cos_u, det > 0, order))
+    candidates = [m for m in (_corner_match(blobs_px, layout_px, q_layout, np.roll(ring, turn))
+                              for ring in (q_blobs, q_blobs[::-1]) for turn in range(4))
+                  if m is not None]  # fmt: skip
     if not candidates:
         raise ValueError("no turn or mirror of the drawn layout matches the blobs one to one")
     best_rms = min(c[0] for c in candidates)
@@ -302,6 +291,28 @@ def order_blobs(
     # Prefer unmirrored matches, then tablet +x along +u.
     good.sort(key=lambda c: (not c[2], -c[1]))
     return good[0][3]
+
+
+def _corner_match(blobs_px, layout_px, q_layout, q_blobs):
+    """The layout's outermost four mapped onto the blobs' four ``q_blobs`` (in that order), and
+    every landmark onto its nearest blob: ``(rms px, cos of tablet +x from +u, unmirrored,
+    order)``, or ``None`` if two landmarks take one blob."""
+    n = len(layout_px)
+    H = cv2.getPerspectiveTransform(
+        layout_px[q_layout].astype(np.float32), blobs_px[q_blobs].astype(np.float32)
+    )
+    mapped = cv2.perspectiveTransform(layout_px[None].astype(np.float64), H)[0]
+    dist = np.linalg.norm(mapped[:, None] - blobs_px[None], axis=2)
+    order = dist.argmin(axis=1)
+    if len(set(order.tolist())) != n:
+        return None
+    rms = float(np.sqrt(np.mean(dist[np.arange(n), order] ** 2)))
+    # Direction of tablet +x in the picture, at the layout's centre.
+    c = layout_px.mean(axis=0)
+    ends = cv2.perspectiveTransform(np.array([[c, c + [1.0, 0.0]]]), H)[0]
+    x_dir = ends[1] - ends[0]
+    cos_u = x_dir[0] / (np.linalg.norm(x_dir) + 1e-300)
+    return rms, cos_u, np.linalg.det(H[:2, :2]) > 0, order
 
 
 #: Most landmarks for which :func:`match_blobs` tries every subset (C(n, 4) quadrilaterals).
@@ -490,25 +501,14 @@ def match_blobs(
     best = area.argmax()
     if area[best] < MIN_TRIANGLE * spacing**2:
         raise ValueError(f"no four of the {k} blobs span a quadrilateral (nearly collinear?)")
-    which = _readings(blobs_px, layout_px, quads[best], convex[best])
-    if not len(which):
-        raise ValueError(f"no part of the drawn layout matches the {k} blobs one to one")
-    # Least squares in the algebraic error, all at once, sorts out the readings no camera sees
-    # (with a margin); those left are fitted by their reprojection error, blob noise's own.
-    H = _fit_homographies(layout_px[which], np.broadcast_to(blobs_px, (len(which), k, 2)))
-    which = which[_assess(H, which, blobs_px, layout_px, 1.5 * MAX_ANISOTROPY)[0]]
-    fits = [(w, cv2.findHomography(layout_px[w], blobs_px, 0)[0]) for w in which]
-    fits = [(w, H) for w, H in fits if H is not None]
-    if not fits:
-        raise ValueError(f"no part of the drawn layout matches the {k} blobs one to one")
-    which, H = np.array([w for w, _ in fits]), np.array([H for _, H in fits])
+    which, H = _fitted_readings(blobs_px, layout_px, quads[best], convex[best])
     ok, rms, x_deg, unmirrored = _assess(H, which, blobs_px, layout_px, MAX_ANISOTROPY)
     if not ok.any():
         raise ValueError(f"no part of the drawn layout matches the {k} blobs one to one")
     good = np.flatnonzero(ok & (rms <= rms[ok].min() + 0.1 * spacing))
     good = good[np.lexsort((-np.cos(np.radians(x_deg[good])), ~unmirrored[good]))]
     first = good[0]
-    for other in good[1:]:
+    for other in good[1:]:  # another reading about as plausible: nothing is guessed
         turned = abs((x_deg[other] - x_deg[first] + 180.0) % 360.0 - 180.0)
         plausible = turned < 15.0 or abs(x_deg[other]) < PLAUSIBLE_TURN_DEG
         if unmirrored[other] == unmirrored[first] and plausible:
@@ -517,6 +517,24 @@ def match_blobs(
                              "landmarks seen")  # fmt: skip
     order = np.argsort(which[first])
     return which[first][order], order
+
+
+def _fitted_readings(blobs_px, layout_px, frame, convex):
+    """The readings (:func:`_readings`) from the four blobs ``frame`` that a camera might see,
+    ``(r, k)``, each with its homography fitted to all its pairs by reprojection error,
+    ``(r, 3, 3)``. Least squares in the algebraic error, all at once, first sorts out the
+    readings no camera sees (with a margin)."""
+    k = len(blobs_px)
+    which = _readings(blobs_px, layout_px, frame, convex)
+    if not len(which):
+        raise ValueError(f"no part of the drawn layout matches the {k} blobs one to one")
+    H = _fit_homographies(layout_px[which], np.broadcast_to(blobs_px, (len(which), k, 2)))
+    which = which[_assess(H, which, blobs_px, layout_px, 1.5 * MAX_ANISOTROPY)[0]]
+    fits = [(w, cv2.findHomography(layout_px[w], blobs_px, 0)[0]) for w in which]
+    fits = [(w, H) for w, H in fits if H is not None]
+    if not fits:
+        raise ValueError(f"no part of the drawn layout matches the {k} blobs one to one")
+    return np.array([w for w, _ in fits]), np.array([H for _, H in fits])
 
 
 def depth_at(
@@ -685,7 +703,8 @@ def detect_landmarks(
 
     Args:
         capture_path: the colour picture (8-bit PNG).
-        depth_path: the depth image (16-bit PNG, mm, 0 = no measurement), same size.
+        depth_path: the depth image (16-bit PNG in units of ``settings.depth_scale_mm``, 0 =
+            no measurement), aligned to the picture: the same size, pixel for pixel.
         layout_px: where the landmarks are drawn, tablet px, ``(n, 2)``, in landmark order.
         settings: detection settings.
         partial: the picture may show only some landmarks (a capture of a version-2
@@ -730,7 +749,7 @@ def detect_landmarks(
         raise BlobCountError(capture_path, blobs, expected, per="per landmark seen" * partial
                              or "per landmark")  # fmt: skip
     image_px = blobs.image_px[order]
-    depth_mm = depth_at(depth, image_px, settings.depth_window_px)
+    depth_mm = depth_at(depth, image_px, settings.depth_window_px) * settings.depth_scale_mm
     missing = np.flatnonzero(~np.isfinite(depth_mm))
     if missing.size and not partial:
         u, v = image_px[missing[0]]
