@@ -45,14 +45,16 @@ def batch_twins():
 
 
 def numbers(results) -> list[dict]:
-    """Each result's F and parameters of both stages."""
-    return [{"F1": r.stage1.F, "F2": r.stage2.F, "p1": r.stage1.params, "p2": r.stage2.params}
+    """Each result's F and parameters of both stages, and where each stage's DE stopped."""
+    return [{"F1": r.stage1.F, "F2": r.stage2.F, "p1": r.stage1.params, "p2": r.stage2.params,
+             "stops": [r.stage1.de.generations, r.stage2.de.generations]}
             for r in results]  # fmt: skip
 
 
 def assert_same(got: list[dict], want: list[dict]) -> None:
     assert len(got) == len(want)
     for g, w in zip(got, want, strict=True):
+        assert g["stops"] == w["stops"]  # each problem's own early stop
         for stage in ("1", "2"):
             assert abs(g["F" + stage] - w["F" + stage]) <= 1e-9
             assert g["p" + stage].keys() == w["p" + stage].keys()
