@@ -55,7 +55,7 @@ import json, os, sys, time
 t0 = time.perf_counter()
 import handeye_jax.cli as cli
 import jax, jax.monitoring
-import handeye_jax.calibration._pipeline as cal
+import handeye_jax.calibration._batch as cal
 import handeye_jax.diagnostics as diagnostics
 t_import = time.perf_counter() - t0
 events = []  # (end time, kind, seconds, program)
@@ -63,21 +63,22 @@ jax.monitoring.register_event_duration_secs_listener(
     lambda name, secs, **kw: events.append((time.perf_counter(), name, secs,
                                             str(kw.get("fun_name", "?")))))
 spans = []  # (label, start, end)
-fit_stage, diagnose = cal.fit_stage, diagnostics.diagnose
-def timed_fit_stage(*args, **kwargs):
+fit_stages, diagnose = cal.fit_stages, diagnostics.diagnose
+def timed_fit_stages(*args, **kwargs):
     start = time.perf_counter()
-    fit = fit_stage(*args, **kwargs)
+    fits = fit_stages(*args, **kwargs)
+    fit = fits[0]
     end = time.perf_counter()
     stage = "stage2" if len([s for s in spans if s[0].endswith("_de")]) else "stage1"
     spans.extend([(f"{stage}_de", start, end - fit.timings["polish"]),
                   (f"{stage}_polish", end - fit.timings["polish"], end)])
-    return fit
+    return fits
 def timed_diagnose(*args, **kwargs):
     start = time.perf_counter()
     out = diagnose(*args, **kwargs)
     spans.append(("diagnostics", start, time.perf_counter()))
     return out
-cal.fit_stage, diagnostics.diagnose = timed_fit_stage, timed_diagnose
+cal.fit_stages, diagnostics.diagnose = timed_fit_stages, timed_diagnose
 t1 = time.perf_counter()
 code = cli.main(sys.argv[2:])
 t_end = time.perf_counter()

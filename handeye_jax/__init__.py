@@ -52,6 +52,7 @@ _EXPORTS = {
     "AffinePair": "models",
     "analyse_jacobian": "problem",
     "calibrate": "calibration",
+    "calibrate_batch": "calibration",
     "CalibrationResult": "calibration",
     "Camera": "data",
     "change_truth": "twin",
@@ -198,6 +199,7 @@ if TYPE_CHECKING:
     from ._core._errors import InputError
     from ._jax._x64 import float64
     from ._jax._xla import store_programs, vectorise_small_loops
+    from .calibration._batch import calibrate_batch
     from .calibration._payloads import (
         ConventionCheck,
         Convergence,
@@ -217,12 +219,13 @@ if TYPE_CHECKING:
     )
     from .calibration._pipeline import calibrate, fit, fit_correction, recalibrate
     from .calibration._plans import Plan, full_plan, recalibration_plan
+    from .calibration._ranges import SearchRange, SearchReport, plan_search
     from .calibration._result import CalibrationResult, StageResult
     from .calibration._result_frames import compute_frames
     from .calibration._result_io import load_frames, load_result, save_result
-    from .calibration._search import SearchRange, SearchReport, plan_search
+    from .calibration._search import fit_stage
     from .calibration._settings import Settings
-    from .calibration._stage import StageFit, fit_stage
+    from .calibration._stage import StageFit
     from .data._convert import convert_to_v2
     from .data._dataset import Camera, Capture, Dataset
     from .data._edit import update_dataset
@@ -373,6 +376,7 @@ __all__ = [
     "WeightedLengthBlock",
     "analyse_jacobian",
     "calibrate",
+    "calibrate_batch",
     "chain_points",
     "change_truth",
     "compute_frames",

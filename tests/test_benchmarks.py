@@ -159,8 +159,8 @@ def test_startup_times_every_command_and_the_parts_of_a_calibration():
         for part in ("import", "stage1_de", "stage1_polish", "stage2_polish", "whole process"):
             assert re.search(rf"^\| {kind} \| {part} \| \d+\.\d\d \| ", out, re.M), (kind, part)
     # the cold run's programs: the DE loop and the LM polish of both stages are in it
-    assert re.search(r"^\| _chunk_scan \| 2 \| ", out, re.M)
-    assert re.search(r"^\| _lm \| 2 \| ", out, re.M) and "| all |" in out
+    assert re.search(r"^\| _de_chunk \| 2 \| ", out, re.M)  # optim/_many's, a batch of one
+    assert re.search(r"^\| _polish \| 2 \| ", out, re.M) and "| all |" in out
     assert re.search(r"NumPy Predictor, in this process: \d+\.\d+ µs per point", out)
 
 

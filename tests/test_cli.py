@@ -456,8 +456,9 @@ def _subcommands():
     return sub.choices
 
 
-SUBCOMMANDS = ["calibrate", "predict", "report", "tablet", "simulate", "detect", "evaluate",
-               "export", "convert", "plan", "poses", "intrinsics"]  # fmt: skip
+SUBCOMMANDS = ["calibrate", "calibrate-batch", "predict", "report", "tablet", "simulate",
+               "detect", "evaluate", "export", "convert", "plan", "poses",
+               "intrinsics"]  # fmt: skip
 
 
 @pytest.mark.parametrize("name", SUBCOMMANDS)

@@ -53,3 +53,6 @@ RECOMMENDED_CAPTURES = ((40.0, 30.0), (80.0, -30.0))
 SEARCH_PRESETS = ("estimate", "paper")
 #: Models whose random wide rigs ``simulate --wide`` draws.
 WIDE_MODELS = ("htm", "dh")
+#: Problems per device in one wave of a batch (``calibrate_batch``, ``calibrate-batch
+#: --wave``): the most fitted at once, so that memory stays bounded and the progress bar moves.
+BATCH_WAVE = 64

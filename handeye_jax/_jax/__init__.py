@@ -1,5 +1,6 @@
 """How the package runs JAX: float64 without touching the user's global configuration, XLA's
-options per kind of program, and the programs kept between runs (``jax.export``)."""
+options per kind of program, the programs kept between runs (``jax.export``), and a batch of
+problems split over the devices (``jax.sharding``)."""
 
 from __future__ import annotations
 
@@ -9,9 +10,10 @@ from .._core import lazy_exports
 # fmt: off
 _EXPORTS = {
     "_x64": ("float64", "in_float64"),
+    "_shard": ("Blocks", "padded_size", "per_device", "problem_mesh", "PROBLEMS"),
     "_xla": (
-        "fast_compile", "hot_loop", "loop_compiler_options", "store_programs",
-        "vectorise_small_loops",
+        "fast_compile", "fast_compile_options", "hot_loop", "loop_compiler_options",
+        "store_programs", "vectorise_small_loops",
     ),
 }
 # fmt: on

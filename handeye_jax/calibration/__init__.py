@@ -13,24 +13,29 @@ from .._core import lazy_exports
 # fmt: off
 _EXPORTS = {
     "_advice": ("AdviceContext", "bound_hits", "bound_warning"),
+    "_batch": ("calibrate_batch", "fit_batch", "WAVE"),
     "_fitted": ("fitted_stages", "FittedStage"),
     "_payloads": (
         "BoundHit", "Convention", "ConventionCheck", "ConventionFit", "Convergence", "DESummary",
         "Diagnostics", "FitWarning", "HeldOut", "LeaveOneOut", "LossInfo", "Mode", "PolishSummary",
         "PriorReport", "Pull", "Recalibration", "Residual", "Scope", "SignTwin", "StageDiagnostics",
     ),
-    "_pipeline": ("calibrate", "fit", "fit_correction", "recalibrate", "RESTART_LANDMARKS"),
+    "_pipeline": ("calibrate", "fit", "fit_correction", "recalibrate"),
     "_plans": ("full_plan", "Plan", "recalibration_plan"),
     "_result": ("CalibrationResult", "StageResult"),
     "_result_frames": ("compute_frames",),
-    "_result_io": ("load_frames", "load_result", "result_to_json", "save_result"),
-    "_search": (
+    "_ranges": (
         "BOX_SIGMAS", "estimate_box", "HALF_WIDTH", "plan_search", "SearchPlan", "SearchRange",
         "SearchReport",
     ),
+    "_result_io": (
+        "load_frames", "load_result", "result_from_json", "result_to_json", "save_result",
+    ),
     "_rig_change": ("change_line",),
     "_settings": ("Settings",),
-    "_stage": ("fit_stage", "POLISH", "Population", "StageFit", "with_prior"),
+    "_search": ("fit_stage", "fit_stages"),
+    "_stage": ("POLISH", "Population", "StageFit", "with_prior"),
+    "_tasks": ("EXACT_ROWS", "padded_rows", "RESTART_LANDMARKS"),
     "_starts": ("convention_index", "CONVENTIONS", "REFIT_STARTS", "uniform_starts"),
     "_warnings": ("all_warnings", "check_determined", "PULL_FLAG"),
 }

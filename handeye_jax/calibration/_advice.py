@@ -27,8 +27,8 @@ from ..data import Observations
 from ..problem import JacobianAnalysis, ParameterSpace
 from ._payloads import BoundHit
 from ._plans import PRIOR_BOX_SIGMAS
+from ._ranges import SearchReport, estimate_box
 from ._result import StageResult
-from ._search import SearchReport, estimate_box
 
 #: A parameter closer than this fraction of its range to a bound is on the bound.
 BOUND_FRACTION = 1e-3

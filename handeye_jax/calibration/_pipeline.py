@@ -1,5 +1,5 @@
-"""The two-stage calibration: one generic stage fit (:mod:`._stage`), run for the model and
-then for the correction on the model's chain points.
+"""The two-stage calibration: one generic stage fit (:mod:`._search`), run for the model and
+then for the correction on the model's chain points (:mod:`._batch`, for one dataset or many).
 
 :func:`fit` runs any :class:`Plan`; :func:`calibrate` fits every parameter; :func:`recalibrate`
 starts from a previous result (the paper's open problem: another pen, a moved tablet, a
@@ -10,71 +10,27 @@ search for the best optimum is the fit's, all of it; the diagnostics
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-from .._core import MAX_RESTARTS, Stages
-from .._jax import in_float64
-from ..data import Dataset, Observations, check_distinct, check_population
+from .._jax import in_float64, problem_mesh
+from ..data import Dataset
 from ..models import AbstractCorrection, AbstractModel, AffinePair, get_model
-from ..problem import (
-    L1Loss,
-    LossObjective,
-    ParameterSpace,
-    Stage1Objective,
-    Stage2Objective,
-    get_loss,
-    height_summary,
-    spread_landmarks,
-)
-from ._advice import AdviceContext, analyses_of
-from ._payloads import (
-    Recalibration,
-)
+from ..problem import ParameterSpace
+from ._batch import fit_batch
 from ._plans import Plan, full_plan, recalibration_plan
-from ._programs import _centres, _points, _stage_keys
+from ._programs import _centres, _stage_keys
 from ._result import CalibrationResult, StageResult
 from ._rig_change import check_rig
+from ._search import fit_stages
 from ._settings import Settings
-from ._stage import StageFit, StageTask, fit_stage
-from ._stage_result import _finished, _sign_twin
-from ._starts import refit_starts
-from ._warnings import all_warnings, check_determined
-
-#: Above this many landmarks the restarts search on this many, spread over the touch order,
-#: and only the best end point is polished on all: the restarts' cost stays bounded.
-RESTART_LANDMARKS = 64
-
-
-# -- both stages ---------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Run:
-    """What both stages of one calibration share: the observations fitted, the settings,
-    whether progress bars show, and the data's source (named in an error)."""
-
-    obs: Observations
-    settings: Settings
-    progress: bool = False
-    source: str | Path | None = None
-
-
-def _loss_wrapper(settings: Settings, n: int):
-    loss = get_loss(settings.loss, settings.loss_scale_mm)
-
-    def with_loss(objective):  # the paper's F stays the plain objective (and its compiled code)
-        if isinstance(loss, L1Loss):
-            return objective
-        return LossObjective(objective, loss, jnp.ones(n))
-
-    return with_loss
+from ._stage import StageFit
+from ._stage_result import _finished
+from ._tasks import Run, padded_obs, stage2_task
 
 
 @in_float64
@@ -83,68 +39,20 @@ def fit(
 ) -> CalibrationResult:
     """Fit both stages of ``plan`` to ``dataset``; the engine of :func:`calibrate` and
     :func:`recalibrate`. The result holds the best optimum the search found; the diagnostics
-    (:func:`handeye_jax.diagnose`) only read it."""
-    t_start = time.perf_counter()
-    obs = _checked(dataset, plan, settings)
-    run = Run(obs, settings, progress, dataset.source)
-    n = obs.n_landmarks
-    keys1, keys2 = _stage_keys(np.int64(settings.seed))
-    with_loss = _loss_wrapper(settings, n)
-    subset1 = spread_landmarks(n, RESTART_LANDMARKS) if n > RESTART_LANDMARKS else None
+    (:func:`handeye_jax.diagnose`) only read it. It is a batch of one
+    (:func:`~handeye_jax.calibrate_batch`), on one device.
 
-    def build1(template, free):
-        return with_loss(Stage1Objective(template, obs, free))
-
-    starts1 = refit_starts(settings.seed, plan.space1.box, obs.rig)
-    labels1 = None
-    if plan.starts1 is not None and len(plan.starts1):  # the closed-form estimate's, polished
-        labels1 = tuple(f"LM from a uniform start (refit {i + 1} of {len(starts1)})"
-                        for i in range(len(starts1))) + tuple(plan.labels1)  # fmt: skip
-        starts1 = np.concatenate([starts1, plan.space1.clip(plan.starts1)])
-    task1 = StageTask(build1, plan.space1, n, plan.search1, "stage 1 DE", subset1, starts1,
-                      labels1)  # fmt: skip
-    fit1 = fit_stage(task1, settings, keys1, progress=progress)
-    stage1 = _finished(fit1, "stage 1", dataset.source)
-    fit2, stage2, centres = fit_correction_stage(run, fit1.model(), plan.space2, plan.search2,
-                                                 keys2)  # fmt: skip
-    spaces, stages = Stages(plan.space1, plan.space2), Stages(stage1, stage2)
-    fits = Stages(fit1, fit2)
-    timings = {
-        "stage1_de": fit1.timings["de"], "stage1_polish": fit1.timings["polish"],
-        "stage2_de": fit2.timings["de"], "stage2_polish": fit2.timings["polish"],
-        "total": time.perf_counter() - t_start,
-    }  # fmt: skip
-    recal = None
-    if plan.previous is not None:
-        recal = Recalibration(plan.previous, tuple(plan.refit), "fixed" if plan.fixed else "prior")
-    return CalibrationResult(
-        model=fit1.model(), correction=fit2.model(), rig=obs.rig, centres_mm=np.asarray(centres),
-        centre_index=obs.centre_index, stage1=stage1, stage2=stage2, settings=settings,
-        data=dataset, dataset_name=dataset.name, timings_s=timings, sign_twin=_sign_twin(fit1),
-        warnings=all_warnings(n, spaces, stages, dataset.source,
-                              advice=AdviceContext(plan.search, obs, analyses_of(fits))),
-        recalibration=recal, fits=fits, heights=height_summary(fit1.model(), obs),
-        search=plan.search,
-    )  # fmt: skip
-
-
-def _checked(dataset: Dataset, plan: Plan, settings: Settings) -> Observations:
-    """The dataset's observations, once the plan, the settings and the data can make a fit
-    (an undetermined one is refused before any work; its warnings come with the result)."""
-    model_cls = type(plan.space1.template)
-    if settings.model != model_cls.name:
-        raise ValueError(f"settings.model is {settings.model!r}, the plan's {model_cls.name!r}")
-    if not 0 <= settings.seed < 2**63:  # refused now, not by the diagnostics after the fit
-        raise ValueError(f"seed must be 0 to 2^63 - 1: numpy's generators take no other seed "
-                         f"(got {settings.seed})")  # fmt: skip
-    check_population(dataset, settings.population)
-    if not 0 <= settings.restarts <= MAX_RESTARTS:
-        raise ValueError(f"restarts must be 0 to {MAX_RESTARTS:,} (got {settings.restarts})")
-    obs = dataset.observations()
-    check_determined(obs.n_landmarks, plan.space1, "stage 1", dataset.source)
-    check_determined(obs.n_landmarks, plan.space2, "stage 2", dataset.source)
-    check_distinct(dataset.tablet_px, dataset.source)
-    return obs
+    Args:
+        dataset: a validated dataset.
+        plan: what each stage fits.
+        settings: DE, LM and restart settings.
+        progress: show each stage's DE progress bar on stderr.
+    """
+    out = fit_batch([dataset], [plan], [settings], mesh=problem_mesh(jax.devices()[:1]),
+                    stage_progress=progress)[0]  # fmt: skip
+    if isinstance(out, Exception):
+        raise out
+    return out
 
 
 def fit_correction_stage(
@@ -156,21 +64,14 @@ def fit_correction_stage(
 ) -> tuple[StageFit, StageResult, np.ndarray]:
     """Stage 2 on the chain points of a stage-1 ``model``: its fit, its result and its
     centres of rotation (rows: A1, A2), mm."""
-    obs, settings = run.obs, run.settings
-    n = obs.n_landmarks
-    points = _points(model, obs)
-    with_loss = _loss_wrapper(settings, n)
-    subset = None
-    if n > RESTART_LANDMARKS:
-        subset = spread_landmarks(n, RESTART_LANDMARKS, include=obs.centre_index)
-
-    def build2(template, free):
-        return with_loss(Stage2Objective(template, points, obs.centre_index, free))
-
-    task = StageTask(build2, space2, n, tuple(search2), "stage 2 DE", subset)
-    fit2 = fit_stage(task, settings, keys2, progress=run.progress)
+    task, points = stage2_task(run, model, space2, search2)
+    pad = padded_obs(run)  # on the rows calibrate's stage 2 runs on, so the two compare
+    padded = None if pad is None else [stage2_task(run, model, space2, search2, pad[2])[0].build]
+    fit2 = fit_stages([task], run.settings, [keys2], padded=padded,
+                      mask=None if pad is None else pad[1][None],
+                      mesh=problem_mesh(jax.devices()[:1]), progress=run.progress)[0]  # fmt: skip
     stage2 = _finished(fit2, "stage 2", run.source)
-    return fit2, stage2, np.asarray(_centres(fit2.model(), points, obs.centre_index))
+    return fit2, stage2, np.asarray(_centres(fit2.model(), points, run.obs.centre_index))
 
 
 def calibrate(

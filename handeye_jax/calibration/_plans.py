@@ -24,8 +24,8 @@ from ..problem import (
 from ._payloads import (
     PriorReport,
 )
+from ._ranges import SearchRange, SearchReport, plan_search, resolve_preset, searched_box
 from ._result import CalibrationResult
-from ._search import SearchRange, SearchReport, plan_search, resolve_preset, searched_box
 from ._settings import Settings
 
 

@@ -6,10 +6,8 @@ from __future__ import annotations
 import jax
 import numpy as np
 
-from .._jax import fast_compile
-from ..optim import (
-    latin_hypercube,
-)
+from .._jax import Blocks, fast_compile, per_device, problem_mesh
+from ..optim import LOOPED, latin_hypercube
 from ..problem import (
     AbstractObjective,
     chain_points,
@@ -58,3 +56,43 @@ def _centres(correction, points, centre_index: int):
 @fast_compile
 def _error_jacobian(objective, x):
     return error_jacobian(objective, x)
+
+
+# -- a batch of problems (calibration/_batch_stage.py) ----------------------------------------
+# Each runs the single run's program problem after problem (lax.map) inside one program, with
+# its XLA options: each problem's numbers are its single run's, bit for bit.
+
+
+@fast_compile
+def _reports(block):
+    objectives, x = block
+    return jax.lax.map(lambda a: _report.__wrapped__(*a), (objectives, x))
+
+
+@fast_compile
+def _reports_each(block):
+    objectives, x = block  # x: (b, s, d), each point evaluated as a single run evaluates it
+    return jax.lax.map(lambda a: jax.lax.map(lambda x: _report.__wrapped__(a[0], x), a[1]),
+                       (objectives, x))  # fmt: skip
+
+
+def _values_many(objectives: AbstractObjective, x: np.ndarray, mesh) -> np.ndarray:
+    """:func:`_value` of each problem (stacked ``objectives``) at its point ``(b, d)`` or at
+    each of its points ``(b, s, d)``."""
+    mesh = problem_mesh() if mesh is None else mesh
+    x = np.asarray(x, float)
+    program = _reports if x.ndim == 2 else _reports_each
+    return np.asarray(per_device(program, Blocks.of((objectives, x), mesh, LOOPED)).gather()[3])
+
+
+@fast_compile
+def _lhs_block(block, n):
+    keys, lower, upper = block
+    return jax.lax.map(lambda a: latin_hypercube(a[0], n, a[1], a[2]), (keys, lower, upper))
+
+
+def _lhs_many(keys, n: int, lower: np.ndarray, upper: np.ndarray, mesh) -> np.ndarray:
+    """:func:`_lhs` of each problem: ``n`` points of its box ``(b, n, d)``."""
+    mesh = problem_mesh() if mesh is None else mesh
+    block = Blocks.of((np.asarray(keys), lower, upper), mesh, LOOPED)
+    return np.array(per_device(_lhs_block, block, n).gather())

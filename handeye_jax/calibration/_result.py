@@ -42,8 +42,8 @@ from ._payloads import (
     Residual,
     SignTwin,
 )
+from ._ranges import SearchReport
 from ._result_frames import compute_frames
-from ._search import SearchReport
 from ._settings import Settings
 
 #: Largest magnitude of a fitted parameter: the widest search range a dataset admits (DE and

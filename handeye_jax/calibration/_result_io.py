@@ -60,9 +60,9 @@ from ..models import AffinePair, Rig, get_model, model_registry
 from ..problem import Heights
 from ..robot import TRANSLATIONS, Frames, check_result_document, read_json
 from ._payloads import Diagnostics, FitWarning, Recalibration, SignTwin
+from ._ranges import SOURCES, SearchReport
 from ._result import MAX_PARAM, CalibrationResult, StageResult
 from ._result_frames import UNDETERMINED
-from ._search import SOURCES, SearchReport
 from ._settings import SEED_RANGE, read_settings
 
 FORMAT = "handeye-jax.result/1"
@@ -209,8 +209,17 @@ def load_result(path: str | Path) -> CalibrationResult:
     """Read and validate a ``handeye-jax.result/1`` file, every section; raises
     :class:`InputError` naming the file and the field of the first thing wrong."""
     path = Path(path)
-    r = Reader(path)
-    doc = load_json(path, MAX_RESULT_BYTES)
+    return _result_of(Reader(path), load_json(path, MAX_RESULT_BYTES), path)
+
+
+@in_float64
+def result_from_json(text: str, source: str) -> CalibrationResult:
+    """A result from its ``handeye-jax.result/1`` JSON text (as :func:`result_to_json` writes
+    it), validated as :func:`load_result` validates a file; ``source`` names it in errors."""
+    return _result_of(Reader(source), json.loads(text), Path(source))
+
+
+def _result_of(r: Reader, doc: Any, path: Path) -> CalibrationResult:
     if not isinstance(doc, dict):
         r.fail("", f"must be a JSON object (got {describe(doc)})")
     for key in REQUIRED:

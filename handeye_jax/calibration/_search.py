@@ -1,241 +1,336 @@
-"""Where each stage searches: a box around a closed-form estimate of the rig, or a preset.
+"""One stage's search, for one problem (:func:`fit_stage`) or a batch (:func:`fit_stages`):
+DE over the searched parameters, then LM over every free parameter from DE's best member,
+from restarts (the final population's other optima, then Latin-hypercube points) and, in
+stage 1, from the multi-start refits; the lowest value any of them reaches is the stage's
+optimum.
 
-With the ``estimate`` preset (the default) stage 1's box comes from the data. The closed-form
-estimate (:func:`~handeye_jax.closed_form_estimate`: the touches by linear least squares, the
-camera mount by a rigid fit of the views) gives one or two candidates (the two signs of the
-tablet's tilt, when the views cannot tell them apart); Levenberg–Marquardt polishes each on
-the stage's objective; the Jacobian at the lowest end gives each parameter's standard
-deviation σ. Each parameter's range is then the hull of the candidates and their ends,
-widened on each side by :data:`BOX_SIGMAS` σ, at least the unit's floor and at most its cap
-(:data:`HALF_WIDTH`; a parameter the data do not determine gets the cap). The polished ends
-are handed to the fit as starts, so it never ends above them. Nothing about the rig's place
-in the robot's workspace is assumed.
-
-With the ``paper`` preset stage 1 searches the paper's Tables 5 and 6 (the model's
-``default_ranges``), exactly as before. Stage 2's corrections are small whatever the rig, so
-it searches the correction's default ranges under either preset. The dataset's ``[search]``
-ranges replace any of them by name.
+Each step is one compiled program for the whole batch (:func:`~handeye_jax.optim.minimise_many`)
+and every decision is taken for each problem on its own numbers, so a problem's
+:class:`StageFit` is the same bit for bit alone or in any batch: :func:`fit_stage` is a batch
+of one.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import ClassVar
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
 
+import jax
 import numpy as np
+from jax.sharding import Mesh
 
-from .._core import SEARCH_PRESETS, spec
-from ..data import Dataset, Observations
-from ..models import AbstractParametric, AffinePair, HTMModel
-from ..optim import Box, minimise
-from ..problem import (
-    ClosedFormEstimate,
-    Stage1Objective,
-    analyse_jacobian,
-    closed_form_estimate,
+from .._jax import problem_mesh
+from ..optim import (
+    MAX_MODES,
+    LevenbergMarquardt,
+    minimise_many,
+    minimise_starts_many,
+    mode_leaders,
+    take,
 )
-from ._programs import _error_jacobian, _report
+from ..problem import AbstractObjective, MaskedObjective
+from ._payloads import PolishSummary, RestartSummary
+from ._programs import _lhs_many, _values_many
+from ._settings import Settings
+from ._stage import (
+    BETTER_BY_MM,
+    MODE_PARAM_FRACTION,
+    POLISH,
+    RESTART_STEPS,
+    Population,
+    StageFit,
+    StageTask,
+    _de_summary,
+    _Search,
+    with_prior,
+)
+from ._starts import REFIT_STARTS
 
-#: Each range holds the estimates plus this many standard deviations on each side.
-BOX_SIGMAS = 4.0
-#: The least and the most a range reaches beyond the estimates, by unit: (floor, cap).
-HALF_WIDTH: dict[str, tuple[float, float]] = {"mm": (10.0, 250.0), "deg": (5.0, 60.0),
-                                              "1": (0.05, 0.5)}  # fmt: skip
-#: A polished candidate is kept in the box's hull when its F is at most this factor of the
-#: lowest (the sign twin's is equal); a worse one is a local optimum the box need not hold.
-KEEP_F_FACTOR = 1.5
-#: Where a range came from: the box around the estimate, the paper's tables, the
-#: correction's (or the model's, for a parameter not searched) defaults, a recalibration's
-#: previous value ± half the paper's range, the dataset's ``[search]``.
-SOURCES = ("estimate", "paper", "default", "previous", "[search]")
+#: The refits' starts per problem: the uniform ones, up to two from the closed-form estimate
+#: and the fit's own (a problem with more is run as wide as it needs).
+REFIT_WIDTH = REFIT_STARTS + 3
+
+
+def fit_stage(
+    task: StageTask, settings: Settings, keys: tuple[jax.Array, jax.Array], *,
+    progress: bool = False,
+) -> StageFit:  # fmt: skip
+    """Fit one stage: DE over the task's search, then LM over every free parameter from DE's
+    best member, from restarts and from the task's refit starts; the lowest value wins.
+
+    Args:
+        task: the stage's objective, parameters and search.
+        settings: DE, LM and restart settings.
+        keys: the DE's key and the restarts' key.
+        progress: show DE's progress bar.
+    """
+    return fit_stages([task], settings, [keys], mesh=problem_mesh(jax.devices()[:1]),
+                      progress=progress)[0]  # fmt: skip
+
+
+def stack(trees: Sequence) -> object:
+    """Pytrees of one structure as one, each array leaf with a leading axis of problems."""
+    structure = jax.tree.structure(trees[0])
+    for t in trees[1:]:
+        if jax.tree.structure(t) != structure:
+            raise ValueError("the problems of a batch must have one structure")
+    return jax.tree.map(lambda *a: np.stack([np.asarray(x) for x in a]), *trees)
+
+
+@dataclass
+class _Best:
+    """Each problem's lowest point so far, its value and which search reached it."""
+
+    x: np.ndarray
+    value: np.ndarray
+    found_by: list[str]
 
 
 @dataclass(frozen=True)
-class SearchRange:
-    """One parameter's search range, in its unit, and where it came from (one of
-    :data:`SOURCES`)."""
-
-    strict: ClassVar[bool] = True
-
-    lower: float
-    upper: float
-    source: str
-
-
-@dataclass(frozen=True)
-class SearchReport:
-    """Where a calibration searched (a result file's ``search``).
+class _Batch:
+    """A stage's problems as the search sees them.
 
     Attributes:
-        preset: ``"estimate"`` or ``"paper"``.
-        stage1, stage2: each stage's ranges, by parameter.
-        estimate: the closed-form estimate's parameters (the first candidate), or ``None``.
-        estimate_F_mm: F (the paper's, x-y) at the lowest end of its LM polish, mm, or
-            ``None``.
-        sigma: each parameter's standard deviation there (its unit; ``None``: not determined),
-            which set the ranges' widths, or ``None``.
-        box_sigmas: how many σ each range holds beyond the estimates.
-        candidates: how many polished candidates the box holds (2: the views could not tell
-            the tablet tilt's sign, or both signs led to about the same F).
-        fallback: why the preset's ranges were searched instead of the estimate's, or
-            ``None``.
-        frames_F_mm: for a model other than HTM, F of the closed-form frames themselves in
-            the six-DoF chain (which holds any frames), mm: far below the model's best F, the
-            model cannot hold the rig.
+        tasks: each problem's task.
+        mask: each problem's row weights (``None``: one shape, nothing padded).
+        objective: each problem's objective (prior included) on its free parameters, as the
+            search evaluates it (padded rows weighed 0).
+        mesh: the devices.
+        live: which problems are real (the others fill the batch to its size: LM skips them).
     """
 
-    preset: str
-    stage1: dict[str, SearchRange]
-    stage2: dict[str, SearchRange]
-    estimate: dict[str, float] | None = spec(omit="none", default=None)
-    estimate_F_mm: float | None = spec("estimate_F", omit="none", default=None)
-    sigma: dict[str, float | None] | None = spec(omit="none", default=None)
-    box_sigmas: float | None = spec(omit="none", default=None)
-    candidates: int | None = spec(omit="none", default=None)
-    fallback: str | None = spec(omit="none", default=None)
-    frames_F_mm: float | None = spec("frames_F", omit="none", default=None)
+    tasks: list[StageTask]
+    mask: np.ndarray | None
+    objective: list[AbstractObjective]
+    mesh: Mesh | None
+    live: np.ndarray
 
-    def bounds(self, stage: str, names) -> tuple[np.ndarray, np.ndarray]:
-        """``(lower, upper)`` of ``names`` in a stage (``"stage1"``, ``"stage2"``)."""
-        ranges = getattr(self, stage)
-        return (np.array([ranges[n].lower for n in names], dtype=float),
-                np.array([ranges[n].upper for n in names], dtype=float))  # fmt: skip
+    def searched(self, objective: AbstractObjective, i: int) -> AbstractObjective:
+        """Problem ``i``'s objective as the batch evaluates it (its padding weighed 0)."""
+        return objective if self.mask is None else MaskedObjective(objective, self.mask[i])
 
 
-@dataclass(frozen=True)
-class SearchPlan:
-    """Both stages' boxes (all parameters, in ``param_names`` order), the starts the
-    estimate offers stage 1 (``(k, d)``, with their labels) and the report."""
+def fit_stages(
+    tasks: Sequence[StageTask],
+    settings: Settings,
+    keys: Sequence[tuple[jax.Array, jax.Array]],
+    *,
+    padded: Sequence[Callable] | None = None,
+    mask: np.ndarray | None = None,
+    mesh: Mesh | None = None,
+    live: np.ndarray | None = None,
+    progress: bool = False,
+) -> list[StageFit]:
+    """:func:`fit_stage` of every task, in one batch: each problem's :class:`StageFit` is its
+    own run's.
 
-    box1: Box
-    box2: Box
-    starts1: np.ndarray | None
-    labels1: tuple[str, ...]
-    report: SearchReport
-
-
-def resolve_preset(dataset: Dataset, preset: str | None) -> str:
-    """The preset a calibration uses: the settings', else the dataset's, else ``estimate``."""
-    out = preset or dataset.search_preset or SEARCH_PRESETS[0]
-    if out not in SEARCH_PRESETS:
-        raise ValueError(f"unknown search preset {out!r}; known: {', '.join(SEARCH_PRESETS)}")
-    return out
-
-
-def _ranges(cls, lo, hi, source: str, search: dict) -> dict[str, SearchRange]:
-    """``SearchRange`` per parameter, the dataset's ``[search]`` ones replacing the others."""
-    out = {}
-    for i, name in enumerate(cls.param_names):
-        if name in search:
-            out[name] = SearchRange(float(search[name][0]), float(search[name][1]), "[search]")
-        else:
-            out[name] = SearchRange(float(lo[i]), float(hi[i]), source)
-    return out
-
-
-def _box(ranges: dict[str, SearchRange], cls) -> Box:
-    return Box([ranges[n].lower for n in cls.param_names],
-               [ranges[n].upper for n in cls.param_names])  # fmt: skip
-
-
-def _unwrapped(X: np.ndarray, units) -> np.ndarray:
-    """Candidates with each angle moved by whole turns to within 180° of the first's."""
-    X = np.array(X, dtype=float)
-    for j, u in enumerate(units):
-        if u == "deg":
-            X[:, j] = X[0, j] + (X[:, j] - X[0, j] + 180.0) % 360.0 - 180.0
-    return X
-
-
-def _half_widths(cls, sigma: dict[str, float | None]) -> np.ndarray:
+    Args:
+        tasks: the problems' stage tasks, of one structure (model, free and searched
+            parameters, prior, loss, restart landmarks).
+        settings: DE, LM and restart settings (shared).
+        keys: each problem's DE key and restarts' key.
+        padded: each problem's ``build`` on its observations padded to the batch's rows
+            (``None``: the tasks' own, all of one shape).
+        mask: each problem's row weights ``(b, n)`` for ``padded``.
+        mesh: the devices the batch is split over.
+        live: which problems are real (default: all); LM skips the others, which fill the
+            batch to a size the devices share.
+        progress: show DE's progress bar.
+    """
+    tasks = list(tasks)
+    builds = padded if padded is not None else [t.build for t in tasks]
+    space0 = tasks[0].space
+    search = space0.free if tasks[0].search is None else tuple(tasks[0].search)
+    live = np.ones(len(tasks), bool) if live is None else np.asarray(live, bool)
+    batch = _Batch(tasks, None if padded is None else np.asarray(mask), [], mesh, live)
+    objective = [batch.searched(with_prior(b(t.space.template, t.space.free), t.space,
+                                           t.n_landmarks), i)
+                 for i, (t, b) in enumerate(zip(tasks, builds, strict=True))]  # fmt: skip
+    batch = replace(batch, objective=objective)
+    if space0.d == 0:
+        settings = replace(settings, polish=False)
+    t0 = time.perf_counter()
+    found = _de_searches(batch, builds, search, settings, [k[0] for k in keys], progress)
+    bases = np.array([t.space.clip(t.space.theta()) for t in tasks])
+    if found is None:
+        x, label = bases, "the previous result"
+    else:
+        x = np.array([t.space.embed(search, f.de.x, b) for t, f, b in zip(tasks, found, bases,
+                                                                            strict=True)])
+        label = "DE"
+    best = _Best(x, _values_many(stack(objective), x, mesh), [label] * len(tasks))
+    summaries = [_de_summary(search, None if found is None else found[i], float(best.value[i]))
+                 for i in range(len(tasks))]  # fmt: skip
+    t1 = time.perf_counter()
+    polish = [PolishSummary(ran=settings.polish, accepted=False, F_before_mm=float(v))
+              for v in best.value]  # fmt: skip
+    if settings.polish:
+        best, polish = _lm_searches(batch, found, [k[1] for k in keys], settings, best)
+    t2 = time.perf_counter()
+    share = {"de": (t1 - t0) / len(tasks), "polish": (t2 - t1) / len(tasks)}
     out = []
-    for name, unit in zip(cls.param_names, cls.param_units, strict=True):
-        floor, cap = HALF_WIDTH.get(unit, HALF_WIDTH["1"])
-        s = sigma.get(name)
-        out.append(cap if s is None else float(np.clip(BOX_SIGMAS * s, floor, cap)))
-    return np.array(out)
+    for i, t in enumerate(tasks):
+        space = t.space
+        population = None if found is None else Population(found[i].de.population,
+                                                           found[i].de.fitness, search)
+        out.append(StageFit(
+            space=space, objective=with_prior(t.build(space.template, space.free), space,
+                                              t.n_landmarks),
+            data=t.build(space.template, space.free), x=np.asarray(best.x[i], dtype=float),
+            de=summaries[i][0], polish=replace(polish[i], found_by=best.found_by[i]),
+            convergence=summaries[i][1], timings=dict(share), population=population,
+        ))  # fmt: skip
+    return out
 
 
-def estimate_box(
-    model_cls: type, obs: Observations, estimate: ClosedFormEstimate | None = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
-    """Stage 1's box around the closed-form estimate (see the module).
-
-    Returns ``(lower, upper, ends, info)``: the box, the polished candidates inside it (best
-    first), and what the report records (``estimate``, ``estimate_F_mm``, ``sigma``,
-    ``candidates``). Raises ``ValueError`` (the data give no estimate) or
-    ``NotImplementedError`` (the model has no ``from_frames``).
-    """
-    from ._stage import POLISH
-
-    estimate = estimate or closed_form_estimate(obs)
-    names, units = model_cls.param_names, model_cls.param_units
-    params = [c.params(model_cls) for c in estimate.candidates]
-    X = _unwrapped([[p[n] for n in names] for p in params], units)
-    caps = np.array([HALF_WIDTH.get(u, HALF_WIDTH["1"])[1] for u in units])
-    wide = Box(X.min(axis=0) - caps, X.max(axis=0) + caps)
-    objective = Stage1Objective(model_cls.nominal(), obs)
-    ends = [minimise(objective, POLISH, wide, x0=x) for x in X]
-    values = np.array([e.value if np.isfinite(e.value) else np.inf for e in ends])
-    order = np.argsort(values, kind="stable")
-    best = int(order[0])
-    keep = [i for i in order if values[i] <= KEEP_F_FACTOR * values[best] + 1e-9]
-    hull = np.vstack([X[keep], np.array([ends[i].x for i in keep])])
-    e, J = (np.asarray(a) for a in _error_jacobian(objective, np.asarray(ends[best].x)))
-    sigma = analyse_jacobian(e, J, names, units).std
-    half = _half_widths(model_cls, sigma)
-    lower, upper = hull.min(axis=0) - half, hull.max(axis=0) + half
-    F = float(_report(objective, np.asarray(ends[best].x))[1][0])  # the paper's F, x-y
-    info = dict(estimate=dict(zip(names, (float(v) for v in X[0]), strict=True)),
-                estimate_F_mm=F, sigma=dict(sigma), candidates=len(keep),
-                frames_F_mm=_frames_F(model_cls, obs, estimate))  # fmt: skip
-    return lower, upper, np.array([ends[i].x for i in keep]), info
-
-
-def _frames_F(model_cls, obs: Observations, estimate: ClosedFormEstimate) -> float | None:
-    """F of the closed-form frames themselves, unpolished, in the six-DoF chain that holds any
-    frames (``None`` for that chain's own fits): a model whose best F is far above it cannot
-    hold the rig."""
-    if model_cls is HTMModel:
+def _de_searches(batch: _Batch, builds, search, settings: Settings, keys,
+                 progress: bool) -> list[_Search] | None:  # fmt: skip
+    """:func:`~._stage._de_search` of every problem, as one DE run."""
+    if not search:
         return None
-    general = Stage1Objective(HTMModel.nominal(), obs)
-    values = [float(_report(general, np.array([c.params(HTMModel)[n] for n in
-                                                HTMModel.param_names]))[1][0])
-              for c in estimate.candidates]  # fmt: skip
-    return min(values)
+    subs, objectives, bases = [], [], []
+    for i, (t, build) in enumerate(zip(batch.tasks, builds, strict=True)):
+        space = t.space
+        base = space.clip(space.theta())
+        sub = space if search == space.free else space.subspace(search, base)
+        objective = with_prior(build(sub.template, sub.free), sub, t.n_landmarks)
+        subs.append(sub)
+        objectives.append(batch.searched(objective, i))
+        bases.append(base)
+    de = minimise_many(
+        stack(objectives), settings.de(), np.array([s.lower for s in subs]),
+        np.array([s.upper for s in subs]), keys=np.stack([np.asarray(k) for k in keys]),
+        mesh=batch.mesh, progress=progress, desc=batch.tasks[0].label,
+    )  # fmt: skip
+    return [_Search(s, o, b, take(de, i)) for i, (s, o, b) in
+            enumerate(zip(subs, objectives, bases, strict=True))]  # fmt: skip
 
 
-def plan_search(dataset: Dataset, model_cls: type, preset: str | None,
-                obs: Observations | None = None) -> SearchPlan:  # fmt: skip
-    """Both stages' boxes for a calibration of ``dataset`` with ``model_cls``, by ``preset``
-    (``None``: the dataset's, else ``estimate``), the dataset's ``[search]`` ranges replacing
-    any by name. Falls back to the paper's ranges, saying why, when the data give no
-    estimate or the model has no conversion from frames."""
-    preset = resolve_preset(dataset, preset)
-    search = dataset.search
-    ranges2 = _ranges(AffinePair, *AffinePair.search_bounds(), "default", search)
-    starts, labels, info, fallback = None, (), {}, None
-    lo, hi = model_cls.search_bounds()
-    source = "paper"
-    if preset == "estimate":
-        try:
-            lo, hi, starts, info = estimate_box(model_cls, obs or dataset.observations())
-            source = "estimate"
-            labels = tuple(f"LM from the closed-form estimate (candidate {i + 1})"
-                           for i in range(len(starts)))  # fmt: skip
-        except (ValueError, NotImplementedError) as e:
-            fallback = f"{e}; the paper's ranges were searched"
-            lo, hi = model_cls.search_bounds()
-    ranges1 = _ranges(model_cls, lo, hi, source, search)
-    report = SearchReport(preset, ranges1, ranges2, box_sigmas=BOX_SIGMAS if starts is not None
-                          else None, fallback=fallback, **info)  # fmt: skip
-    return SearchPlan(_box(ranges1, model_cls), _box(ranges2, AffinePair), starts, labels, report)
+def _lm_searches(batch: _Batch, found, keys, settings: Settings,
+                 best: _Best) -> tuple[_Best, list[PolishSummary]]:  # fmt: skip
+    """:func:`~._stage._lm_searches` of every problem."""
+    F_before = best.value.copy()
+    lm = _polish(batch, batch.objective, best.x, batch.live)
+    better = np.isfinite(lm.value) & (lm.value < best.value)
+    best = _Best(np.where(better[:, None], lm.x, best.x), np.where(better, lm.value, best.value),
+                 [f"{f} + LM" if b else f for f, b in zip(best.found_by, better, strict=True)])
+    restarts = [None] * len(batch.tasks)
+    if settings.restarts > 0 and found is not None:
+        best, restarts = _restarts(batch, found, keys, settings, best)
+    replaced = [()] * len(batch.tasks)
+    if settings.restarts > 0 and batch.tasks[0].refit_starts is not None:
+        best, replaced = _refits(batch, best, settings.restarts)
+    out = [PolishSummary(
+        ran=True, accepted=bool(best.value[i] < F_before[i]), F_before_mm=float(F_before[i]),
+        steps=int(lm.steps[i]), solver_converged=bool(lm.converged[i]), restarts=restarts[i],
+        F_after_mm=float(best.value[i]), replaced_F_mm=replaced[i],
+    ) for i in range(len(batch.tasks))]  # fmt: skip
+    return best, out
 
 
-def searched_box(cls: type[AbstractParametric], report: SearchReport | None, stage: str,
-                 search: dict) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """A stage's box over all of ``cls``'s parameters: the report's when the result recorded
-    it, else the preset ranges with the dataset's ``[search]`` (older results)."""
-    if report is not None:
-        return report.bounds(stage, cls.param_names)
-    return cls.search_bounds(search)
+def _polish(batch: _Batch, objectives, x0: np.ndarray, run: np.ndarray):
+    """The polish (:data:`POLISH`) of each problem that ``run`` marks, from ``x0``."""
+    spaces = [t.space for t in batch.tasks]
+    return minimise_many(stack(objectives), POLISH, np.array([s.lower for s in spaces]),
+                         np.array([s.upper for s in spaces]), x0=x0, run=run,
+                         mesh=batch.mesh)  # fmt: skip
+
+
+def _restarts(batch: _Batch, found: list[_Search], keys, settings: Settings,
+              best: _Best) -> tuple[_Best, list[RestartSummary]]:  # fmt: skip
+    """:func:`~._stage._restarts` of every problem."""
+    restarts = settings.restarts
+    subs = [f.space for f in found]
+    lower, upper = np.array([s.lower for s in subs]), np.array([s.upper for s in subs])
+    points = _lhs_many(np.stack([np.asarray(k) for k in keys]), restarts, lower, upper,
+                       batch.mesh)  # fmt: skip
+    labels, ks = [], []
+    for i, f in enumerate(found):
+        leaders = mode_leaders(f.de.population, f.de.fitness, subs[i].lower,
+                               subs[i].upper)[0][1:MAX_MODES]  # fmt: skip
+        k = min(len(leaders), restarts)
+        points[i, :k] = leaders[:k]
+        ks.append(k)
+        labels.append([f"LM from another optimum of the final DE population (restart {j + 1} "
+                       f"of {restarts})" if j < k else f"LM from a Latin-hypercube start "
+                       f"(restart {j + 1} of {restarts})" for j in range(restarts)])  # fmt: skip
+    landmarks = batch.tasks[0].restart_landmarks
+    ends = _multistart(batch, [f.objective for f in found], lower, upper, points, restarts)
+    full = np.array([[t.space.embed(subs[i].free, e, found[i].base) for e in ends[i]]
+                     for i, t in enumerate(batch.tasks)])  # fmt: skip
+    narrowed = landmarks is not None or subs[0] is not batch.tasks[0].space
+    out, values, best_F = _best_end(batch, full, labels, best, narrowed)
+    info = [RestartSummary(
+        starts=restarts, from_population=int(ks[i]), best_F_mm=float(best_F[i]),
+        reached_result=int(np.sum(values[i] <= out.value[i] + 1e-4)),
+        landmarks=None if landmarks is None else len(landmarks),
+    ) for i in range(len(batch.tasks))]  # fmt: skip
+    return out, info
+
+
+def _refits(batch: _Batch, best: _Best,
+            size: int) -> tuple[_Best, list[tuple[float, ...]]]:  # fmt: skip
+    """:func:`~._stage._refits` of every problem."""
+    tasks = batch.tasks
+    # Each problem's starts (its own count: the closed-form estimate adds one or two), then
+    # its fit; repeated to a width that does not depend on the batch, so that a problem's
+    # program is the same alone and in any batch (a repeated start ends where it did, and the
+    # lowest end's first occurrence wins).
+    width = max(REFIT_WIDTH, *(len(t.refit_starts) + 1 for t in tasks))
+    starts, labels = [], []
+    for i, t in enumerate(tasks):
+        k = len(t.refit_starts)
+        own = list(t.refit_labels or [f"LM from a uniform start (refit {j + 1} of {k})"
+                                      for j in range(k)])  # fmt: skip
+        own.append(f"{best.found_by[i].split(', refined')[0]}, refined by a refit from it")
+        rows = np.concatenate([t.refit_starts, best.x[i][None]])
+        starts.append(np.concatenate([rows, np.repeat(rows[-1:], width - k - 1, axis=0)]))
+        labels.append(own + [own[-1]] * (width - k - 1))
+    starts = np.array(starts)
+    spaces = [t.space for t in tasks]
+    lower, upper = np.array([s.lower for s in spaces]), np.array([s.upper for s in spaces])
+    landmarks = tasks[0].restart_landmarks
+    ends = _multistart(batch, batch.objective, lower, upper, starts, size)
+    out, _, _ = _best_end(batch, ends, labels, best, landmarks is not None)
+    changed = out.value != best.value
+    found_by = list(out.found_by)
+    for i in np.flatnonzero(changed):
+        width = upper[i] - lower[i]
+        if np.all(np.abs(out.x[i] - best.x[i]) <= MODE_PARAM_FRACTION * width):
+            found_by[i] = labels[i][-1]  # the fit's own optimum, further down
+    replaced = [(float(best.value[i]),) if changed[i] else () for i in range(len(tasks))]
+    return _Best(out.x, out.value, found_by), replaced
+
+
+def _multistart(batch: _Batch, objectives, lower, upper, starts: np.ndarray, size: int):
+    """:func:`~._stage._multistart` of every problem: LM end points ``(b, k, d)``."""
+    landmarks = batch.tasks[0].restart_landmarks
+    searched = objectives if landmarks is None else [o.on_landmarks(landmarks)
+                                                     for o in objectives]  # fmt: skip
+    k = starts.shape[1]
+    padded = np.concatenate([starts, np.repeat(starts[:, -1:], max(size - k, 0), axis=1)], axis=1)
+    lm = LevenbergMarquardt(rtol=1e-10, atol=0.0, max_steps=RESTART_STEPS)
+    return minimise_starts_many(stack(searched), lm, lower, upper, padded, run=batch.live,
+                                mesh=batch.mesh).x[:, :k]
+
+
+def _best_end(batch: _Batch, ends: np.ndarray, labels: list[list[str]], best: _Best,
+              narrowed: bool) -> tuple[_Best, np.ndarray, np.ndarray]:  # fmt: skip
+    """:func:`~._stage._best_end` of every problem: the new bests, every end point's value and
+    the lowest one's value after its polish."""
+    values = _values_many(stack(batch.objective), ends, batch.mesh)
+    values = np.where(np.isfinite(values), values, np.inf)
+    i = np.argmin(values, axis=1)
+    rows = np.arange(len(i))
+    x_i, f_i = ends[rows, i], values[rows, i]
+    run = batch.live & ((narrowed & (f_i < best.value + 1e-4)) | (f_i < best.value - BETTER_BY_MM))
+    if run.any():
+        lm = _polish(batch, batch.objective, x_i, run)
+        take_lm = run & np.isfinite(lm.value) & (lm.value < f_i)
+        x_i = np.where(take_lm[:, None], lm.x, x_i)
+        f_i = np.where(take_lm, lm.value, f_i)
+    lower = f_i < best.value - BETTER_BY_MM
+    out = _Best(np.where(lower[:, None], x_i, best.x), np.where(lower, f_i, best.value),
+                [labels[r][i[r]] if lower[r] else best.found_by[r] for r in rows])
+    return out, values, f_i

@@ -42,17 +42,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     dataset = load_dataset(args.dataset)
     if args.landmarks is not None:
         dataset = _landmarks_of(dataset, args.landmarks, args.dataset)
-    settings = Settings(
-        model=model,
-        seed=args.seed,
-        population=args.population,
-        generations=args.generations,
-        early_stop=not args.no_early_stop,
-        restarts=args.restarts,
-        loss=args.loss,
-        loss_scale_mm=args.loss_scale_mm,
-        search=args.search,
-    )
+    settings = settings_from(args, model)
     if previous is None:
         result = calibrate(dataset, settings, progress=not args.quiet)
     else:
@@ -106,6 +96,48 @@ def add_calibrate_command(sub: argparse._SubParsersAction) -> None:
         help=f"the transform chain: htm, six-DoF transforms (eqs. 1-8); dh, the "
         f"Denavit-Hartenberg variant (eqs. 12-16) (default: {d.model}, or --prior's)",
     )  # fmt: skip
+    add_settings_options(cal)
+    cal.add_argument(
+        "--landmarks", type=landmark_indices, metavar="M,M,...",
+        help="fit these landmarks of the dataset alone, e.g. 0,4,8 (their views and touches; "
+        "default: every landmark)",
+    )  # fmt: skip
+    _add_prior_options(cal)
+    cal.add_argument(
+        "--no-diagnostics", action="store_true",
+        help="skip uncertainty, leave-one-out and convention check (about a second faster)",
+    )  # fmt: skip
+    cal.add_argument(
+        "--out", metavar="RESULT.json",
+        help="write the result (JSON) here (default: print the summary only)",
+    )  # fmt: skip
+    cal.add_argument("--quiet", action="store_true", help="no progress bars on stderr")
+    cal.set_defaults(func=_cmd_calibrate, imports=("calibration.calibrate", "data.load_dataset",
+                                                    "diagnostics.diagnose"))  # fmt: skip
+
+
+def settings_from(args: argparse.Namespace, model: str):
+    """The :class:`~handeye_jax.Settings` of the options :func:`add_settings_options` adds."""
+    from ..calibration import Settings
+
+    return Settings(
+        model=model,
+        seed=args.seed,
+        population=args.population,
+        generations=args.generations,
+        early_stop=not args.no_early_stop,
+        restarts=args.restarts,
+        loss=args.loss,
+        loss_scale_mm=args.loss_scale_mm,
+        search=args.search,
+    )
+
+
+def add_settings_options(cal: argparse.ArgumentParser) -> None:
+    """The fit's settings as options (seed, DE budget, loss, restarts)."""
+    from ..calibration import Settings
+
+    d = Settings()
     cal.add_argument("--seed", type=seed, default=d.seed, help="PRNG seed")
     cal.add_argument(
         "--population", type=population, default=d.population,
@@ -139,23 +171,6 @@ def add_calibrate_command(sub: argparse._SubParsersAction) -> None:
         help="LM restarts per stage besides the best DE member (other optima of the final "
         "population, then Latin-hypercube starts); 0 runs none",
     )  # fmt: skip
-    cal.add_argument(
-        "--landmarks", type=landmark_indices, metavar="M,M,...",
-        help="fit these landmarks of the dataset alone, e.g. 0,4,8 (their views and touches; "
-        "default: every landmark)",
-    )  # fmt: skip
-    _add_prior_options(cal)
-    cal.add_argument(
-        "--no-diagnostics", action="store_true",
-        help="skip uncertainty, leave-one-out and convention check (about a second faster)",
-    )  # fmt: skip
-    cal.add_argument(
-        "--out", metavar="RESULT.json",
-        help="write the result (JSON) here (default: print the summary only)",
-    )  # fmt: skip
-    cal.add_argument("--quiet", action="store_true", help="no progress bars on stderr")
-    cal.set_defaults(func=_cmd_calibrate, imports=("calibration.calibrate", "data.load_dataset",
-                                                    "diagnostics.diagnose"))  # fmt: skip
 
 
 def _add_prior_options(cal: argparse.ArgumentParser) -> None:

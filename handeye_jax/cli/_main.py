@@ -6,8 +6,8 @@ are written ends the run with status 130 and every file as it was (``interrupts.
 
 This module imports no JAX at its top, so that the Ctrl-C handling is in place before the
 second or more that importing JAX takes. Each command group has its module (``_calibrate``,
-``_twin``, ``_vision``, ``_robot``, ``_dataset``, ``_tablet``, ``_report``); the argument types
-they share are in ``_types``.
+``_batch``, ``_twin``, ``_vision``, ``_robot``, ``_dataset``, ``_tablet``, ``_report``); the
+argument types they share are in ``_types``.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ __all__ = ["MODELS", "PROG", "build_parser", "main", "run"]
 
 def build_parser() -> argparse.ArgumentParser:
     # Nothing here imports JAX, OpenCV, matplotlib or tomlkit: the commands do, when they run.
+    from ._batch import add_calibrate_batch_command
     from ._calibrate import add_calibrate_command
     from ._dataset import add_dataset_commands
     from ._report import add_report_command
@@ -41,10 +42,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
-    for add in (add_calibrate_command, add_simulate_command, add_detect_command,
-                add_evaluate_command, add_export_command, add_dataset_commands,
-                add_robot_input_commands, add_predict_command, add_tablet_command,
-                add_report_command):  # fmt: skip
+    for add in (add_calibrate_command, add_calibrate_batch_command, add_simulate_command,
+                add_detect_command, add_evaluate_command, add_export_command,
+                add_dataset_commands, add_robot_input_commands, add_predict_command,
+                add_tablet_command, add_report_command):  # fmt: skip
         add(sub)  # in this order in --help
     return parser
 

@@ -3,11 +3,12 @@
 * One problem (:func:`~handeye_jax.optim.minimise`): optimistix's Levenberg–Marquardt, compiled
   into one XLA program, the Jacobian in forward mode (``d`` JVPs: time and memory linear in
   the number of residuals).
-* Many problems at once (:func:`minimise_batch`, :func:`minimise_starts`): the same iteration
-  run on the host in NumPy over the whole batch, one call of the caller's compiled batched
-  residuals and Jacobians per iteration. A vmapped optimistix solve costs seconds more to
-  trace and compile (benchmarks/RESULTS.md, "one LM contract"), which a first calibration's
-  diagnostics would pay.
+* Many problems at once (:func:`minimise_batch`): the same iteration run on the host in NumPy
+  over the whole batch, one call of the caller's compiled batched residuals and Jacobians
+  per iteration. A vmapped optimistix solve costs seconds more to trace and compile
+  (benchmarks/RESULTS.md, "one LM contract"), which a first calibration's diagnostics would
+  pay. The multi-start search of one problem (:func:`~handeye_jax.optim.minimise_starts`)
+  runs the same iteration compiled whole (:mod:`._multistart`).
 
 Both work in the box coordinates of :mod:`._box` and take the same
 :class:`LevenbergMarquardt` configuration.
@@ -164,27 +165,3 @@ def minimise_batch(
             break
     return BatchSolution(x=_box.to_x(z, lo, hi), value=cost, steps=steps, evaluations=steps + 1,
                          converged=quiet >= _QUIET_ITERATIONS)  # fmt: skip
-
-
-# Called once per LM iteration, hence LLVM level 1 (see handeye_jax._jax._xla).
-@fast_compile(llvm_opt_level=1)
-def _starts_rj(fn: Problem, X):
-    return jax.vmap(lambda x: residuals_and_jacobian(fn.residuals, x))(X)
-
-
-def minimise_starts(
-    fn: Problem, solver: LevenbergMarquardt, box: Box, starts: Float[ArrayLike, "b d"]
-) -> BatchSolution:
-    """:func:`minimise_batch` of one problem from several starts at once (a multi-start
-    search for its lowest local optimum).
-
-    Args:
-        fn: the problem; pass an equinox Module so repeated calls reuse the compiled program.
-            Its Jacobian is taken in forward mode, so the work is linear in the residuals.
-        solver: the tolerances and the most iterations.
-        box: the search box.
-        starts: start points ``(B, d)``; a fixed ``B`` reuses the program.
-    """
-    return minimise_batch(
-        lambda X: _starts_rj(fn, np.asarray(X)), solver, box, np.asarray(starts, float)
-    )

@@ -24,6 +24,7 @@ _EXPORTS = {
         "stage1_errors", "Stage1Objective", "stage2_errors", "Stage2Objective", "StageErrors",
         "WeightedLengthBlock",
     ),
+    "_padded": ("MaskedLengthBlock", "MaskedObjective", "pad_rows"),
     "_params": ("FIXED", "FREE", "ParameterSpace", "Prior", "put", "resolve_names"),
 }
 # fmt: on

@@ -1,0 +1,255 @@
+"""Many calibrations at once: :func:`calibrate_batch` fits B datasets in one batch, each step
+of both stages one compiled program for all of them, sharded over the devices, and under
+``jax.distributed`` split over the processes. Each result is the one :func:`calibrate` gives
+for its dataset alone, bit for bit, however the batch is made up or split: :func:`fit` is a
+batch of one.
+
+The batch runs in waves of at most ``wave`` problems per device (so memory stays bounded and
+the progress bar moves). Problems of one structure (model, free and searched parameters,
+prior, loss, captures, hand heights, centre landmark) and one padded size share a wave: a
+problem's rows are padded with rows of weight 0 to a size that depends on it alone
+(:func:`~._tasks.padded_rows`: its own up to 16 rows, then the next multiple of 8), alone as
+in a batch. A wave is filled up to a size the devices share, with copies of its first problem
+that LM skips.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import jax
+import numpy as np
+from jax.sharding import Mesh
+
+from .._core import BATCH_WAVE, InputError, Stages, progress_bar
+from .._jax import in_float64, padded_size, problem_mesh
+from ..data import Dataset
+from ..models import get_model
+from ._plans import Plan, full_plan
+from ._programs import _centres, _stage_keys
+from ._result import CalibrationResult
+from ._result_io import result_from_json, result_to_json
+from ._search import fit_stages
+from ._settings import Settings
+from ._stage import with_prior
+from ._stage_result import _finished
+from ._tasks import Run, assemble, checked, padded_obs, padded_rows, stage1_task, stage2_task
+
+#: Problems per device in one wave of a batch.
+WAVE = BATCH_WAVE
+
+#: Fields of :class:`Settings` every problem of a batch shares (the compiled programs' shapes
+#: and the search): they may differ in ``seed`` only.
+SHARED_SETTINGS = ("model", "population", "generations", "early_stop", "tol", "crossover",
+                   "mutation", "polish", "restarts", "loss", "loss_scale_mm")  # fmt: skip
+
+
+@in_float64
+def calibrate_batch(
+    datasets: Sequence[Dataset],
+    settings: Settings | Sequence[Settings] = Settings(),
+    *,
+    progress: bool = False,
+    wave: int = WAVE,
+    errors: Literal["raise", "return"] = "raise",
+    mesh: Mesh | None = None,
+) -> list[CalibrationResult]:
+    """:func:`~handeye_jax.calibrate` of every dataset, in one batch.
+
+    Both stages run as in :func:`~handeye_jax.calibrate` (DE, the LM polish, the restarts and
+    the refits), each step one compiled program for all the problems of a wave, each problem
+    with its own convergence and early stop; result ``i`` is ``calibrate(datasets[i],
+    settings[i])``'s, bit for bit. The batch is sharded over this process's devices; under
+    ``jax.distributed`` each process fits a contiguous share and every process returns every
+    result (another process's as read back from its JSON, without ``fits``).
+
+    Args:
+        datasets: the datasets (validated, see :func:`~handeye_jax.load_dataset`).
+        settings: one for all, or one per dataset; they may differ in ``seed`` only.
+        progress: a progress bar over the problems on stderr.
+        wave: the most problems per device fitted at once.
+        errors: ``"raise"`` the first dataset's error (as a loop of ``calibrate`` would), or
+            ``"return"`` it in that dataset's place, so that the others' results still come.
+        mesh: the devices (default: all of this process's).
+    """
+    if not datasets:
+        return []
+    each = _settings_of(datasets, settings)
+    get_model(each[0].model)  # an unknown name fails here, before any work
+    outcomes = fit_batch(datasets, [full_plan(d, s) for d, s in zip(datasets, each,
+                                                                      strict=True)],
+                         each, progress=progress, wave=wave, mesh=mesh)  # fmt: skip
+    if errors == "raise":
+        for out in outcomes:
+            if isinstance(out, Exception):
+                raise out
+    return outcomes
+
+
+def _settings_of(datasets: Sequence[Dataset], settings) -> list[Settings]:
+    each = [settings] * len(datasets) if isinstance(settings, Settings) else list(settings)
+    if len(each) != len(datasets):
+        raise ValueError(f"{len(each)} settings for {len(datasets)} datasets")
+    for s in each[1:]:
+        differ = [f for f in SHARED_SETTINGS if getattr(s, f) != getattr(each[0], f)]
+        if differ:
+            raise ValueError(f"the settings of a batch may differ in seed only (not {differ[0]})")
+    return each
+
+
+def fit_batch(
+    datasets: Sequence[Dataset],
+    plans: Sequence[Plan],
+    settings: Sequence[Settings],
+    *,
+    progress: bool = False,
+    wave: int = WAVE,
+    mesh: Mesh | None = None,
+    stage_progress: bool = False,
+) -> list[CalibrationResult | InputError]:
+    """:func:`~handeye_jax.fit` of every dataset with its plan and settings, in one batch:
+    each result, or the :class:`InputError` its dataset raised.
+
+    Args:
+        datasets, plans, settings: one of each per problem (settings differing in seed only).
+        progress: a progress bar over the problems on stderr.
+        wave: the most problems per device fitted at once.
+        mesh: the devices (default: all of this process's; under ``jax.distributed``, each
+            process fits its share on its own).
+        stage_progress: each stage's DE progress bar on stderr.
+    """
+    if jax.process_count() > 1 and mesh is None:
+        return _distributed(datasets, plans, settings, progress, wave)
+    mesh = problem_mesh() if mesh is None else mesh
+    out: list[CalibrationResult | InputError | None] = [None] * len(datasets)
+    runs: dict[int, Run] = {}
+    for i, (d, p, s) in enumerate(zip(datasets, plans, settings, strict=True)):
+        try:
+            runs[i] = Run(checked(d, p, s), s, stage_progress, d.source)
+        except InputError as e:
+            out[i] = e
+    per_wave = max(wave, 1) * mesh.devices.size
+    with progress_bar(total=len(datasets), desc="calibrations", enabled=progress,
+                      unit="problem") as bar:  # fmt: skip
+        bar.update(len(datasets) - len(runs))
+        for members in _groups(runs, plans).values():
+            for start in range(0, len(members), per_wave):
+                part = members[start : start + per_wave]
+                problems = [_Problem(datasets[i], plans[i], runs[i]) for i in part]
+                for i, result in zip(part, _wave(problems, mesh), strict=True):
+                    out[i] = result
+                bar.update(len(part))
+    return out
+
+
+@dataclass(frozen=True)
+class _Problem:
+    dataset: Dataset
+    plan: Plan
+    run: Run
+
+
+def _groups(runs: dict[int, Run], plans: Sequence[Plan]) -> dict[tuple, list[int]]:
+    """The problems that can share a wave, by their structure and padded size (see the module
+    docstring)."""
+    groups: dict[tuple, list[int]] = {}
+    for i, run in runs.items():
+        plan, obs = plans[i], run.obs
+        space = plan.space1
+        task = stage1_task(run, plan)
+        objective = with_prior(task.build(space.template, space.free), space, obs.n_landmarks)
+        rows = padded_rows(obs)
+        prior2 = None if plan.space2.prior is None else plan.space2.prior.names
+        key = (jax.tree.structure(objective), tuple(plan.search1), plan.space2.free,
+               tuple(plan.search2), prior2, obs.n_landmarks if rows is None else rows)  # fmt: skip
+        groups.setdefault(key, []).append(i)
+    return groups
+
+
+def _wave(problems: list[_Problem], mesh: Mesh) -> list[CalibrationResult | InputError]:
+    """Both stages of one wave's problems (of one structure and padded size)."""
+    t_start = time.perf_counter()
+    real = len(problems)
+    filled = problems + [problems[0]] * (padded_size(real, mesh) - real)
+    live = np.arange(len(filled)) < real
+    settings, progress = filled[0].run.settings, filled[0].run.progress
+    keys = [_stage_keys(np.int64(p.run.settings.seed)) for p in filled]
+    pads = [padded_obs(p.run) for p in filled]
+    mask = None if pads[0] is None else np.stack([m for _, m, _ in pads])
+    tasks1 = [stage1_task(p.run, p.plan) for p in filled]
+    padded1 = None if mask is None else [stage1_task(p.run, p.plan, o).build
+                                         for p, (o, _, _) in zip(filled, pads, strict=True)]
+    fits1 = fit_stages(tasks1, settings, [k[0] for k in keys], padded=padded1, mask=mask,
+                       mesh=mesh, live=live, progress=progress)  # fmt: skip
+    stages1 = [_finish(f, "stage 1", p) for f, p in zip(fits1[:real], problems, strict=True)]
+    # Stage 2 on each real problem's stage-1 model; the fillers copy the first one's.
+    models = [f.model() for f in fits1[:real]] + [fits1[0].model()] * (len(filled) - real)
+    tasks2, points, padded2 = [], [], []
+    for p, model, pad in zip(filled, models, pads, strict=True):
+        task, pts = stage2_task(p.run, model, p.plan.space2, p.plan.search2)
+        tasks2.append(task)
+        points.append(pts)
+        if mask is not None:
+            padded2.append(stage2_task(p.run, model, p.plan.space2, p.plan.search2,
+                                       pad[2])[0].build)  # fmt: skip
+    fits2 = fit_stages(tasks2, settings, [k[1] for k in keys],
+                       padded=None if mask is None else padded2, mask=mask, mesh=mesh,
+                       live=live, progress=progress)  # fmt: skip
+    share = (time.perf_counter() - t_start) / real
+    out: list[CalibrationResult | InputError] = []
+    for j, p in enumerate(problems):
+        stage2 = _finish(fits2[j], "stage 2", p)
+        if isinstance(stages1[j], InputError) or isinstance(stage2, InputError):
+            out.append(stages1[j] if isinstance(stages1[j], InputError) else stage2)
+            continue
+        centres = np.asarray(_centres(fits2[j].model(), points[j], p.run.obs.centre_index))
+        out.append(assemble(p.dataset, p.plan, p.run, Stages(fits1[j], fits2[j]),
+                            Stages(stages1[j], stage2), centres, share))  # fmt: skip
+    return out
+
+
+def _finish(fit, name: str, problem: _Problem):
+    try:
+        return _finished(fit, name, problem.dataset.source)
+    except InputError as e:
+        return e
+
+
+# -- several processes (jax.distributed) -------------------------------------------------------
+
+
+def _distributed(datasets, plans, settings, progress: bool, wave: int):
+    """Each process fits its contiguous share; every process gets every result."""
+    from jax.experimental import multihost_utils
+
+    count, me = jax.process_count(), jax.process_index()
+    share = -(-len(datasets) // count)
+    mine = range(me * share, min(len(datasets), (me + 1) * share))
+    local = fit_batch([datasets[i] for i in mine], [plans[i] for i in mine],
+                      [settings[i] for i in mine], progress=progress and me == 0, wave=wave,
+                      mesh=problem_mesh())  # fmt: skip
+    texts = [json.dumps({"error": [str(r.path), r.field, r.message]})
+             if isinstance(r, InputError) else result_to_json(r) for r in local]  # fmt: skip
+    blob = np.frombuffer(json.dumps(texts).encode(), np.uint8)
+    sizes = multihost_utils.process_allgather(np.array([blob.size]))
+    padded = np.zeros(int(sizes.max()), np.uint8)
+    padded[: blob.size] = blob
+    every = multihost_utils.process_allgather(padded)
+    out: list = []
+    for p in range(count):
+        if p == me:
+            out += local
+            continue
+        for text in json.loads(bytes(every[p, : int(sizes[p, 0])]).decode()):
+            doc = json.loads(text)
+            i = len(out)
+            if "error" in doc and "format" not in doc:
+                out.append(InputError(*doc["error"]))
+            else:
+                out.append(result_from_json(text, f"{datasets[i].name} (process {p})"))
+    return out
+

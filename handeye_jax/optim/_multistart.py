@@ -1,0 +1,181 @@
+"""Levenberg–Marquardt from many starts at once, compiled whole: one XLA program runs every
+iteration of every start, with no trip to the host between iterations (a batch of problems:
+:func:`~handeye_jax.optim.minimise_starts_many`).
+
+The iteration is :func:`~handeye_jax.optim.minimise_batch`'s (Marquardt's scaling, a step
+kept only if it lowers its start's ``|r|²``, λ shrunk after a kept step and grown after a
+refused one, a stop once no start has improved enough for 10 iterations), written so that
+its arithmetic is the same bit for bit whatever rows of zeros pad a problem's residuals:
+
+* the sums over residual rows (``|r|²``, ``JᵀJ``, ``Jᵀr``) are taken row after row, in
+  order, so a padded row of zeros adds exactly nothing;
+* the damped normal equations are solved by an unrolled Cholesky factorisation (they are
+  positive definite for λ > 0), elementwise over the starts: no library call whose blocking
+  depends on the batch's shape.
+
+It works in the box coordinates of :mod:`._box`, as the other LM does.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
+
+from .._jax import fast_compile, in_float64
+from . import _box
+from ._box import Box
+from ._lm import (
+    _GROW,
+    _LAMBDA0,
+    _LAMBDA_RANGE,
+    _QUIET_ITERATIONS,
+    _SHRINK,
+    LevenbergMarquardt,
+    residuals_and_jacobian,
+)
+from ._solvers import BatchSolution, Problem
+
+
+class _State(eqx.Module):
+    z: Float[Array, "s d"]
+    r: Float[Array, "s m"]
+    J: Float[Array, "s m d"]
+    cost: Float[Array, " s"]
+    lam: Float[Array, " s"]
+    quiet: Int[Array, ""]
+    steps: Int[Array, ""]
+
+
+def _rows_sum(term, m: int):
+    """``term(0) + term(1) + … + term(m − 1)``, one row after another (a padded row of zeros
+    adds exactly 0); ``term(k)`` is row ``k``'s share."""
+    return jax.lax.fori_loop(1, m, lambda k, acc: acc + term(k), term(0))
+
+
+def _evaluate(fn: Problem, z, lower, upper):
+    x = _box.to_x(z, lower, upper)
+    r, J = jax.vmap(lambda x: residuals_and_jacobian(fn.residuals, x))(x)
+    J = J * _box.dx_dz(z, lower, upper)[:, None, :]  # the chain rule through the box transform
+    ok = jnp.isfinite(r).all(axis=1) & jnp.isfinite(J).all(axis=(1, 2))
+    r0 = jnp.where(ok[:, None], r, 0.0)
+    return r, J, jnp.where(ok, _rows_sum(lambda k: r0[:, k] * r0[:, k], r.shape[1]), jnp.inf)
+
+
+def _cholesky_solve(A: Float[Array, "s d d"], b: Float[Array, "s d"]) -> Float[Array, "s d"]:
+    """``A⁻¹b`` for symmetric positive definite ``A``, by an unrolled Cholesky factorisation
+    (``d`` is small: 12 for a stage-1 model)."""
+    d = A.shape[-1]
+    L = [[None] * d for _ in range(d)]
+    for j in range(d):
+        s = A[:, j, j]
+        for k in range(j):
+            s = s - L[j][k] * L[j][k]
+        L[j][j] = jnp.sqrt(s)
+        for i in range(j + 1, d):
+            s = A[:, i, j]
+            for k in range(j):
+                s = s - L[i][k] * L[j][k]
+            L[i][j] = s / L[j][j]
+    y = [None] * d
+    for i in range(d):
+        s = b[:, i]
+        for k in range(i):
+            s = s - L[i][k] * y[k]
+        y[i] = s / L[i][i]
+    x = [None] * d
+    for i in reversed(range(d)):
+        s = y[i]
+        for k in range(i + 1, d):
+            s = s - L[k][i] * x[k]
+        x[i] = s / L[i][i]
+    return jnp.stack(x, axis=-1)
+
+
+def _step(fn: Problem, lower, upper, lm: LevenbergMarquardt, st: _State) -> _State:
+    J, r = st.J, st.r
+    m = r.shape[1]
+    H = _rows_sum(lambda k: J[:, k, :, None] * J[:, k, None, :], m)
+    g = _rows_sum(lambda k: J[:, k] * r[:, k, None], m)
+    d = H.shape[-1]
+    diag = jnp.diagonal(H, axis1=1, axis2=2)
+    # H + λ·(diag H + ε): positive definite for λ > 0, so the factorisation cannot fail.
+    damped = H + (st.lam[:, None] * (diag + 1e-12))[:, :, None] * jnp.eye(d)
+    dz = -_cholesky_solve(damped, g)
+    dz = jnp.where(jnp.isfinite(dz), dz, 0.0)
+    r_t, J_t, cost_t = _evaluate(fn, st.z + dz, lower, upper)
+    better = cost_t < st.cost
+    gain = jnp.where(better, st.cost - cost_t, 0.0)
+    enough = gain > lm.rtol * jnp.where(jnp.isfinite(st.cost), st.cost, 0.0) + lm.atol
+    lam = jnp.where(better, st.lam * _SHRINK, st.lam * _GROW)
+    return _State(
+        z=jnp.where(better[:, None], st.z + dz, st.z),
+        r=jnp.where(better[:, None], r_t, r),
+        J=jnp.where(better[:, None, None], J_t, J),
+        cost=jnp.where(better, cost_t, st.cost),
+        lam=jnp.clip(lam, *_LAMBDA_RANGE),
+        quiet=jnp.where(enough.any(), 0, st.quiet + 1),
+        steps=st.steps + 1,
+    )
+
+
+def _starts_loop(fn: Problem, x0, lower, upper, lm: LevenbergMarquardt, run: Bool[Array, ""]):
+    """LM from the starts ``x0`` (s, d) of one problem: end points, costs, iterations and
+    whether the batch's stopping rule held. ``run`` False returns the starts untouched."""
+    z = _box.to_z(x0, lower, upper)
+    r, J, cost = _evaluate(fn, z, lower, upper)
+    st = _State(z, r, J, cost, jnp.full(cost.shape, _LAMBDA0), jnp.asarray(0), jnp.asarray(0))
+    limit = jnp.where(run, lm.max_steps, 0)
+
+    def going(st):
+        return (st.steps < limit) & (st.quiet < _QUIET_ITERATIONS)
+
+    st = jax.lax.while_loop(going, lambda st: _step(fn, lower, upper, lm, st), st)
+    x = _box.to_x(st.z, lower, upper)
+    return x, st.cost, st.steps, st.quiet >= _QUIET_ITERATIONS
+
+
+# Compiled at LLVM level 1: the loop runs hundreds of iterations (see handeye_jax._jax).
+@fast_compile(llvm_opt_level=1)
+def _one(fn, x0, lower, upper, lm, run):
+    return _starts_loop(fn, x0, lower, upper, lm, run)
+
+
+def _config(lm: LevenbergMarquardt) -> LevenbergMarquardt:
+    # NumPy scalars, so that other tolerances reuse the compiled program.
+    return LevenbergMarquardt(
+        rtol=np.asarray(lm.rtol, float), atol=np.asarray(lm.atol, float),
+        max_steps=np.asarray(lm.max_steps, np.int64),
+    )  # fmt: skip
+
+
+@in_float64
+def minimise_starts(
+    fn: Problem, solver: LevenbergMarquardt, box: Box, starts: Float[ArrayLike, "s d"]
+) -> BatchSolution:
+    """Levenberg–Marquardt on one problem from several starts at once (a multi-start search
+    for its lowest local optimum), compiled whole.
+
+    Each iteration solves ``(JᵀJ + λ·diag(JᵀJ))·δ = −Jᵀr`` (Marquardt's scaling) for every
+    start in the box coordinates and keeps a start's step only if it lowers its ``|r|²``; λ
+    shrinks after a kept step and grows after a refused one. All starts stop together, once
+    none has lowered its cost by more than ``rtol·cost + atol`` for 10 iterations, or after
+    ``max_steps``.
+
+    Args:
+        fn: the problem; pass an equinox Module so repeated calls reuse the compiled program.
+            Its Jacobian is taken in forward mode, so the work is linear in the residuals.
+        solver: the tolerances and the most iterations.
+        box: the search box.
+        starts: start points ``(s, d)``; a fixed ``s`` reuses the program.
+
+    Returns:
+        ``x`` ``(s, d)``, ``value`` each start's ``|r|²`` ``(s,)`` (``inf`` where not finite).
+    """
+    x0 = np.asarray(starts, float)
+    x, cost, steps, ok = _one(fn, x0, box.lower, box.upper, _config(solver), np.asarray(True))
+    steps = int(steps)
+    return BatchSolution(x=np.asarray(x), value=np.asarray(cost), steps=steps,
+                         evaluations=steps + 1, converged=bool(ok))  # fmt: skip
