@@ -12,9 +12,13 @@ from .._core import lazy_exports
 _EXPORTS = {
     "_fitted": ("fitted_stages", "FittedStage"),
     "_payloads": (
-        "Convention", "ConventionCheck", "ConventionFit", "Convergence", "DESummary", "Diagnostics",
-        "FitWarning", "HeldOut", "LeaveOneOut", "LossInfo", "Mode", "PolishSummary", "PriorReport",
-        "Pull", "Recalibration", "Residual", "Scope", "SignTwin", "StageDiagnostics",
+        "Ambiguity", "Convention", "ConventionCheck", "ConventionFit", "Convergence", "Deployment",
+        "DESummary", "Diagnostics", "ExpectedError", "FitWarning", "HeldOut", "LeaveOneOut",
+        "LossInfo", "Mode", "Mount", "NO_EVIDENCE", "PolishSummary", "Pose", "PriorReport", "Pull",
+        "Recalibration", "Residual", "Scope", "SignTwin", "StageDiagnostics",
+    ),
+    "_likelihood": (
+        "is_ml", "ml_objective", "noise_part", "polish", "prior_information", "refine_ml",
     ),
     "_pipeline": ("calibrate", "fit", "fit_correction", "recalibrate", "RESTART_LANDMARKS"),
     "_plans": ("full_plan", "Plan", "recalibration_plan"),

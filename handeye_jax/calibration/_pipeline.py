@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import jax
@@ -26,14 +26,19 @@ from ..models import AbstractCorrection, AbstractModel, AffinePair, get_model
 from ..problem import (
     L1Loss,
     LossObjective,
+    NoiseFit,
+    NoiseModel,
     ParameterSpace,
     Stage1Objective,
     Stage2Objective,
     get_loss,
+    get_noise_model,
     height_summary,
     spread_landmarks,
 )
+from ._likelihood import refine_ml
 from ._payloads import (
+    NO_EVIDENCE,
     Recalibration,
 )
 from ._plans import Plan, full_plan, recalibration_plan
@@ -99,9 +104,11 @@ def fit(
     task1 = StageTask(build1, plan.space1, n, plan.search1, "stage 1 DE", subset1,
                       refit_starts(settings.seed, plan.space1.box, obs.rig))  # fmt: skip
     fit1 = fit_stage(task1, settings, keys1, progress=progress)
-    stage1 = _finished(fit1, "stage 1", dataset.source)
+    fit1, noise1 = _likelihood(fit1, run, plan.noise1, None, estimate=plan.previous is None)
+    stage1 = replace(_finished(fit1, "stage 1", dataset.source), noise=noise1)
     fit2, stage2, centres = fit_correction_stage(run, fit1.model(), plan.space2, plan.search2,
-                                                 keys2)  # fmt: skip
+                                                 keys2, noise=plan.noise2,
+                                                 estimate=plan.previous is None)  # fmt: skip
     spaces, stages = Stages(plan.space1, plan.space2), Stages(stage1, stage2)
     timings = {
         "stage1_de": fit1.timings["de"], "stage1_polish": fit1.timings["polish"],
@@ -117,6 +124,7 @@ def fit(
         data=dataset, dataset_name=dataset.name, timings_s=timings, sign_twin=_sign_twin(fit1),
         warnings=all_warnings(n, spaces, stages, dataset.search, dataset.source),
         recalibration=recal, fits=Stages(fit1, fit2), heights=height_summary(fit1.model(), obs),
+        deploy=NO_EVIDENCE,
     )  # fmt: skip
 
 
@@ -136,15 +144,29 @@ def _checked(dataset: Dataset, plan: Plan, settings: Settings) -> Observations:
     return obs
 
 
+def _likelihood(fit: StageFit, run: Run, noise: NoiseModel | None, model1, *,
+                estimate: bool) -> tuple[StageFit, NoiseFit | None]:  # fmt: skip
+    """``fit`` refined to maximum likelihood under the noise model when the settings' loss is
+    ``ml`` (starting from ``noise``, default the settings' preset), and the noise it found."""
+    if run.settings.loss != "ml":
+        return fit, None
+    start = noise if noise is not None else get_noise_model(run.settings.noise)
+    return refine_ml(fit, start, run.obs, model1, estimate=estimate)
+
+
 def fit_correction_stage(
     run: Run,
     model: AbstractModel,
     space2: ParameterSpace,
     search2: Sequence[str],
     keys2: tuple[jax.Array, jax.Array],
+    *,
+    noise: NoiseModel | None = None,
+    estimate: bool = True,
 ) -> tuple[StageFit, StageResult, np.ndarray]:
     """Stage 2 on the chain points of a stage-1 ``model``: its fit, its result and its
-    centres of rotation (rows: A1, A2), mm."""
+    centres of rotation (rows: A1, A2), mm. Under the ``ml`` loss it is refined to maximum
+    likelihood (from ``noise``; ``estimate``: its scales from the residuals)."""
     obs, settings = run.obs, run.settings
     n = obs.n_landmarks
     points = _points(model, obs)
@@ -158,7 +180,8 @@ def fit_correction_stage(
 
     task = StageTask(build2, space2, n, tuple(search2), "stage 2 DE", subset)
     fit2 = fit_stage(task, settings, keys2, progress=run.progress)
-    stage2 = _finished(fit2, "stage 2", run.source)
+    fit2, noise2 = _likelihood(fit2, run, noise, model, estimate=estimate)
+    stage2 = replace(_finished(fit2, "stage 2", run.source), noise=noise2)
     return fit2, stage2, np.asarray(_centres(fit2.model(), points, obs.centre_index))
 
 

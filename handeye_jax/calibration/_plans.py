@@ -16,6 +16,7 @@ from ..data import Dataset
 from ..models import AffinePair, get_model
 from ..problem import (
     FIXED,
+    NoiseModel,
     ParameterSpace,
     Prior,
     resolve_names,
@@ -37,6 +38,8 @@ class Plan:
         previous: the result the plan starts from (its file or ``None``).
         refit: the groups or parameters refitted, when starting from a previous result.
         fixed: the other parameters were held at the previous values (not given a prior).
+        noise1, noise2: the noise model each stage's maximum-likelihood fit starts from
+            (``None``: the settings' preset); a recalibration's is its previous result's.
     """
 
     space1: ParameterSpace
@@ -47,6 +50,8 @@ class Plan:
     refit: tuple[str, ...] = ()
     fixed: bool = False
     extra: dict[str, Any] = field(default_factory=dict)
+    noise1: NoiseModel | None = None
+    noise2: NoiseModel | None = None
 
 
 def full_plan(dataset: Dataset, settings: Settings) -> Plan:
@@ -135,7 +140,10 @@ def recalibration_plan(
         free2 = tuple(prev_free2)
         lo2, hi2 = _widened(AffinePair, dataset.search, free2, prior2, template2)
         space2 = ParameterSpace(template2, free2, lo2, hi2, prior2)
-    return Plan(space1, space2, refit_names, (), source, tuple(refit), fix)
+    noises = [None if s.noise is None else s.noise.noise
+              for s in (previous.stage1, previous.stage2)]  # fmt: skip
+    return Plan(space1, space2, refit_names, (), source, tuple(refit), fix, noise1=noises[0],
+                noise2=noises[1])
 
 
 def _prior_of(report: PriorReport | None) -> Prior | None:

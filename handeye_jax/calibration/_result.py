@@ -23,6 +23,7 @@ from ..problem import (
     FIXED,
     FREE,
     Heights,
+    NoiseFit,
     Prior,
     Stage1Objective,
     Stage2Objective,
@@ -33,6 +34,7 @@ from ..problem import (
 from ..robot import Frames
 from ._payloads import (
     Convergence,
+    Deployment,
     DESummary,
     Diagnostics,
     FitWarning,
@@ -44,6 +46,9 @@ from ._payloads import (
 )
 from ._result_frames import compute_frames
 from ._settings import Settings
+
+#: The stage a result that records no choice deploys: every tool's default before the choice.
+LEGACY_DEPLOY_STAGE = 2
 
 #: Largest magnitude of a fitted parameter: the widest search range a dataset admits (DE and
 #: the LM polish stay inside their range).
@@ -73,6 +78,8 @@ class StageResult:
     Its JSON form (``stage1``, ``stage2`` of a result file) is its fields'.
         prior_F: the prior block's value at the optimum, mm (the MAP objective is ``F`` plus
             it), or ``None``.
+        noise: the noise model of the maximum-likelihood fit (``ml`` loss), its scales
+            estimated from the residuals, and their redundancies; ``None`` for another loss.
     """
 
     F: float = spec(check=length)
@@ -87,6 +94,7 @@ class StageResult:
     fixed_source: dict[str, str] = spec(omit="empty", default_factory=dict)
     prior: PriorReport | None = spec(omit="none", default=None)
     prior_F: float | None = spec(check=length, omit="none", default=None)
+    noise: NoiseFit | None = spec(omit="none", default=None)
 
     def __post_init__(self):
         if not self.status:  # every parameter free: the paper's fit, and every older result
@@ -122,6 +130,9 @@ class CalibrationResult:
             diagnostics of a result just computed; not written to the file.
         heights: when the touches recorded the hand's heights, what they determine (the
             ``z_p − z_c`` a height command needs, and how well); else ``None``.
+        deploy: which stage to deploy and the evidence for it (:func:`~handeye_jax.diagnose`
+            chooses by leave-one-out; without it, stage 1); ``None`` in results written
+            before the choice was recorded (:attr:`deploy_stage` is then 2, as it was).
     """
 
     model: AbstractModel
@@ -141,6 +152,7 @@ class CalibrationResult:
     recalibration: Recalibration | None = None
     fits: Stages[Any] | None = field(default=None, repr=False)
     heights: Heights | None = None
+    deploy: Deployment | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "centres_mm", np.asarray(self.centres_mm, dtype=float))
@@ -155,6 +167,13 @@ class CalibrationResult:
     def seed(self) -> int:
         return self.settings.seed
 
+    @property
+    def deploy_stage(self) -> int:
+        """The stage :meth:`predict`, the :class:`~handeye_jax.Predictor` and every export use
+        by default: :attr:`deploy`'s, or 2 for a result that records none (written before
+        the choice was made, when stage 2 was every tool's default)."""
+        return LEGACY_DEPLOY_STAGE if self.deploy is None else int(self.deploy.stage)
+
     # -- use -----------------------------------------------------------------------------
     @in_float64
     def predict(
@@ -162,7 +181,7 @@ class CalibrationResult:
         image_px: Float[Array, "n 2"],
         depth_mm: Float[Array, " n"],
         hand_angle_deg: Float[Array, " n"],
-        stage: int = 2,
+        stage: int | None = None,
         capture_position_mm: Float[Array, "n 3"] | None = None,
         capture_hand_angle_deg: Float[Array, " n"] | None = None,
         axes: str = "xy",
@@ -173,7 +192,8 @@ class CalibrationResult:
             image_px, depth_mm: each target in its picture, px, and its depth, mm: any point
                 seen at any depth, on the tablet or not.
             hand_angle_deg: the hand angle θh to touch each with, deg.
-            stage: 2 (with the affine correction, a planar map) or 1.
+            stage: 2 (with the affine correction, a planar map) or 1; default: the stage to
+                deploy (:attr:`deploy_stage`).
             capture_position_mm: the hand position each picture was taken from, mm, ``(3,)``
                 or ``(n, 3)``; default: the calibration's first capture.
             capture_hand_angle_deg: the hand angle θc then, deg, scalar or ``(n,)``; default:
@@ -181,6 +201,7 @@ class CalibrationResult:
             axes: ``"xy"``, or ``"xyz"`` for ``(x, y, z)`` when the touches recorded the
                 hand's heights (:attr:`heights`).
         """
+        stage = self.deploy_stage if stage is None else stage
         if stage not in (1, 2):
             raise ValueError(f"stage must be 1 or 2 (got {stage})")
         if axes not in ("xy", "xyz"):
@@ -207,7 +228,7 @@ class CalibrationResult:
         """The fitted frames as plain numbers (NumPy), from the parameters and the rig."""
         z = None if self.heights is None else self.heights.pen_minus_camera_mm
         return compute_frames(self.model, self.rig, self.correction, self.centres_mm,
-                              pen_minus_camera_z_mm=z)  # fmt: skip
+                              pen_minus_camera_z_mm=z, deploy_stage=self.deploy_stage)  # fmt: skip
 
     @in_float64
     def posterior(self, stage: str = "stage1", source: str | None = None) -> Prior:

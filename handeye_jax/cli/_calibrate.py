@@ -46,8 +46,9 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         loss=args.loss,
         loss_scale_mm=args.loss_scale_mm,
     )
+    progress = not (args.quiet or args.no_progress)
     if previous is None:
-        result = calibrate(dataset, settings, progress=not args.quiet)
+        result = calibrate(dataset, settings, progress=progress)
     else:
         from ..models import get_model
         from ..problem import resolve_names
@@ -58,13 +59,13 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         except ValueError as e:
             raise InputError(None, "--refit", str(e)) from None
         result = recalibrate(dataset, previous, refit, settings, fix=args.fix,
-                             source=Path(args.prior).name, progress=not args.quiet)  # fmt: skip
+                             source=Path(args.prior).name, progress=progress)  # fmt: skip
     if not args.no_diagnostics:
         result = diagnose(result, search=dataset.search)
-    print(format_summary(result))
-    if out is not None:
+    if out is not None:  # written before the summary, which says so
         write_output(out, result_to_json(result), "--out")
-        print(f"result written to {out}")
+    print(format_summary(result, verbose=args.verbose, quiet=args.quiet,
+                         saved=None if out is None else str(out)))  # fmt: skip
     return 0
 
 
@@ -99,8 +100,10 @@ def add_calibrate_command(sub: argparse._SubParsersAction) -> None:
         help="run all generations instead of stopping when the population has converged",
     )  # fmt: skip
     cal.add_argument(
-        "--loss", choices=("l1", "huber", "cauchy"), default=d.loss,
-        help="l1: the paper's mean error length (default); huber / cauchy: robust to outliers",
+        "--loss", choices=("ml", "l1", "huber", "cauchy"), default=d.loss,
+        help="ml: maximum likelihood under the noise model, its scales estimated from the data "
+        "(default; the only loss whose uncertainty and expected error are validated); l1: the "
+        "paper's mean error length (reproduces its tables); huber / cauchy: robust to outliers",
     )  # fmt: skip
     cal.add_argument(
         "--loss-scale-mm", type=positive_mm, default=d.loss_scale_mm, metavar="MM",
@@ -118,9 +121,21 @@ def add_calibrate_command(sub: argparse._SubParsersAction) -> None:
     )  # fmt: skip
     cal.add_argument(
         "--out", metavar="RESULT.json",
-        help="write the result (JSON) here (default: print the summary only)",
+        help="write the result (JSON) here (default: nothing is saved; the summary says so)",
     )  # fmt: skip
-    cal.add_argument("--quiet", action="store_true", help="no progress bars on stderr")
+    shown = cal.add_mutually_exclusive_group()
+    shown.add_argument(
+        "--quiet", action="store_true",
+        help="print the verdict alone (the stage to deploy, the expected touching error, the "
+        "camera and pen on the flange, whether the result was saved) and errors; no progress "
+        "bars",
+    )  # fmt: skip
+    shown.add_argument(
+        "--verbose", action="store_true",
+        help="add the optimisers' detail (DE, LM, restarts), every parameter with its "
+        "standard deviation, the largest residuals and the diagnostics",
+    )  # fmt: skip
+    cal.add_argument("--no-progress", action="store_true", help="no progress bars on stderr")
     cal.set_defaults(func=_cmd_calibrate, imports=("calibration.calibrate", "data.load_dataset",
                                                     "diagnostics.diagnose"))  # fmt: skip
 

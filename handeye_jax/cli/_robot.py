@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .._core import write_output
+from .._core import InputError, write_output
 
 # constants only: the formats import their libraries on use
 from ..robot import (
@@ -16,6 +16,8 @@ from ..robot import (
     DEFAULT_PEN_FRAME,
     FORMATS,
     NAME_PATTERN,
+    StageError,
+    carried_stage,
     check_parses,
     export_text,
     zero_filled,
@@ -55,6 +57,12 @@ def add_export_command(sub: argparse._SubParsersAction) -> None:
     )  # fmt: skip
     p.add_argument("--out", metavar="FILE", help="write here (default: standard output)")
     p.add_argument(
+        "--stage", type=whole_number, choices=(1, 2), default=None,
+        help="the stage the file carries (default: the one the calibration chose to deploy); "
+        "urdf and ros2 hold stage 1 only and refuse a calibration that deploys stage 2 unless "
+        "--stage 1 is given",
+    )  # fmt: skip
+    p.add_argument(
         "--parent-link", type=_name, default=DEFAULT_PARENT_LINK, metavar="LINK",
         help=f"the flange link (urdf, ros2; default {DEFAULT_PARENT_LINK})",
     )  # fmt: skip
@@ -79,9 +87,13 @@ def _cmd_export(args: argparse.Namespace) -> int:
     from ..calibration import load_frames  # JAX: not imported for --help
 
     frames = load_frames(args.result)
+    try:
+        stage = carried_stage(frames, args.fmt, args.stage)
+    except StageError as e:
+        raise InputError(args.result, "--format", str(e)) from None
     text = export_text(
         frames, args.fmt, parent_link=args.parent_link, camera_frame=args.camera_frame,
-        pen_frame=args.pen_frame, source=str(args.result),
+        pen_frame=args.pen_frame, source=str(args.result), stage=stage,
     )  # fmt: skip
     check_parses(text, args.fmt)
     zeros = zero_filled(frames, args.fmt)
@@ -92,7 +104,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
         sys.stdout.write(text)
     else:
         write_output(out, text, "--out")
-        print(f"{args.fmt} export written to {out}")
+        print(f"{args.fmt} export (stage {stage}) written to {out}")
     return 0
 
 
@@ -110,7 +122,8 @@ def _cmd_predict(args: argparse.Namespace) -> int:
     predictor = Predictor.from_frames(frames)
     header, rows, values = read_points_csv(args.points)
     position, angle = read_capture_columns(args.points, header, rows)
-    hand_xy = predictor.hand_command(values[:, :2], values[:, 2], values[:, 3], stage=args.stage,
+    stage = predictor.stage if args.stage is None else args.stage
+    hand_xy = predictor.hand_command(values[:, :2], values[:, 2], values[:, 3], stage=stage,
                                      capture_position_mm=position, capture_hand_angle_deg=angle,
                                      axes=predictor.axes)  # fmt: skip
     text = points_csv_text(header, rows, hand_xy)
@@ -118,7 +131,9 @@ def _cmd_predict(args: argparse.Namespace) -> int:
         sys.stdout.write(text)
     else:
         write_output(out, text, "--out")
-        print(f"{len(rows)} hand commands (stage {args.stage}, mm) written to {out}")
+        chosen = "the stage the calibration deploys" if stage == predictor.stage else (
+            f"not the stage the calibration deploys, {predictor.stage}")  # fmt: skip
+        print(f"{len(rows)} hand commands (stage {stage}, {chosen}; mm) written to {out}")
     return 0
 
 
@@ -140,7 +155,8 @@ def add_predict_command(sub: argparse._SubParsersAction) -> None:
         "--out", metavar="OUT.csv", help="write the CSV here (default: standard output)"
     )
     pre.add_argument(
-        "--stage", type=whole_number, choices=(1, 2), default=2,
-        help="2: eq. (25) with the affine correction (default); 1: eq. (8), model only",
+        "--stage", type=whole_number, choices=(1, 2), default=None,
+        help="2: eq. (25) with the affine correction; 1: eq. (8), model only (default: the "
+        "stage the calibration chose to deploy, which its summary names)",
     )  # fmt: skip
     pre.set_defaults(func=_cmd_predict, jax=False)  # only for files it must check (see there)

@@ -218,7 +218,7 @@ def diagnostics_of(
     searched = out.refit_landmarks if out.refit_landmarks < n else 0
     declared = (float(obs.rig.angle_zero_deg), int(obs.rig.angle_sign))
     return Diagnostics(
-        loss=LossInfo(loss.name, float(settings.loss_scale_mm)),
+        loss=LossInfo(settings.loss, float(settings.loss_scale_mm)),
         outlier_threshold_mm=threshold,
         stage1=replace(found["stage1"], local_optima=local),
         stage2=found["stage2"],

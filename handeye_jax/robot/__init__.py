@@ -10,8 +10,9 @@ from .._core import lazy_exports
 # fmt: off
 _EXPORTS = {
     "_export": (
-        "check_parses", "DEFAULT_CAMERA_FRAME", "DEFAULT_PARENT_LINK", "DEFAULT_PEN_FRAME",
-        "export_text", "FORMATS", "NAME_PATTERN", "zero_filled",
+        "carried_stage", "check_parses", "DEFAULT_CAMERA_FRAME", "DEFAULT_PARENT_LINK",
+        "DEFAULT_PEN_FRAME", "export_text", "FORMATS", "NAME_PATTERN", "RIGID_ONLY_FORMATS",
+        "StageError", "zero_filled",
     ),
     "_frames": ("Affine", "Frames", "TRANSLATIONS"),
     "_predictor": ("Predictor", "read_json", "stored_frames"),
