@@ -118,7 +118,9 @@ class Convergence:
 class Pull:
     """How far the data pulled one prior parameter: its prior mean and σ, the fitted value
     and its posterior σ (each in the parameter's unit; σ ``None``: unbounded or
-    undetermined), Baarda's w-test ``pull`` and the marginal one, in σ."""
+    undetermined), Baarda's w-test ``pull`` and the marginal one, in σ; and ``follows``: the
+    parameter pulled most, when this one's pull vanishes once that one's shift is accounted
+    for (it follows it, correlated, rather than moving itself)."""
 
     param: str
     mean: float
@@ -127,12 +129,14 @@ class Pull:
     posterior_sigma: float | None
     pull: float
     marginal_pull: float | None = spec(omit="none", default=None)
+    follows: str | None = spec(omit="none", default=None)
 
 
 @dataclass(frozen=True)
 class PriorReport:
     """A stage's prior (its source, the parameters it covers, their mean and precision, the
-    data scale and noise σ of the fit it came from, mm) and each parameter's pull."""
+    data scale and noise σ of the fit it came from, mm) and each parameter's pull; the
+    ``untested`` ones (the fit it came from did not determine them) are not flagged."""
 
     source: str
     names: tuple[str, ...]
@@ -141,6 +145,7 @@ class PriorReport:
     data_scale_mm: float
     pulls: tuple[Pull, ...] = ()
     data_sigma_mm: float | None = spec(omit="none", default=None)
+    untested: tuple[str, ...] = spec(omit="empty", default=())
 
 
 @dataclass(frozen=True)
@@ -428,8 +433,10 @@ class LossInfo:
 class Diagnostics:
     """What a result can and cannot tell (:func:`handeye_jax.diagnose`): the loss, the
     outlier threshold (mm), each stage's diagnostics, the convention check, the scope, the
-    touching error to expect from the stage to deploy and the fits the data cannot tell from
-    the result's."""
+    touching error to expect from the stage to deploy, the fits the data cannot tell from
+    the result's, the camera and pen on the flange, and the stage-1 parameters whose σ is not
+    their error (``weak_params``: in a weak direction or an alternative fit; no σ is given
+    for them)."""
 
     loss: LossInfo | None = spec(omit="none", default=None)
     outlier_threshold_mm: float | None = spec(omit="none", default=None)
@@ -440,3 +447,4 @@ class Diagnostics:
     expected: ExpectedError | None = spec(omit="none", default=None)
     ambiguities: tuple[Ambiguity, ...] = ()
     mount: Mount | None = spec(omit="none", default=None)
+    weak_params: tuple[str, ...] = ()

@@ -247,9 +247,11 @@ class CalibrationResult:
                 P, sigma = diag.precision, diag.sigma_mm
         if P is None:
             P, sigma = self._posterior_precision(stage, free)
+        untested = () if self.diagnostics is None or stage != "stage1" else tuple(
+            n for n in self.diagnostics.weak_params if n in free)  # fmt: skip
         return Prior(free, [s.params[n] for n in free], np.asarray(P, dtype=float),
                      source or f"previous result ({self.dataset_name})",
-                     max(s.F, 1e-6) / 4.0, sigma if sigma else None)  # fmt: skip
+                     max(s.F, 1e-6) / 4.0, sigma if sigma else None, untested)  # fmt: skip
 
     def _posterior_precision(self, stage: str, free: tuple[str, ...]) -> np.ndarray:
         if self.data is None:

@@ -53,7 +53,8 @@ def diagnose(result: CalibrationResult, *, search: dict | None = None) -> Calibr
     weak = weak_parameters(diagnostics.stage1, found)
     mount = mount_report(result.model, stages.stage1.space.free, cov1, weak,
                          _why_not(diagnostics.stage1, found, weak))  # fmt: skip
-    diagnostics = replace(diagnostics, expected=expected, ambiguities=found, mount=mount)
+    diagnostics = replace(diagnostics, expected=expected, ambiguities=found, mount=mount,
+                          weak_params=tuple(sorted(weak)))  # fmt: skip
     result = replace(result, diagnostics=diagnostics, deploy=deploy)
     result = replace(result, diagnostics=replace(diagnostics, scope=capture_scope(result)))
     timings = {**result.timings_s, "diagnostics": time.perf_counter() - t0}

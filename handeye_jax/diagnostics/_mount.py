@@ -50,12 +50,12 @@ def _pose_and_jacobian(model: AbstractModel, free: tuple[str, ...], x):
 
 
 def weak_parameters(diag: StageDiagnostics, ambiguities: Sequence[Ambiguity]) -> set[str]:
-    """The parameters in a weak or undetermined direction, or changed by an alternative fit
-    that moves hand commands."""
+    """The parameters whose σ is not their error: in a weak or undetermined direction, or
+    changed by an alternative fit the data cannot exclude (the tablet's sign twin, a mirror
+    camera mount), where the linearised σ describes one of several fits."""
     weak = {p for w in diag.weak_directions for p in w.params}
     for a in ambiguities:
-        if a.elsewhere_mm[1] > MOVES_COMMANDS_MM or a.here_mm > MOVES_COMMANDS_MM:
-            weak |= set(a.differs)
+        weak |= set(a.differs)
     return weak
 
 
