@@ -53,7 +53,6 @@ from ..problem import (
     data_objective,
     errors_of,
     fitness,
-    landmark_subset,
     landmark_terms,
     norms,
     spread_landmarks,
@@ -133,12 +132,6 @@ def _stage2_at(stage1: AbstractObjective, stage2: AbstractObjective, x1) -> Abst
     inner = data_objective(stage1)
     points = chain_points(inner.model(x1), inner.obs)
     return eqx.tree_at(lambda o: data_objective(o).points, stage2, points)
-
-
-def _subset1(stage1: AbstractObjective, idx) -> AbstractObjective:
-    """``stage1`` on landmarks ``idx`` (its wrappers kept)."""
-    obs = landmark_subset(data_objective(stage1).obs, idx)
-    return eqx.tree_at(lambda o: data_objective(o).obs, stage1, obs)
 
 
 def _lm(max_steps: int) -> LevenbergMarquardt:
@@ -390,7 +383,8 @@ def _refits_one_step(p: _Pair, seed, starts, max_steps, refit_landmarks) -> Refi
     zero, sign, declared, conv_of, x0 = _convention_problems(obs, x1, bounds1, seed, starts)
     searched = stage1
     if n > refit_landmarks:
-        searched = _subset1(stage1, spread_landmarks(n, refit_landmarks))
+        # Its wrappers subset too (a noise model's whiteners are per landmark).
+        searched = stage1.on_landmarks(np.asarray(spread_landmarks(n, refit_landmarks)))
     m = _obs(searched).n_landmarks
     w = np.ones((conv_of.shape[0], m))
 
