@@ -53,7 +53,7 @@ from handeye_jax.twin._truth import CHANGE_MARGIN, CHANGES, RANGES
 
 #: One small budget for every fit here, so that they share compiled programs.
 BUDGET = dict(population=100, generations=300, restarts=8)
-FAST = ["--population", "100", "--generations", "300", "--restarts", "8", "--quiet"]
+FAST = ["--population", "100", "--generations", "300", "--restarts", "8", "--no-progress"]
 #: The landmarks of a recalibration on four touches: the grid's corners.
 CORNERS = (0, 2, 6, 8)
 LANDMARK_FIELDS = ("tablet_px", "image_px", "depth_mm", "hand_xy_mm", "hand_angle_deg",
