@@ -55,8 +55,9 @@ def carried_stage(frames: Frames, fmt: str, stage: int | None = None) -> int:
     if stage not in (1, 2):
         raise ValueError(f"stage must be 1 or 2 (got {stage})")
     if stage == 2 and fmt in RIGID_ONLY_FORMATS:
-        chose = ("the calibration chose stage 2 to deploy (its evidence: held-out touches)"
-                 if frames.deploy_stage == 2 else "stage 2 was asked for")  # fmt: skip
+        chose = ("the calibration deploys stage 2 (the stage its result chose, or stage 2 for "
+                 "a result that records no choice)" if frames.deploy_stage == 2
+                 else "stage 2 was asked for")  # fmt: skip
         raise StageError(
             f"{chose}, and a {fmt} file holds rigid transforms only: stage 2's affine "
             "correction (eq. 25) cannot go into it. Export --stage 1 for the frames alone "
