@@ -317,6 +317,16 @@ def test_many_landmarks_restart_on_a_subset_and_leave_one_out_by_one_newton_step
 
 
 @pytest.mark.slow
+def test_the_ml_fit_on_many_landmarks_refits_on_a_subset_with_its_noise_model():
+    """Above 64 landmarks the convention refits search on 64: the ML fit's noise model (one
+    whitener per landmark) goes with them."""
+    r = diagnose(calibrate(_noisy_grid(10, 7), Settings(population=200, generations=400)))
+    assert r.settings.loss == "ml" and r.stage1.noise is not None
+    assert r.diagnostics.stage1.loo_method.startswith("one Newton step")
+    assert r.diagnostics.convention.passed and r.diagnostics.expected.mean_mm > 0
+
+
+@pytest.mark.slow
 def test_diagnostics_memory_is_linear_in_landmarks():
     """Issue 16, item 5: leave-one-out by n refits of n landmarks held n Jacobians of 4n × d
     (150 MB at 600 landmarks, 60 GB at 10,000). Linear: a few MB."""

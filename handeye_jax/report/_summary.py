@@ -22,6 +22,7 @@ from ._verdict import (
     ambiguity_line,
     checks_lines,
     failed_checks,
+    some,
     verdict_lines,
 )
 
@@ -357,7 +358,7 @@ def diagnostic_lines(
     threshold = float("nan") if threshold is None else threshold
     lines.append(
         f"  outlier landmarks (an error > {threshold:g} mm): "
-        + (", ".join(f"m = {m}" for m in out) if out else "none")
+        + (f"m = {some(out)}" if out else "none")
     )
     return lines
 

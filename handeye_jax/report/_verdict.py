@@ -40,6 +40,12 @@ def _sig(value: float, digits: int) -> str:
     return f"{value:.{place}f}"
 
 
+def some(indices: Sequence[int], most: int = 10) -> str:
+    """Landmark or touch indices, at most ``most`` of them and how many more."""
+    shown = ", ".join(str(m) for m in indices[:most])
+    return shown + (f" and {len(indices) - most} more" if len(indices) > most else "")
+
+
 def _mm(value: float) -> str:
     """An error length, mm, to two significant digits."""
     return f"{_sig(value, 2)} mm"
@@ -124,7 +130,7 @@ def failed_checks(result: CalibrationResult) -> list[str]:
         for key in ("stage1", "stage2"):
             stage = getattr(d, key)
             if stage is not None and stage.outliers:
-                which = ", ".join(str(m) for m in stage.outliers)
+                which = some(stage.outliers)
                 checks.append(
                     f"{'stage 1' if key == 'stage1' else 'stage 2'}: outlier touch(es) {which} "
                     f"(an error above {d.outlier_threshold_mm:g} mm) → retake them, or fit with "
@@ -151,7 +157,8 @@ def checks_lines(checks: Sequence[str]) -> list[str]:
     lines = [f"CHECKS FAILED  {len(checks)}, each with what fixes it:"]
     lines += [f"  {i}. {c}" for i, c in enumerate(checks[:MAX_CHECKS], 1)]
     if len(checks) > MAX_CHECKS:
-        lines.append(f"  … and {len(checks) - MAX_CHECKS} more (--verbose lists them)")
+        lines.append(f"  … and {len(checks) - MAX_CHECKS} more (the result file's warnings "
+                     "list them)")  # fmt: skip
     return lines
 
 
