@@ -32,10 +32,11 @@ from ..calibration import (
     StageDiagnostics,
     StageResult,
     bound_hits,
+    prior_information,
 )
 from ..data import Observations
 from ..optim import MAX_MODES, Box, mode_leaders
-from ..problem import ParameterSpace, analyse_jacobian, get_loss
+from ..problem import analyse_jacobian, get_loss
 from ._refits import refits
 
 #: A distinct optimum is reported when its best F is within this many mm of the best.
@@ -163,16 +164,6 @@ def convention_check(
     )
 
 
-def _prior_precision(space: ParameterSpace) -> np.ndarray | None:
-    """The prior's precision in the space's free coordinates (zeros elsewhere), or None."""
-    if space.prior is None:
-        return None
-    P = np.zeros((space.d, space.d))
-    idx = space.prior_indices()
-    P[np.ix_(idx, idx)] = space.prior.precision
-    return P
-
-
 def diagnostics_of(
     stages: Stages[FittedStage],
     results: Stages[StageResult],
@@ -235,7 +226,7 @@ def _stage_diagnostics(stage: FittedStage, jacobian: tuple[np.ndarray, np.ndarra
     cls = type(space.template)
     e, J = jacobian
     units = [cls.param_units[cls.param_names.index(n)] for n in space.free]
-    jac = analyse_jacobian(e, J, space.free, units, depth_mm, _prior_precision(space))
+    jac = analyse_jacobian(e, J, space.free, units, depth_mm, prior_information(space))
     flat = [w.step for w in jac.weak_directions]
     modes: tuple[Mode, ...] = ()
     pop = stage.population
