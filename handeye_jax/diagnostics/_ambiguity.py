@@ -145,11 +145,32 @@ def _sign_twin(ctx: _Context) -> Ambiguity | None:
     names = [n for n in cls.sign_twin if n in ctx.space.free]
     if not names or len(names) != len(cls.sign_twin):
         return None
+    idx = [ctx.space.free.index(n) for n in names]
     x_alt = ctx.x.copy()
-    for n in names:
-        x_alt[ctx.space.free.index(n)] *= -1.0
-    return _judged(ctx, "tablet sign twin", np.clip(x_alt, ctx.space.lower, ctx.space.upper),
-                   SEPARATE_TWIN)  # fmt: skip
+    x_alt[idx] *= -1.0
+    x_alt = np.clip(x_alt, ctx.space.lower, ctx.space.upper)
+    width = ctx.space.upper - ctx.space.lower
+    if np.all(np.abs(x_alt - ctx.x) <= SAME_FRACTION * width) and _flip_is_exact(ctx, idx):
+        # The fit sits where the twins meet (both tilts ≈ 0): the objective is even in the
+        # tilts there, so their size and sign are not what its curvature says.
+        return Ambiguity(kind="tablet sign twin, at its fold (both tilts 0, where the two "
+                         "fits meet)", differs={n: 0.0 for n in names}, delta_F_mm=0.0,
+                         here_mm=0.0, elsewhere_mm=(0.0, 0.0), elsewhere=ELSEWHERE,
+                         separate_by=SEPARATE_TWIN, delta_chi2=0.0)  # fmt: skip
+    return _judged(ctx, "tablet sign twin", x_alt, SEPARATE_TWIN)
+
+
+#: The tilts' probe, deg: the flip is exact for these data when it leaves −2 log L unchanged.
+FLIP_PROBE_DEG = 1.0
+
+
+def _flip_is_exact(ctx: _Context, idx: list[int]) -> bool:
+    """Whether flipping the tilts' signs leaves −2 log L unchanged away from the fold (the
+    data see the tilts through their cosines only, no hand heights)."""
+    up, down = ctx.x.copy(), ctx.x.copy()
+    up[idx], down[idx] = FLIP_PROBE_DEG, -FLIP_PROBE_DEG
+    a, b = _chi2(ctx, up), _chi2(ctx, down)
+    return abs(a - b) <= 1e-9 * max(abs(a), abs(b), 1.0)
 
 
 def _along(ctx: _Context, w) -> Ambiguity | None:
