@@ -317,6 +317,21 @@ def test_many_landmarks_restart_on_a_subset_and_leave_one_out_by_one_newton_step
 
 
 @pytest.mark.slow
+def test_a_fit_at_the_sign_twins_fold_is_reported_and_its_tilts_get_no_sigma():
+    """``simulate twin --seed 25 --preset paper``: one capture, and the fit's tablet tilts are
+    both 0 (the true ones -1.2 and 2.3 deg), where the sign twin meets itself. Its σ there
+    (about 1e-5 deg) is not an error bar: the tilts are reported as ambiguous, without σ."""
+    truth = draw_truth(25)
+    r = diagnose(calibrate(simulate(truth, PRESETS["paper"], 25).dataset))
+    assert abs(r.stage1.params["alpha_t"]) < 1e-3 and abs(r.stage1.params["beta_t"]) < 1e-3
+    assert abs(truth.model["alpha_t"]) > 1.0 and abs(truth.model["beta_t"]) > 1.0
+    kinds = [a.kind for a in r.diagnostics.ambiguities]
+    assert any(k.startswith("tablet sign twin, at its fold") for k in kinds), kinds
+    assert {"alpha_t", "beta_t"} <= set(r.diagnostics.weak_params)
+    assert "at its fold" in format_summary(r)
+
+
+@pytest.mark.slow
 def test_the_ml_fit_on_many_landmarks_refits_on_a_subset_with_its_noise_model():
     """Above 64 landmarks the convention refits search on 64: the ML fit's noise model (one
     whitener per landmark) goes with them."""
