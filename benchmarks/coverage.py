@@ -296,6 +296,17 @@ def error_table(rows: list[dict]) -> list[str]:
     return lines
 
 
+def _rounded(x):
+    """Rows with six significant digits (the tables print three)."""
+    if isinstance(x, float):
+        return float(f"{x:.6g}")
+    if isinstance(x, list):
+        return [_rounded(v) for v in x]
+    if isinstance(x, dict):
+        return {k: _rounded(v) for k, v in x.items()}
+    return x
+
+
 def main() -> None:
     vectorise_small_loops()
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -326,7 +337,7 @@ def main() -> None:
                   f"{row['seconds']:.1f} s", flush=True)  # fmt: skip
             if not args.quick:
                 args.rows.parent.mkdir(parents=True, exist_ok=True)
-                args.rows.write_text(json.dumps(rows))
+                args.rows.write_text(json.dumps(_rounded(rows), separators=(",", ":")))
     elapsed = time.perf_counter() - t0
     rows = [json.loads(json.dumps(r)) for r in rows]
     text = "\n".join([
