@@ -49,11 +49,11 @@ def main(argv: list[str] | None = None) -> None:
         depth = rng.uniform(150.0, 190.0, n)
         angle = rng.uniform(-180.0, 180.0, n)
         jitted = jax.jit(hand_command)
-        args_jax = (model, rig, jnp.asarray(uv), jnp.asarray(depth), jnp.asarray(angle),
-                    correction, jnp.asarray(CENTRES_MM))  # fmt: skip
+        args_jax = (model, rig, jnp.asarray(uv), jnp.asarray(depth), jnp.asarray(angle))
+        stage2 = {"correction": correction, "centres_mm": jnp.asarray(CENTRES_MM)}
         calls = {
             "numpy Predictor": lambda: predictor.hand_command(uv, depth, angle),
-            "JAX path (jit)": lambda: np.asarray(jitted(*args_jax)),
+            "JAX path (jit)": lambda: np.asarray(jitted(*args_jax, **stage2)),
         }
         outs = {name: fn() for name, fn in calls.items()}  # compiles the JAX path
         times: dict[str, list[float]] = {name: [] for name in calls}

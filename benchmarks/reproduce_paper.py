@@ -3,10 +3,11 @@
     python benchmarks/reproduce_paper.py [--seeds 1 2 3 4 5] [--population N --generations G]
 
 Prints one Markdown table per model with F, f1, f2 per stage (mm), the sign twin found, the
-evaluations used and the wall time, plus the DH fit with a_c1's range widened (see README).
-The seeds' rows are fitted under the paper's own loss (``l1``, the mean error length), which
-the tables report; the last row of each table is the default fit, maximum likelihood under
-the noise model (``ml``, seed 1), beside them: its F is the paper's measure of another optimum.
+evaluations used and the wall time, plus the DH fit with a_c1's range widened (see
+docs/method.md). The seeds' rows are fitted under the paper's own loss (``l1``, the mean error
+length), which the tables report; the last row of each table is the default fit, maximum
+likelihood under the noise model (``ml``, seed 1), beside them: its F is the paper's measure of
+another optimum.
 
 "stage-1 evaluations" counts DE's evaluations plus the polish's, each LM step counted as
 1 + D objective evaluations (one residual vector and a D-column Jacobian).

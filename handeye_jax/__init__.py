@@ -114,6 +114,8 @@ _EXPORTS = {
     "PRESETS": "twin",
     "Prior": "problem",
     "plan_captures": "vision",
+    "planned_view": "vision",
+    "PlannedView": "vision",
     "PriorObjective": "problem",
     "put": "problem",
     "recalibrate": "calibration",
@@ -144,6 +146,17 @@ _EXPORTS = {
     "WeightedLengthBlock": "problem",
     "write_report": "report",
     "write_twin": "twin",
+    "apply_poses": "data",
+    "PoseReport": "data",
+    "read_intrinsics": "data",
+    "read_poses_csv": "data",
+    "ToolPose": "data",
+    "tool_pose_of_hand": "data",
+    "undistort_px": "data",
+    "distort_px": "data",
+    "with_heights": "robot",
+    "tool_poses": "twin",
+    "REALSENSE_LIKE": "twin",
 }
 # What a robot PC may lack; Predictor and Frames need none of it.
 _JAX_STACK = ("jax", "jaxlib", "equinox", "optimistix", "jaxtyping", "lineax", "jaxlie")
@@ -203,8 +216,12 @@ if TYPE_CHECKING:
     from .data._convert import convert_to_v2
     from .data._dataset import Camera, Capture, Dataset
     from .data._edit import update_dataset
+    from .data._hand_poses import PoseReport, apply_poses
+    from .data._intrinsics import read_intrinsics
     from .data._layouts import snake_grid_px
+    from .data._lens import distort_px, undistort_px
     from .data._observations import Observations
+    from .data._poses import ToolPose, read_poses_csv, tool_pose_of_hand
     from .data._read import load_dataset
     from .data._write import dataset_to_toml, save_dataset
     from .diagnostics._diagnose import diagnose
@@ -251,6 +268,7 @@ if TYPE_CHECKING:
     from .report._summary import format_summary
     from .robot._export import export_text
     from .robot._frames import Frames
+    from .robot._heights import with_heights
     from .robot._predictor import Predictor
     from .twin._evaluate import (
         Heldout,
@@ -262,10 +280,11 @@ if TYPE_CHECKING:
         format_evaluation,
         load_heldout,
     )
+    from .twin._poses import tool_poses
     from .twin._simulate import PRESETS, NoisePreset, Twin, simulate, simulate_captures, write_twin
     from .twin._synthetic import synthesize_captures, synthesize_dataset
-    from .twin._truth import TwinTruth, change_truth, draw_truth, load_truth
-    from .vision._captures import plan_captures
+    from .twin._truth import REALSENSE_LIKE, TwinTruth, change_truth, draw_truth, load_truth
+    from .vision._captures import PlannedView, plan_captures, planned_view
     from .vision._detect import (
         Detection,
         DetectSettings,
@@ -323,6 +342,7 @@ __all__ = [
     "PRESETS",
     "ParameterSpace",
     "Plan",
+    "PlannedView",
     "Predictor",
     "Prior",
     "PriorObjective",
@@ -375,6 +395,7 @@ __all__ = [
     "models",
     "optim",
     "plan_captures",
+    "planned_view",
     "put",
     "recalibrate",
     "recalibration_plan",
@@ -397,4 +418,15 @@ __all__ = [
     "PointErrors",
     "simulate_captures",
     "synthesize_captures",
+    "apply_poses",
+    "PoseReport",
+    "read_intrinsics",
+    "read_poses_csv",
+    "ToolPose",
+    "tool_pose_of_hand",
+    "undistort_px",
+    "distort_px",
+    "with_heights",
+    "tool_poses",
+    "REALSENSE_LIKE",
 ]

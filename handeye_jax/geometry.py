@@ -6,7 +6,7 @@ paper's: ``base`` (Σb), ``hand`` (Σh), ``camera`` (Σc), ``image`` (Σi) and `
 
 All angles are in degrees (the paper's unit), all lengths in millimetres, image coordinates in
 pixels. Every function is dtype-polymorphic; the public API runs it in float64 (see
-:mod:`handeye_jax._x64`).
+:mod:`handeye_jax._jax._x64`).
 """
 
 from __future__ import annotations

@@ -4,6 +4,7 @@ reused by every file that needs a result (``paper_result_file``, ``paper_result`
 import os
 from pathlib import Path
 
+import hypothesis
 import jax
 import pytest
 
@@ -17,6 +18,36 @@ os.environ.setdefault(
 jax.config.update("jax_compilation_cache_dir", os.environ["HANDEYE_JAX_CACHE_DIR"])
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+
+# Property tests: the same draws on every clone and every run ("ci", the default: derandomised,
+# no example database, no verdict by the machine's speed), or new random draws and ten times
+# the examples ("explore", run with HYPOTHESIS_PROFILE=explore before an issue is closed; the
+# README gives the command).
+hypothesis.settings.register_profile(
+    "ci", derandomize=True, database=None, print_blob=True, deadline=None,
+    suppress_health_check=[hypothesis.HealthCheck.too_slow],
+)  # fmt: skip
+hypothesis.settings.register_profile("explore", derandomize=False, print_blob=True, deadline=None)
+hypothesis.settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+EXPLORE_EXAMPLES = 10  # times each test's own max_examples
+
+
+def pytest_collection_modifyitems(items):
+    """In "explore", each property test runs ten times its own ``max_examples`` (its
+    ``@settings`` would otherwise override the profile's)."""
+    if hypothesis.settings.get_current_profile_name() != "explore":
+        return
+    done = set()
+    for item in items:
+        test = getattr(item, "function", None)
+        if not hypothesis.is_hypothesis_test(test) or test in done:
+            continue
+        done.add(test)
+        own = test._hypothesis_internal_use_settings  # where @settings puts them (no public API)
+        test._hypothesis_internal_use_settings = hypothesis.settings(
+            own, max_examples=own.max_examples * EXPLORE_EXAMPLES
+        )
 
 
 @pytest.fixture(autouse=True)

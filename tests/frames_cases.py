@@ -106,7 +106,8 @@ def points(draw, n: int = N_POINTS):
 def _jax_hand_command(model, rig, correction, centres, uv, depth, angle):
     # Both stages in one program: one compilation per model class.
     return (hand_command(model, rig, uv, depth, angle),
-            hand_command(model, rig, uv, depth, angle, correction, centres))  # fmt: skip
+            hand_command(model, rig, uv, depth, angle, correction=correction,
+                         centres_mm=centres))  # fmt: skip
 
 
 def jax_reference_of(model, rig, correction, centres_mm, uv, depth, angle, stage: int):

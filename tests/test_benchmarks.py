@@ -107,8 +107,10 @@ def test_partial_match_reads_no_picture_wrong():
     out = run_in_process("partial_match.py", "--trials", "40", "--seed", "3")
     total = [line.split() for line in out.splitlines() if line.strip().startswith("total")]
     assert len(total) == 1
-    _, right, refused, wrong = total[0]
-    assert int(wrong) == 0 and int(right) + int(refused) == 40 and int(right) > 20
+    right, refused, _, avoidable, wrong = map(int, total[0][1:6])
+    assert wrong == 0 and right + refused == 40 and right > 20
+    # blobs that span a quadrilateral are never refused as collinear, nor as matching nothing
+    assert avoidable == 0 and total[0][6:8] == ["(0,", "0,"], out
 
 
 def test_dots_by_height_finds_two_pixel_dots_from_80_mm_higher():
@@ -148,3 +150,11 @@ def test_startup_times_every_command_and_the_parts_of_a_calibration():
     assert re.search(r"^\| _chunk_scan \| 2 \| ", out, re.M)
     assert re.search(r"^\| _lm \| 2 \| ", out, re.M) and "| all |" in out
     assert re.search(r"NumPy Predictor, in this process: \d+\.\d+ µs per point", out)
+
+
+def test_tablet_attack_runs_every_attack():
+    out = _run("tablet_attack.py", "--connections", "40", "--seconds", "1", "--drip", "0.5",
+               "--resets", "5")  # fmt: skip
+    assert re.search(r"40 slow connections, 1 s: operator answered (\d+) of \1,", out), out
+    assert re.search(r"5 reset connections: \d log lines", out), out
+    assert "control bytes of a request path in the log: False" in out

@@ -253,6 +253,20 @@ def test_console_script_exit_keeps_every_output(tmp_path):
     assert load_result(out).stage1.F > 0
 
 
+def test_a_closed_pipe_on_stdout_keeps_the_result_and_says_nothing(tmp_path):
+    # `handeye-jax calibrate ... --out r.json | head -1`: the reader leaves before the summary.
+    out = tmp_path / "r.json"
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    p = subprocess.Popen([sys.executable, "-m", "handeye_jax.cli", "calibrate", str(PAPER),
+                          "--population", "40", "--generations", "5", "--no-diagnostics",
+                          "--quiet", "--out", str(out)], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, env=env)  # fmt: skip
+    p.stdout.close()
+    err = p.stderr.read().decode()
+    assert p.wait() == 141 and err == "", err
+    assert load_result(out).stage1.F > 0
+
+
 def test_console_script_runs_without_traceback(tmp_path):
     bad = _bad_dataset(tmp_path, "scale = 2.0", "scale = -2.0")
     env = dict(os.environ, JAX_PLATFORMS="cpu")
@@ -339,8 +353,9 @@ CTRL_C_MOMENTS = {
 }
 
 
-def _ctrl_c_when(tmp_path, python_flags, pattern):
-    """Start ``calibrate --out`` over an existing file, send SIGINT when stderr matches."""
+def _ctrl_c_when(tmp_path, python_flags, pattern, signum=None):
+    """Start ``calibrate --out`` over an existing file, send SIGINT (or ``signum``) when
+    stderr matches."""
     import signal
     import threading
     import time
@@ -358,7 +373,7 @@ def _ctrl_c_when(tmp_path, python_flags, pattern):
         assert p.poll() is None, f"the run ended before {pattern!r}"
         assert time.monotonic() < deadline
         time.sleep(0.005)
-    p.send_signal(signal.SIGINT)
+    p.send_signal(signal.SIGINT if signum is None else signum)
     stdout = p.stdout.read()
     p.wait(timeout=120)
     reader.join()
@@ -378,9 +393,22 @@ def test_ctrl_c_at_any_moment_exits_130_and_keeps_the_out_file(tmp_path, moment)
     assert [p.name for p in tmp_path.iterdir()] == ["result.json"]  # no temporary file left
 
 
+@pytest.mark.parametrize("moment", ["importing numpy", "stage 1 DE"])
+def test_sigterm_is_handled_as_ctrl_c_is_exit_143_and_the_out_file_kept(tmp_path, moment):
+    import signal
+
+    rc, _, err, lines, out = _ctrl_c_when(tmp_path, *CTRL_C_MOMENTS[moment], signal.SIGTERM)
+    assert rc == 143, err[-2000:]
+    assert lines[-1] == "handeye-jax: terminated; nothing was written"
+    assert "Traceback" not in err and "Exception ignored" not in err
+    assert out.read_text() == "precious\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["result.json"]  # no temporary file left
+
+
 def test_a_ctrl_c_that_a_callback_swallowed_still_stops_before_the_write(
     tmp_path, capsys, monkeypatch
 ):
+    import gc
     import signal
 
     import handeye_jax.calibration
@@ -388,10 +416,15 @@ def test_a_ctrl_c_that_a_callback_swallowed_still_stops_before_the_write(
     to_json = handeye_jax.calibration.result_to_json
 
     def swallowing(result):  # the last step before the write
+        # gc off, so that the handler runs here and not inside another gc callback (such as
+        # hypothesis's, which would report it as an unraisable exception)
+        gc.disable()
         try:
             signal.raise_signal(signal.SIGINT)
         except KeyboardInterrupt:
             pass  # as JAX's _xla_gc_callback swallows it
+        finally:
+            gc.enable()
         return to_json(result)
 
     monkeypatch.setattr(handeye_jax.calibration, "result_to_json", swallowing)  # the CLI finds it
@@ -423,7 +456,7 @@ def _subcommands():
 
 
 SUBCOMMANDS = ["calibrate", "predict", "report", "tablet", "simulate", "detect", "evaluate",
-               "export", "convert", "plan"]  # fmt: skip
+               "export", "convert", "plan", "poses", "intrinsics"]  # fmt: skip
 
 
 @pytest.mark.parametrize("name", SUBCOMMANDS)

@@ -188,7 +188,7 @@ def test_plan_refuses_a_version_1_dataset(v1, capsys):
 
 
 def test_the_readmes_version_2_example_is_a_valid_dataset(tmp_path):
-    readme = (PAPER.parents[1] / "README.md").read_text()
+    readme = (PAPER.parents[1] / "docs" / "file-formats.md").read_text()
     blocks = [b for b in readme.split("```toml\n")[1:] if "handeye-jax.dataset/2" in b[:60]]
     assert len(blocks) == 1
     path = tmp_path / "example.toml"

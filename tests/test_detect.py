@@ -77,6 +77,21 @@ def test_ordering_holds_under_rotation_and_perspective(turn_deg, tilt, scale, sh
     np.testing.assert_array_equal(perm[order], np.arange(9))
 
 
+@pytest.mark.parametrize("landmarks", [[0, 4, 5, 6, 7, 8], [2, 3, 4, 5, 8], [0, 1, 2, 5, 8]],
+                         ids=["staircase", "T", "L"])  # fmt: skip
+def test_a_layout_with_three_in_a_row_on_its_outline_is_ordered(landmarks):
+    """Issue 23: its outermost four held three in a row (no quadrilateral): it was refused."""
+    layout = snake_grid_px()[landmarks]
+    centred = layout - layout.mean(axis=0)
+    for turn_deg, tilt in [(0.0, (0.0, 0.0)), (5.0, (0.0, 2.9e-5)), (-20.0, (1e-4, -5e-5))]:
+        c, s = np.cos(np.radians(turn_deg)), np.sin(np.radians(turn_deg))
+        H = np.array([[0.5 * c, -0.5 * s, 320.0], [0.5 * s, 0.5 * c, 240.0], [*tilt, 1.0]])
+        seen = cv2.perspectiveTransform(centred[None], H)[0]
+        perm = np.random.default_rng(len(landmarks)).permutation(len(landmarks))
+        np.testing.assert_array_equal(perm[order_blobs(seen[perm], layout)],
+                                      np.arange(len(landmarks)))  # fmt: skip
+
+
 def test_ordering_on_a_rendered_grid_turned_30_deg_in_perspective():
     for gamma_t in (-30.0, 30.0):
         fixed = {"gamma_t": gamma_t, "alpha_t": 4.0, "depth_mm": 230.0}

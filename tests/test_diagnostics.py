@@ -265,6 +265,28 @@ def test_a_refit_lower_than_the_fit_becomes_the_result(twin1):
     assert f"{alone.stage1.F:.6f}" in text
 
 
+def _fingerprint(result):
+    """Each stage's F and parameters as float64 bit patterns."""
+    return [(float(s.F).hex(), {k: float(v).hex() for k, v in s.params.items()})
+            for s in (result.stage1, result.stage2)]  # fmt: skip
+
+
+def test_calibrate_with_or_without_diagnostics_gives_one_answer(paper_result, tmp_path):
+    """Issue 24: calibrate() from Python, the command line with its diagnostics (the session's
+    result) and without them, and diagnose() of the Python result: the same F and parameters,
+    bit for bit (the diagnostics once adopted a refit that beat the fit, on the command line
+    only). benchmarks/diagnostics_readonly.py checks it at the default budget on twins."""
+    from handeye_jax.cli import main
+    from tests.common import FAST as FAST_ARGS
+
+    out = tmp_path / "no_diagnostics.json"
+    assert main(["calibrate", str(PAPER), "--no-diagnostics", "--out", str(out), *FAST_ARGS]) == 0
+    fitted = calibrate(load_dataset(PAPER), FAST)
+    assert paper_result.diagnostics is not None and load_result(out).diagnostics is None
+    ways = [fitted, paper_result, load_result(out), diagnose(fitted)]
+    assert [_fingerprint(r) for r in ways] == [_fingerprint(fitted)] * 4
+
+
 # -- leave-one-out -----------------------------------------------------------------------
 
 

@@ -35,7 +35,7 @@ from handeye_jax.robot import (
 
 NAMES = {"parent": "flange_link", "camera": "cam_optical", "pen": "pen_tcp"}
 SUFFIX = {"json": ".json", "yaml": ".yaml", "urdf": ".urdf.xacro", "ros2": ".launch.py",
-          "opencv": ".yml", "python": ".py"}  # fmt: skip
+          "opencv": ".yml", "python": ".py", "easy_handeye": ".yaml"}  # fmt: skip
 
 
 def _export(frames: Frames, fmt: str, folder: Path) -> Path:
@@ -151,6 +151,17 @@ def read_python(path: Path, frames: Frames):
     return module
 
 
+def read_easy_handeye(path: Path, frames: Frames) -> Frames:
+    """PyYAML's reading of easy_handeye's file: the camera mount (x y z m, qx qy qz qw); the
+    format holds nothing else, so the rest of the chain is the frames'."""
+    doc = yaml.safe_load(path.read_text())
+    assert doc["parameters"]["robot_effector_frame"] == NAMES["parent"]
+    assert doc["parameters"]["tracking_base_frame"] == NAMES["camera"]
+    tr = doc["transformation"]
+    R = Rotation.from_quat([tr["qx"], tr["qy"], tr["qz"], tr["qw"]]).as_matrix()
+    return _with(frames, R, [tr["x"], tr["y"], tr["z"]], np.nan_to_num(frames.t_hand_pen_mm) / 1e3)
+
+
 READERS = {
     "json": lambda p, f: Frames.from_dict(json.loads(p.read_text()), p),
     "yaml": lambda p, f: Frames.from_dict(yaml.safe_load(p.read_text()), p),
@@ -158,6 +169,7 @@ READERS = {
     "ros2": read_ros2,
     "opencv": read_opencv,
     "python": read_python,
+    "easy_handeye": read_easy_handeye,
 }
 
 
@@ -236,8 +248,10 @@ def test_cli_export_writes_each_format_and_warns_of_zeros(tmp_path, case_file, c
     frames = Predictor.from_result(case_file).frames
     zeros = zero_filled(frames, fmt)
     if zeros:  # one line naming them, and the file says so beside the numbers
-        assert io.err == (f"handeye-jax: warning: {', '.join(zeros)} not determined by the "
-                          f"data: written as 0 in the {fmt} file, which says so\n")  # fmt: skip
+        assert io.err.startswith(f"handeye-jax: warning: {', '.join(zeros)} not determined by "
+                                 f"the data: written as 0 in the {fmt} file, which says so; give "
+                                 "--camera-z-mm")  # fmt: skip
+        assert io.err.count("\n") == 1
         text = out.read_text()
         assert "NOT DETERMINED" in text and all(c in text for c in zeros)
     else:

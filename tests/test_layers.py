@@ -1,10 +1,11 @@
-"""The package's folders are its layers: the rules of the README's "Layout", read from the code.
+"""The package's folders are its layers: the rules of docs/layout.md, read from the code.
 
 Every import of every module (at the top, inside functions and under ``TYPE_CHECKING``) is
 read with :mod:`ast`, and the test fails on
 
 * a folder importing one above it (:data:`LAYERS`, lowest first);
-* an import cycle between modules;
+* an import cycle between modules (imports that run: one under ``TYPE_CHECKING`` names a type
+  for the checker and never runs, so two classes of one folder may name each other);
 * a private name imported from another folder: across folders, a module imports only what
   the other folder's ``__init__`` exports (never ``_name``, never a private module);
 * JAX or equinox imported, even transitively, by ``robot/`` or ``_core/`` (checked by
@@ -68,6 +69,18 @@ def imports_of(path: Path, root: Path = ROOT) -> list[tuple[int, str, str | None
     return out
 
 
+def type_checking_lines(path: Path) -> set[int]:
+    """The lines of the imports under ``if TYPE_CHECKING:`` in ``path``."""
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            for inner in node.body:
+                for sub in ast.walk(inner):
+                    if isinstance(sub, ast.Import | ast.ImportFrom):
+                        out.add(sub.lineno)
+    return out
+
+
 def package_modules(root: Path = ROOT) -> dict[str, Path]:
     return {module_name(p, root): p for p in (root / "handeye_jax").rglob("*.py")}
 
@@ -91,11 +104,13 @@ def problems(root: Path = ROOT) -> list[str]:
     for module, path in modules.items():
         mine = layer_of(module)
         where = path.relative_to(root)
+        typing_only = type_checking_lines(path)
         for line, imported, name in imports_of(path, root):
             if not imported.startswith("handeye_jax"):
                 continue
             target = targets(imported, name, modules)
-            graph[module].add(target)
+            if line not in typing_only:
+                graph[module].add(target)
             theirs = layer_of(target)
             if theirs == mine or mine == "__init__" and module == "handeye_jax":
                 continue

@@ -22,7 +22,7 @@ from frames_cases import (
     points,
     run_without_jax,
 )
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from handeye_jax import (
@@ -135,27 +135,48 @@ def _R_base_hand(phi_deg: float) -> np.ndarray:
     return np.diag([-1.0, 1.0, -1.0]) @ Rz
 
 
+# The camera tilted by 28 deg (alpha_c near its range's end).
+TILTED = Case("htm", {"xc": 0.0, "yc": 20.0, "alpha_c": -28.0, "beta_c": 0.0, "gamma_c": 0.0,
+                      "xt": 100.0, "yt": 0.0, "alpha_t": 0.0, "beta_t": 0.0, "gamma_t": 0.0,
+                      "xp": 0.0, "yp": -10.0},
+              {**dict.fromkeys(["X1", "Y1", "theta1", "X2", "Y2", "theta2"], 0.0),
+               **dict.fromkeys(["Sx1", "Sy1", "Sx2", "Sy2"], 1.0)},
+              (300.0, 300.0, 200.0, 150.0), (0.0, 0.0, 0.0), 90.0, 1,
+              ((0.0, 0.0), (0.0, 0.0)))  # fmt: skip
+
+
 @FAST
 @given(
     case=cases(),
     capture_angle=st.floats(-360, 360),
     capture=st.tuples(*[st.floats(-500, 500)] * 3),
-    base_xyz=st.lists(st.tuples(st.floats(-500, 500), st.floats(-500, 500), st.floats(-400, -50)),
-                      min_size=1, max_size=5),
+    # each point as the camera saw it: where in the picture (fractions of 2·cx, 2·cy) and its
+    # depth, mm: in front of the camera, as a photographed point is
+    seen=st.lists(st.tuples(st.floats(0, 1), st.floats(0, 1), st.floats(50, 1500)),
+                  min_size=1, max_size=5),
     angle=st.floats(-360, 360),
     z_mm=st.tuples(st.floats(-30, 30), st.floats(-60, 0)),
 )  # fmt: skip
+# Issue 23: points drawn in the base frame 150 mm below a capture 300 mm aside, the camera
+# tilted 28 deg away, were behind the camera (negative depth); now they are drawn in its view.
+@example(case=TILTED, capture_angle=0.0, capture=(-192.0, 0.0, -500.0),
+         seen=[(0.0, 0.5, 150.0), (1.0, 1.0, 60.0)], angle=0.0, z_mm=(0.0, 0.0))  # fmt: skip
 def test_a_capture_pose_per_point_turns_the_camera_with_the_hand(
-    case, capture_angle, capture, base_xyz, angle, z_mm
+    case, capture_angle, capture, seen, angle, z_mm
 ):
-    """Points placed in the base frame and photographed from a capture at any hand angle
-    come back where they are (stage 1), for each point's own capture pose."""
+    """Points photographed from a capture at any hand angle come back where they are
+    (stage 1), for each point's own capture pose."""
     frames = case.frames(**{"t_hand_camera_mm.z": z_mm[0], "t_hand_pen_mm.z": z_mm[1]})
-    X = np.array(base_xyz)
-    cap = np.array(capture) + [0.0, 0.0, 600.0]  # the camera above the points
+    f = frames
+    cap = np.array(capture) + [0.0, 0.0, 600.0]
     R_bh = _R_base_hand(float(frames.phi_deg(capture_angle)))
-    # camera frame: p_c = R_hc^T (R_bh^T (X - cap) - t_hc)
+    where, depth = np.array(seen)[:, :2] * [2 * f.cx_px, 2 * f.cy_px], np.array(seen)[:, 2]
+    ray = np.c_[(where - [f.cx_px, f.cy_px]) / [f.fx_px, f.fy_px], np.ones(len(seen))]
+    X = cap + (depth[:, None] * ray @ f.R_hand_camera.T + f.t_hand_camera_mm) @ R_bh.T
+    # the picture of X from the capture, as the camera takes it:
+    # p_c = R_hc^T (R_bh^T (X - cap) - t_hc)
     p_c = ((X - cap) @ R_bh - frames.t_hand_camera_mm) @ frames.R_hand_camera
+    np.testing.assert_allclose(p_c[:, 2], depth, rtol=1e-9)  # the same point, in front
     uv = p_c[:, :2] / p_c[:, 2:] * [frames.fx_px, frames.fy_px] + [frames.cx_px, frames.cy_px]
     offset = (_R_base_hand(float(frames.phi_deg(angle))) @ frames.t_hand_pen_mm)[:2]
     want = X[:, :2] - offset
@@ -316,7 +337,7 @@ def test_bad_files_give_one_line_naming_the_file(tmp_path, case_file):
     big = tmp_path / "big.json"
     with open(big, "wb") as f:
         f.truncate(65 * 1024 * 1024)  # sparse: nothing is written
-    with pytest.raises(InputError, match="too large"):
+    with pytest.raises(InputError, match="larger than 64 MiB"):
         Predictor.from_result(big)
 
 
@@ -414,17 +435,16 @@ class _Robot:
 
 
 def test_the_readme_pick_loop_touches_what_the_predictor_says(case_file):
-    """The README's "Use it on the robot" examples run as written, the pick loop with a fake
+    """docs/use-on-the-robot.md's examples run as written, the pick loop with a fake
     robot and camera: it captures from the calibration's pose and goes to each command."""
-    readme = (ROOT / "README.md").read_text()
-    section = readme.split("## Use it on the robot\n", 1)[1].split("\n## ", 1)[0]
+    section = (ROOT / "docs" / "use-on-the-robot.md").read_text()
     blocks = re.findall(r"```python\n(.*?)```", section, flags=re.S)
     assert len(blocks) == 2
     import handeye_jax as hj
 
     ns = {"hj": hj}
     code = "\n".join(blocks).replace('"paper.result.json"', repr(str(case_file)))
-    exec(compile(code, "README.md", "exec"), ns)
+    exec(compile(code, "docs/use-on-the-robot.md", "exec"), ns)
     assert ns["xy_mm"].shape == (1, 2)
     uv, depth, angle = PAPER_POINTS
     robot = _Robot()

@@ -489,7 +489,7 @@ def test_a_page_of_another_origin_cannot_use_the_server(browser, real):
         out = page.evaluate(ATTACK, [real.url, body, real.token])
         # The browser sent them all (the server logs each refusal, naming the Origin)...
         for method, path in (("GET", "/api/session"), ("POST", "/api/calibration")):
-            real.wait_log(f"refused {method} {path}: Origin '{evil_origin}'")
+            real.wait_log(f'"{method} {path} HTTP/1.1" 403', f"refused: Origin '{evil_origin}'")
         # ...and the page got nothing: no readable answer, no change on disk.
         assert out == {"session": "failed", "post": "failed", "leaked": "failed"}, out
         assert real.dataset.read_bytes() == before
@@ -527,7 +527,7 @@ def test_a_page_reached_by_another_host_name_is_refused(browser, real):
             real.token,
         )
         assert out[0] == 403 and out[1]["field"] == "Host" and "attacker.example" in out[1]["error"]
-        real.wait_log("refused GET /api/session: Host 'attacker.example:")
+        real.wait_log('"GET /api/session HTTP/1.1" 403', "refused: Host 'attacker.example:")
     finally:
         context.close()
 

@@ -31,7 +31,7 @@ from handeye_jax import (
     write_twin,
 )
 from handeye_jax.cli import main
-from handeye_jax.twin._evaluate import landing_tablet_px
+from handeye_jax.twin._evaluate import landing_tablet_px, landmarks_fitted
 from handeye_jax.twin._truth import RANGES
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -238,6 +238,43 @@ def test_evaluate_refuses_a_result_fitted_on_another_dataset(loop, tmp_path, cap
     save_dataset(ds.replace(touch_error_px=touched), edited / "dataset.toml")
     assert main(["evaluate", str(result), str(edited)]) == 2
     _one_line(capsys, str(result), "whose touch_error_px differs from", str(edited))
+
+
+def test_a_part_of_a_twin_calibrates_and_evaluates_on_the_whole_twin(loop, tmp_path, capsys):
+    twin, _ = loop
+    part = tmp_path / "part.json"
+    assert main(["calibrate", str(twin / "dataset.toml"), "--landmarks", "8,0,4",
+                 "--out", str(part), "--no-diagnostics", *FAST]) == 0  # fmt: skip
+    out = capsys.readouterr().out
+    assert "fitting landmarks 8, 0, 4 of the 9 in dataset.toml (--landmarks)" in out
+    fitted = load_result(part).data
+    whole = load_dataset(twin / "dataset.toml")
+    assert fitted == whole.landmark_subset([8, 0, 4])
+    assert main(["evaluate", str(part), str(twin)]) == 0
+    assert "| stage 2 |" in capsys.readouterr().out
+    # A part whose landmarks are not the twin's is still refused.
+    moved = fitted.replace(tablet_px=fitted.tablet_px + 1.0)
+    assert landmarks_fitted(moved, whole) is None
+
+
+def test_landmarks_beyond_the_dataset_are_refused_naming_it(loop, capsys):
+    twin, _ = loop
+    assert main(["calibrate", str(twin / "dataset.toml"), "--landmarks", "0,9", *FAST]) == 2
+    _one_line(capsys, "dataset.toml: --landmarks: landmark 9: the dataset has 9 landmarks, "
+              "m = 0 to 8")  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "value, needle",
+    [("1,2,1", "landmark 1 given twice"), ("0,\uff13", "not a whole number: '\uff13'"),
+     ("-1,2", "must be 0 to 9,999 (got -1)"), ("0,,4", "not a whole number: ''")],
+)  # fmt: skip
+def test_a_bad_landmarks_option_is_one_line(value, needle, capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["calibrate", "any.toml", f"--landmarks={value}"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"error: argument --landmarks: {needle}" in err, err
 
 
 class _Stop(Exception):

@@ -7,11 +7,14 @@ all (:class:`StagedFiles`).
 
 from __future__ import annotations
 
+import errno
 import os
+import re
 import secrets
 import shutil
 import stat
 import tempfile
+import time
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
@@ -31,7 +34,7 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> None:
     An existing file keeps its permissions; a new one gets the umask's. The temporary file
     never survives, whatever fails.
     """
-    path = Path(path)
+    path = real_target(path)
     tmp = _write_temp(path, data)
     try:
         os.replace(tmp, path)
@@ -41,14 +44,25 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> None:
     _fsync_folder(path.parent)
 
 
+def real_target(path: str | Path) -> Path:
+    """Where a write to ``path`` lands: a symbolic link's target (so the file the link names
+    gets the new contents, and the link stays a link), else ``path`` itself; ``OSError`` for
+    a loop of links."""
+    real = Path(os.path.realpath(path))
+    if real.is_symlink():  # realpath gives up on a loop
+        raise OSError(errno.ELOOP, os.strerror(errno.ELOOP), str(path))
+    return real
+
+
 def _write_temp(path: Path, data: bytes) -> str:
     """``data`` in a new temporary file beside ``path``, with ``path``'s permissions."""
     _interrupt.before_writing()  # Ctrl-C before the first output: nothing is written
+    sweep_stale(path)
     try:
         mode = stat.S_IMODE(os.stat(path).st_mode)
     except FileNotFoundError:
         mode = 0o666 & ~_umask()
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=_temp_prefix(path), suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
@@ -59,6 +73,64 @@ def _write_temp(path: Path, data: bytes) -> str:
         _unlink(tmp)
         raise
     return tmp
+
+
+# -- temporary files left behind -------------------------------------------------------------
+
+#: A temporary file of ours this old is stale whoever made it (a process on another machine
+#: sharing the folder, or one whose number was reused), s.
+STALE_AFTER_S = 3600.0
+#: One whose process has ended is stale once this old (a process on another machine with the
+#: same number may still be writing it for a moment), s.
+ORPHAN_AFTER_S = 10.0
+
+
+def _temp_prefix(path: Path) -> str:
+    # The writer's process number in the name tells a leftover from a write in progress.
+    return f".{path.name}.{os.getpid()}."
+
+
+def sweep_stale(path: Path) -> list[str]:
+    """Remove the temporary files of earlier writes to ``path`` that a killed process left
+    beside it (``.NAME.PID.XXXXXXXX.tmp``, ``.old`` or ``.probe``, and the older
+    ``.NAME.XXXXXXXX.tmp`` without a process number): only names of this module's making,
+    only stale ones (their process has ended, :data:`ORPHAN_AFTER_S`; or older than
+    :data:`STALE_AFTER_S`). Returns the names removed; what cannot be removed is left."""
+    ours = re.compile(rf"\.{re.escape(path.name)}\.(?:(\d+)\.)?[a-z0-9_]{{8}}\.(?:tmp|old|probe)")
+    removed = []
+    now = time.time()
+    try:
+        entries = list(os.scandir(path.parent))
+    except OSError:
+        return removed
+    for entry in entries:
+        match = ours.fullmatch(entry.name)
+        if not match:
+            continue
+        try:
+            if not entry.is_file(follow_symlinks=False):
+                continue
+            age = now - entry.stat(follow_symlinks=False).st_mtime
+            pid = match.group(1)
+            if age > STALE_AFTER_S or (pid and age > ORPHAN_AFTER_S and not _alive(int(pid))):
+                os.unlink(entry.path)
+                removed.append(entry.name)
+        except OSError:
+            continue
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` runs on this machine (unknown counts as running)."""
+    if pid == os.getpid() or os.name == "nt":  # Windows' os.kill(pid, 0) would signal it
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # e.g. another user's process
+        return True
+    return True
 
 
 def _unlink(path: str | Path) -> None:
@@ -121,8 +193,10 @@ def _check_target(path: Path, field: str, inputs: Iterable[str | Path | None]) -
 
 def _probe(folder: Path, path: Path, field: str) -> None:
     """Create and remove a file in ``folder``, as the atomic write will."""
+    probe = folder / "handeye-jax"
+    sweep_stale(probe)
     try:
-        fd, tmp = tempfile.mkstemp(prefix=".handeye-jax.", suffix=".probe", dir=folder)
+        fd, tmp = tempfile.mkstemp(prefix=_temp_prefix(probe), suffix=".probe", dir=folder)
     except OSError as e:
         why = f"cannot write in folder {str(folder)!r}: {reason(e)}"
         raise InputError(path, field, why) from None
@@ -140,8 +214,8 @@ def check_output(
     file as one of ``inputs``.
     """
     path = Path(path)
-    folder = path.parent
     try:
+        folder = real_target(path).parent  # a symbolic link is written through
         if not folder.is_dir():
             what = "is not a folder" if folder.exists() else "does not exist"
             raise InputError(path, field, f"cannot write: folder {str(folder)!r} {what}")
@@ -195,12 +269,14 @@ class StagedFiles:
     def __init__(self, files: Mapping[str | Path, bytes], field: str = ""):
         self.field = field
         self._temps: dict[Path, str] = {}
+        self._real: dict[Path, Path] = {}  # each target, through a symbolic link
         path = None
         try:
             for path, data in files.items():
                 path = Path(path)
                 _check_target(path, field, ())
-                self._temps[path] = _write_temp(path, data)
+                self._real[path] = real_target(path)
+                self._temps[path] = _write_temp(self._real[path], data)
         except BaseException as e:
             self.discard()
             if isinstance(e, OSError):
@@ -225,20 +301,21 @@ class StagedFiles:
         previous: dict[Path, str] = {}  # target -> a link to (or copy of) what it held
         done: list[Path] = []
         path = None
+        real = self._real
         try:
             for path in self._temps:
-                if path.exists():
-                    previous[path] = _keep(path)
+                if real[path].exists():
+                    previous[path] = _keep(real[path])
             for path, tmp in self._temps.items():
-                os.replace(tmp, path)
+                os.replace(tmp, real[path])
                 done.append(path)
         except BaseException as e:
             for p in reversed(done):
                 try:
                     if p in previous:
-                        os.replace(previous.pop(p), p)
+                        os.replace(previous.pop(p), real[p])
                     else:
-                        os.unlink(p)
+                        os.unlink(real[p])
                 except OSError:
                     pass
             self._cleanup(previous)
@@ -249,7 +326,7 @@ class StagedFiles:
         self._cleanup(previous)
         paths = list(self._temps)
         self._temps = {}
-        for folder in {p.parent for p in paths}:
+        for folder in {real[p].parent for p in paths}:
             _fsync_folder(folder)
         return paths
 
@@ -265,14 +342,14 @@ class StagedFiles:
 def _keep(path: Path) -> str:
     """A hard link to ``path`` (a copy where links are not possible) beside it."""
     while True:
-        kept = str(path.with_name(f".{path.name}.{secrets.token_hex(4)}.old"))
+        kept = str(path.with_name(f"{_temp_prefix(path)}{secrets.token_hex(4)}.old"))
         try:
             os.link(path, kept)
             return kept
         except FileExistsError:
             continue
         except OSError:
-            fd, kept = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent)
+            fd, kept = tempfile.mkstemp(prefix=_temp_prefix(path), suffix=".old", dir=path.parent)
             os.close(fd)
             shutil.copy2(path, kept)
             return kept

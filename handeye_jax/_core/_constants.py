@@ -10,8 +10,8 @@ REPORT_FIGURES = ("fig3_landmarks", "chains_stage1", "chains_stage2", "residuals
 REPORT_FORMATS = ("png", "svg")
 #: The files :func:`~handeye_jax.write_twin` writes.
 TWIN_FILES = ("dataset.toml", "truth.json", "heldout.csv", "capture.png", "depth.png")
-#: What the README's loop makes from a twin beside its files (``detect --overlay``, ``detect``
-#: in place, ``calibrate --out``, ``report``): stale once the twin is replaced.
+#: What the loop of docs/twin.md makes from a twin beside its files (``detect --overlay``,
+#: ``detect`` in place, ``calibrate --out``, ``report``): stale once the twin is replaced.
 DERIVED_FILES = ("overlay.png", "dataset.toml.*.bak", "dataset.toml.bak", "result.json")
 DERIVED_FOLDER = "result_report"
 #: Seeds numpy's generators take: 0 to 2^63 - 1.

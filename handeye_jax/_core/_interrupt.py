@@ -1,5 +1,8 @@
 """Ctrl-C in the command line: the run ends with exit 130 and every file as it was.
 
+SIGTERM (``kill``, a service manager, a closed session) is handled the same way: the run
+ends with exit 143 (128 + 15) and every file as it was, or finishes the writing it had begun.
+
 Python turns SIGINT into a KeyboardInterrupt wherever the main thread happens to be. When that
 is a callback run by the garbage collector (JAX's ``_xla_gc_callback``) or by C++, the
 exception is printed as "Exception ignored" and swallowed, and the run goes on to write its
@@ -25,18 +28,36 @@ import sys
 import threading
 from collections.abc import Iterator
 
+#: The signals handled as Ctrl-C is (where the platform has them).
+SIGNALS = (signal.SIGINT, *([signal.SIGTERM] if hasattr(signal, "SIGTERM") else []))
+
 
 class _State:
     active = False  # recording_interrupts() is in force
-    received = False  # a SIGINT came while active
+    received = False  # a SIGINT or SIGTERM came while active
+    signum = signal.SIGINT  # the last one that came
     deferred = False  # in deferred(): record only
     writing = False  # outputs are being written: SIGINT no longer stops the run
 
 
 def _on_sigint(signum, frame) -> None:
     _State.received = True
+    _State.signum = signum
     if not (_State.deferred or _State.writing):
         raise KeyboardInterrupt
+
+
+def _default_handler(signum, frame) -> None:
+    # A server's SIGTERM ends it as its Ctrl-C does (Python's default handler for SIGINT).
+    raise KeyboardInterrupt
+
+
+def stopped_by() -> tuple[str, int]:
+    """What ended the run after a KeyboardInterrupt: ``("interrupted", 130)`` for Ctrl-C,
+    ``("terminated", 143)`` for SIGTERM (the word for the message, the exit status)."""
+    if _State.signum == getattr(signal, "SIGTERM", None):
+        return "terminated", 128 + int(_State.signum)
+    return "interrupted", 130
 
 
 def _quiet_unraisable(previous):
@@ -52,22 +73,25 @@ def _quiet_unraisable(previous):
 
 @contextlib.contextmanager
 def recording_interrupts() -> Iterator[None]:
-    """Record SIGINT (and raise KeyboardInterrupt) until the block ends; then restore the
-    previous handler. Only in the main thread, where Python runs signal handlers."""
+    """Record SIGINT and SIGTERM (and raise KeyboardInterrupt) until the block ends; then
+    restore the previous handlers. Only in the main thread, where Python runs signal
+    handlers."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous_handler = signal.signal(signal.SIGINT, _on_sigint)
+    previous = {s: signal.signal(s, _on_sigint) for s in SIGNALS}
     previous_hook = sys.unraisablehook
     sys.unraisablehook = _quiet_unraisable(previous_hook)
     _State.active, _State.received, _State.writing = True, False, False
+    _State.signum = signal.SIGINT
     try:
         yield
     finally:
         _State.active = False
         sys.unraisablehook = previous_hook
-        if previous_handler is not None:  # None: set outside Python, cannot be restored
-            signal.signal(signal.SIGINT, previous_handler)
+        for s, handler in previous.items():
+            if handler is not None:  # None: set outside Python, cannot be restored
+                signal.signal(s, handler)
 
 
 @contextlib.contextmanager
@@ -83,11 +107,14 @@ def deferred() -> Iterator[None]:
 
 
 def stop_recording() -> None:
-    """Give SIGINT back to Python's default handler for the rest of the block: for a command
-    that Ctrl-C ends normally (a server), whose writes happen while it runs."""
+    """Give SIGINT back to Python's default handler for the rest of the block, and have
+    SIGTERM do the same: for a command that Ctrl-C ends normally (a server), whose writes
+    happen while it runs."""
     if _State.active and threading.current_thread() is threading.main_thread():
         _State.active = False
         signal.signal(signal.SIGINT, signal.default_int_handler)
+        for s in SIGNALS[1:]:
+            signal.signal(s, _default_handler)
 
 
 def pending() -> bool:

@@ -6,7 +6,7 @@ FIFO with no writer cannot hang the open), and the opened descriptor is checked 
 or socket is refused, and at most ``cap`` bytes are read. The parsers turn what the standard
 library raises on hostile text (nesting deeper than the recursion limit, integers of more
 than 4,300 digits, CSV fields over 131,072 characters) into an
-:class:`~handeye_jax._errors.InputError` naming the file, like any other bad input.
+:class:`~handeye_jax._core.InputError` naming the file, like any other bad input.
 """
 
 from __future__ import annotations

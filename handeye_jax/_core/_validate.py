@@ -34,7 +34,7 @@ MAX_PX = 1e6
 MAX_MM = 1e5
 MAX_DEG = 3600.0
 
-# Sizes: what the toolkit can compute on one machine (the README's "Limits" list them).
+# Sizes: what the toolkit can compute on one machine (docs/file-formats.md's "Limits" list them).
 #: Landmarks in a dataset, a result or a twin's truth.
 MAX_LANDMARKS = 10_000
 #: DE population and generations (calibrate's options; a result's settings): ten times the

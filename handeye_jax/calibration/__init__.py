@@ -1,6 +1,7 @@
 """The fit: settings, plans (what each stage fits), one stage's search for its best optimum
 (DE, LM polish, restarts, multi-start refits; the lowest wins), the two-stage pipelines
-(calibrate, recalibrate), the warnings, and the result with its file. The only place that
+(calibrate, recalibrate, with a prior's rig checked against the new data), the warnings, and
+the result with its file. The only place that
 joins the hand–eye problem to the optimisers."""
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ _EXPORTS = {
     "_result": ("CalibrationResult", "StageResult"),
     "_result_frames": ("compute_frames",),
     "_result_io": ("load_frames", "load_result", "result_to_json", "save_result"),
+    "_rig_change": ("change_line",),
     "_settings": ("Settings",),
     "_stage": ("fit_stage", "POLISH", "Population", "StageFit", "with_prior"),
     "_starts": ("convention_index", "CONVENTIONS", "REFIT_STARTS", "uniform_starts"),

@@ -161,13 +161,27 @@ class SignTwin:
 
 
 @dataclass(frozen=True)
+class RigChange:
+    """A value of the rig that differs from the prior's, accepted: the dataset's field
+    (``camera.fx``, ``tablet.ppi``, …), its ``previous`` and ``new`` value in ``unit`` (``px``,
+    ``deg``, or ``""`` for a pure number)."""
+
+    name: str = spec("field")
+    previous: float = spec()
+    new: float = spec()
+    unit: str = spec()
+
+
+@dataclass(frozen=True)
 class Recalibration:
-    """Where a recalibration started: the previous result, what was refitted, and how the
-    other parameters entered (``"prior"``: its posterior; ``"fixed"``: held)."""
+    """Where a recalibration started: the previous result, what was refitted, how the other
+    parameters entered (``"prior"``: its posterior; ``"fixed"``: held), and the rig's changes
+    since the prior that the user accepted (``--accept-rig-change``)."""
 
     previous: str
     refit: tuple[str, ...]
     others: Literal["prior", "fixed"]
+    rig_changes: tuple[RigChange, ...] = spec(omit="empty", default=())
 
 
 @dataclass(frozen=True, eq=False)

@@ -44,6 +44,7 @@ from ._payloads import (
 from ._plans import Plan, full_plan, recalibration_plan
 from ._programs import _centres, _points, _stage_keys
 from ._result import CalibrationResult, StageResult
+from ._rig_change import check_rig
 from ._settings import Settings
 from ._stage import StageFit, StageTask, fit_stage
 from ._stage_result import _finished, _sign_twin
@@ -53,9 +54,6 @@ from ._warnings import all_warnings, check_determined
 #: Above this many landmarks the restarts search on this many, spread over the touch order,
 #: and only the best end point is polished on all: the restarts' cost stays bounded.
 RESTART_LANDMARKS = 64
-
-
-# -- one stage -------------------------------------------------------------------------------
 
 
 # -- both stages ---------------------------------------------------------------------------
@@ -134,6 +132,9 @@ def _checked(dataset: Dataset, plan: Plan, settings: Settings) -> Observations:
     model_cls = type(plan.space1.template)
     if settings.model != model_cls.name:
         raise ValueError(f"settings.model is {settings.model!r}, the plan's {model_cls.name!r}")
+    if not 0 <= settings.seed < 2**63:  # refused now, not by the diagnostics after the fit
+        raise ValueError(f"seed must be 0 to 2^63 - 1: numpy's generators take no other seed "
+                         f"(got {settings.seed})")  # fmt: skip
     check_population(dataset, settings.population)
     if not 0 <= settings.restarts <= MAX_RESTARTS:
         raise ValueError(f"restarts must be 0 to {MAX_RESTARTS:,} (got {settings.restarts})")
@@ -215,6 +216,7 @@ def recalibrate(
     fix: bool = False,
     source: str | Path | None = None,
     progress: bool = False,
+    accept_rig_change: bool = False,
 ) -> CalibrationResult:
     """Recalibrate after a part of the rig changed, from a previous result.
 
@@ -232,6 +234,9 @@ def recalibrate(
         fix: hold the other parameters at the previous values instead of giving them a prior.
         source: where ``previous`` came from, for the report (default: its dataset's name).
         progress: show progress bars on stderr.
+        accept_rig_change: take data whose intrinsics, tablet pixel size or hand-angle
+            convention differ from ``previous``'s (a re-calibrated camera); without it they
+            are an :class:`InputError` naming the field. The result records the change.
     """
     if settings is None:
         settings = previous.settings
@@ -239,9 +244,14 @@ def recalibrate(
         raise ValueError(f"the previous result is of model {previous.model_name!r}, settings "
                          f"say {settings.model!r}")  # fmt: skip
     source = str(source) if source is not None else f"previous result ({previous.dataset_name})"
+    changes = check_rig(dataset, previous, source, accept_rig_change)
     with jax.enable_x64(True):
         plan = recalibration_plan(dataset, previous, refit, fix=fix, source=source)
-    return fit(dataset, plan, settings, progress=progress)
+    result = fit(dataset, plan, settings, progress=progress)
+    if changes:
+        recal = replace(result.recalibration, rig_changes=changes)
+        result = replace(result, recalibration=recal)
+    return result
 
 
 @in_float64

@@ -210,6 +210,8 @@ class CalibrationResult:
             raise ValueError("axes must be 'xy': the touches recorded no hand height, so the "
                              "calibration does not determine z_pen − z_camera")  # fmt: skip
         f = lambda a: None if a is None else jnp.asarray(a, dtype=float)  # noqa: E731
+        if self.distortion is not None:  # the chain back-projects through a pinhole
+            image_px = self.data.camera.undistort(image_px)
         out = hand_command(
             self.model,
             self.rig,
@@ -228,7 +230,13 @@ class CalibrationResult:
         """The fitted frames as plain numbers (NumPy), from the parameters and the rig."""
         z = None if self.heights is None else self.heights.pen_minus_camera_mm
         return compute_frames(self.model, self.rig, self.correction, self.centres_mm,
-                              pen_minus_camera_z_mm=z, deploy_stage=self.deploy_stage)  # fmt: skip
+                              pen_minus_camera_z_mm=z, deploy_stage=self.deploy_stage,
+                              distortion=self.distortion)  # fmt: skip
+
+    @property
+    def distortion(self) -> tuple[float, float, float, float, float] | None:
+        """The lens distortion of the dataset's camera (plumb_bob k1 k2 p1 p2 k3), or ``None``."""
+        return None if self.data is None else self.data.camera.distortion
 
     @in_float64
     def posterior(self, stage: str = "stage1", source: str | None = None) -> Prior:

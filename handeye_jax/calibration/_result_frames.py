@@ -1,7 +1,7 @@
 """Named frames from a fitted model: :func:`compute_frames`.
 
-:class:`~handeye_jax.Frames` itself is NumPy only (``handeye_jax._frames``); this module is the
-JAX side that evaluates a model's ``camera_mount()``, ``tablet_pose()`` and ``t_hand_pen()``.
+:class:`~handeye_jax.Frames` itself is NumPy only (``handeye_jax.robot._frames``); this module
+is the JAX side that evaluates a model's ``camera_mount()``, ``tablet_pose()`` and ``t_hand_pen()``.
 """
 
 from __future__ import annotations
@@ -45,6 +45,7 @@ def compute_frames(
     known: Mapping[str, float] | None = None,
     pen_minus_camera_z_mm: float | None = None,
     deploy_stage: int = 2,
+    distortion: tuple[float, float, float, float, float] | None = None,
 ) -> Frames:
     """The frames of a fitted model, as plain numbers.
 
@@ -59,6 +60,8 @@ def compute_frames(
         pen_minus_camera_z_mm: ``z_p − z_c``, mm, when the hand's heights at the touches
             determined it (see :class:`~handeye_jax.HeightOffsets`).
         deploy_stage: the stage the calibration chose to deploy (1 or 2).
+        distortion: the lens's plumb_bob ``(k1, k2, p1, p2, k3)`` (the dataset's camera), or
+            ``None``.
     """
     known = dict(known or {})
     unknown = sorted(set(known) - set(UNDETERMINED))
@@ -95,4 +98,5 @@ def compute_frames(
         model=getattr(model, "name", ""),
         pen_minus_camera_z_mm=pen_minus_camera_z_mm,
         deploy_stage=deploy_stage,
+        distortion=distortion,
     )  # fmt: skip

@@ -57,7 +57,7 @@ from .._jax import in_float64
 from ..data import Camera, Dataset, dataset_from_document, dataset_to_document
 from ..models import AffinePair, Rig, get_model, model_registry
 from ..problem import Heights
-from ..robot import TRANSLATIONS, Frames, read_json
+from ..robot import TRANSLATIONS, Frames, check_result_document, read_json
 from ._payloads import Deployment, Diagnostics, FitWarning, Recalibration, SignTwin
 from ._result import MAX_PARAM, CalibrationResult, StageResult
 from ._result_frames import UNDETERMINED
@@ -231,7 +231,7 @@ def load_result(path: str | Path) -> CalibrationResult:
         if stage2.params[name] <= 0:
             r.fail(f"stage2.params.{name}", f"must be > 0, a scale (got {stage2.params[name]})")
     centre_index = _integer(r, doc["centre_index"], "centre_index", 0, None if n is None else n - 1)
-    return CalibrationResult(
+    result = CalibrationResult(
         model=model_cls.from_dict(stage1.params), correction=AffinePair.from_dict(stage2.params),
         rig=rig.rig(), centres_mm=np.array(centres), centre_index=centre_index, stage1=stage1,
         stage2=stage2, settings=_settings(r, doc, model), data=data, dataset_name=dataset_name,
@@ -242,6 +242,9 @@ def load_result(path: str | Path) -> CalibrationResult:
         deploy=_optional(r, doc, "deploy", Deployment),
         heights=_optional(r, doc, "heights", Heights),
     )  # fmt: skip
+    # Its parts agree (frames, parameters, rig, data, residuals), as predict checks them.
+    check_result_document(doc, path, result.frames)
+    return result
 
 
 def _model(r: Reader, doc: dict[str, Any]) -> str:
@@ -450,6 +453,7 @@ def _frame_numbers(f: Frames) -> np.ndarray:
              f.A1.as_tuple(), f.A2.as_tuple(), f.camera_px,
              (f.hand_angle_zero_deg, f.hand_angle_sign, f.capture_hand_angle_deg,
               math.nan if f.pen_minus_camera_z_mm is None else f.pen_minus_camera_z_mm),
+             f.distortion or (math.nan,) * 5,
              *(getattr(f, t) for t in TRANSLATIONS)]  # fmt: skip
     return np.concatenate([np.ravel(np.asarray(p, dtype=np.float64)) for p in parts])
 

@@ -10,6 +10,8 @@ from .._core import InputError, write_output
 from ._types import (
     MODELS,
     generations,
+    landmark_indices,
+    landmarks_named,
     output_path,
     population,
     positive_mm,
@@ -30,12 +32,16 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
                          "needs --prior OLD.result.json, the result to start from")  # fmt: skip
     if args.prior and not args.refit:
         raise InputError(None, "--refit", "name what changed: camera, tablet, pen or parameters")
+    if args.accept_rig_change and not args.prior:
+        raise InputError(None, "--accept-rig-change", "needs --prior OLD.result.json")
     previous = load_result(args.prior) if args.prior else None
     model = args.model or (previous.model_name if previous else Settings().model)
     if previous is not None and model != previous.model_name:
         raise InputError(args.prior, "model",
                          f"is {previous.model_name!r}; --model says {model!r}")  # fmt: skip
     dataset = load_dataset(args.dataset)
+    if args.landmarks is not None:
+        dataset = _landmarks_of(dataset, args.landmarks, args.dataset)
     settings = Settings(
         model=model,
         seed=args.seed,
@@ -59,14 +65,27 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         except ValueError as e:
             raise InputError(None, "--refit", str(e)) from None
         result = recalibrate(dataset, previous, refit, settings, fix=args.fix,
-                             source=Path(args.prior).name, progress=progress)  # fmt: skip
+                             source=Path(args.prior).name, progress=progress,
+                             accept_rig_change=args.accept_rig_change)  # fmt: skip
     if not args.no_diagnostics:
         result = diagnose(result, search=dataset.search)
-    if out is not None:  # written before the summary, which says so
+    summary = format_summary(result, verbose=args.verbose, quiet=args.quiet,
+                             saved=None if out is None else str(out))  # fmt: skip
+    if out is not None:  # before printing: a closed pipe on stdout must not lose the result
         write_output(out, result_to_json(result), "--out")
-    print(format_summary(result, verbose=args.verbose, quiet=args.quiet,
-                         saved=None if out is None else str(out)))  # fmt: skip
+    print(summary)
     return 0
+
+
+def _landmarks_of(dataset, ms: tuple[int, ...], path):
+    """The dataset of landmarks ``ms`` alone (their views and touches), said in one line."""
+    n = dataset.n_landmarks
+    missing = [m for m in ms if m >= n]
+    if missing:
+        raise InputError(path, "--landmarks", f"{landmarks_named(missing)}: the dataset has "
+                         f"{n} landmarks, m = 0 to {n - 1}")  # fmt: skip
+    print(f"fitting {landmarks_named(ms)} of the {n} in {Path(path).name} (--landmarks)")
+    return dataset.landmark_subset(ms)
 
 
 def add_calibrate_command(sub: argparse._SubParsersAction) -> None:
@@ -114,6 +133,11 @@ def add_calibrate_command(sub: argparse._SubParsersAction) -> None:
         help="LM restarts per stage besides the best DE member (other optima of the final "
         "population, then Latin-hypercube starts); 0 runs none",
     )  # fmt: skip
+    cal.add_argument(
+        "--landmarks", type=landmark_indices, metavar="M,M,...",
+        help="fit these landmarks of the dataset alone, e.g. 0,4,8 (their views and touches; "
+        "default: every landmark)",
+    )  # fmt: skip
     _add_prior_options(cal)
     cal.add_argument(
         "--no-diagnostics", action="store_true",
@@ -156,4 +180,10 @@ def _add_prior_options(cal: argparse.ArgumentParser) -> None:
         "--fix", action="store_true",
         help="with --prior: hold the parameters not in --refit at its values instead of "
         "giving them its posterior as a prior",
+    )  # fmt: skip
+    cal.add_argument(
+        "--accept-rig-change", action="store_true",
+        help="with --prior: accept data whose intrinsics (fx, fy, cx, cy), tablet ppi or "
+        "scale, or hand-angle convention differ from the prior's (e.g. a re-calibrated "
+        "camera); the summary and the result say so. Without it they are refused",
     )  # fmt: skip

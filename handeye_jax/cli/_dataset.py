@@ -6,8 +6,17 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .._core import MAX_DEG, MAX_MM, InputError, check_output, parse_numbers, same_file
+from .._core import (
+    MAX_DEG,
+    MAX_IMAGE_PIXELS,
+    MAX_MM,
+    InputError,
+    check_output,
+    same_file,
+    write_output,
+)
 from .._core import RECOMMENDED_CAPTURES as RECOMMENDED
+from ._types import landmarks_named, numbers
 
 
 def _cmd_convert(args: argparse.Namespace) -> int:
@@ -38,22 +47,22 @@ def _cmd_convert(args: argparse.Namespace) -> int:
     return 0
 
 
-def _numbers(limit: float, unit: str):
-    def parse(text: str) -> list[float]:
-        try:
-            return parse_numbers(text, limit, unit)
-        except ValueError as e:
-            raise argparse.ArgumentTypeError(str(e)) from None
-
-    return parse
+def _image_size(text: str) -> tuple[int, int]:
+    w, h = numbers(MAX_MM, "px", 2)(text)
+    if not (w == int(w) >= 8 and h == int(h) >= 8 and w * h <= MAX_IMAGE_PIXELS):
+        why = f"at least 8 px each, at most {MAX_IMAGE_PIXELS:,} px in all (got {text!r})"
+        raise argparse.ArgumentTypeError(f"needs 2 whole numbers, {why}")
+    return int(w), int(h)
 
 
 def _cmd_plan(args: argparse.Namespace) -> int:
-    from ..data import backup_path, load_dataset, save_dataset, update_dataset
+    from ..data import backup_path, load_dataset, poses_csv_text, save_dataset, update_dataset
     from ..vision import plan_captures
 
     path = Path(args.dataset)
     out = None if args.out is None else check_output(args.out, "--out", [path])
+    if args.poses_csv is not None:
+        check_output(args.poses_csv, "--poses-csv", [path, *([out] if out else [])])
     if out is None:
         check_output(path, "--dataset")
         check_output(backup_path(path), "--dataset")
@@ -72,16 +81,90 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         done = f"{path} updated (previous file kept as {kept})"
     else:
         done = f"{path} already holds them"
-    target = out or path
-    print(f"{done}; the pictures to take, each with every landmark in view, then detect each:")
+    cam = new.camera
+    size = args.image_size_px or (round(2 * cam.cx_px), round(2 * cam.cy_px))
+    views, why = _views(new, indices, size)
+    print(f"{done}; the pictures to take, then detect each:")
     for k in [0, *indices]:
-        c = new.captures[k]
-        x, y, z = (f"{v:g}" for v in c.hand_position_mm)
-        seen = f"{len(c.landmarks)} of {new.n_landmarks} landmarks"
-        print(f"  capture {k}: hand at ({x}, {y}, {z}) mm, hand angle {c.hand_angle_deg:g} deg "
-              f"({seen}): handeye-jax detect CAP{k}.png DEP{k}.png --dataset {target} "
-              f"--capture {k}")  # fmt: skip
+        print(_picture_line(new, k, out or path))
+        if k in views and not views[k].in_view:
+            print(f"    {_lost(views[k])}")
+    if why:
+        print(f"Not checked whether each picture shows every landmark: {why}; detect capture "
+              "0, then plan again.")  # fmt: skip
+    elif views:
+        print(_views_line(views, size, args.image_size_px is not None))
+    if args.poses_csv is not None:
+        write_output(args.poses_csv, poses_csv_text([_tool_pose(new, k) for k in [0, *indices]]),
+                     "--poses-csv")  # fmt: skip
+        print(f"their tool0 poses written to {args.poses_csv} (kind,index,x_m,y_m,z_m,qx,qy,qz,"
+              "qw; after the pictures, the poses the robot reports go back in with handeye-jax "
+              "poses)")  # fmt: skip
     return 0
+
+
+def _views(new, indices: list[int], size: tuple[int, int]) -> tuple[dict, str]:
+    """Where each planned picture will show the landmarks (by capture index), or why that
+    cannot be said yet."""
+    from ..vision import planned_view
+
+    views = {}
+    try:
+        for k in indices:
+            c = new.captures[k]
+            views[k] = planned_view(new, c.hand_position_mm, c.hand_angle_deg, size)
+    except ValueError as e:
+        return {}, str(e)
+    return views, ""
+
+
+def _tool_pose(new, k: int):
+    """Capture ``k``'s flange (tool0 = hand frame) pose in the base frame."""
+    from ..data import ToolPose, tool_pose_of_hand
+
+    c = new.captures[k]
+    R, t = tool_pose_of_hand(c.hand_position_mm, c.hand_angle_deg, new.hand_angle_zero_deg,
+                             new.hand_angle_sign)  # fmt: skip
+    return ToolPose("capture", k, R, t, 0)
+
+
+def _picture_line(new, k: int, target: Path) -> str:
+    """Capture ``k``'s pose (as the hand's and as tool0's) and the detect command that fills
+    it."""
+    from ..data import quaternion_from_rotation
+
+    c = new.captures[k]
+    x, y, z = (f"{v:g}" for v in c.hand_position_mm)
+    seen = f"{len(c.landmarks)} of {new.n_landmarks} landmarks"
+    pose = _tool_pose(new, k)
+    q = " ".join(f"{v:.6f}" for v in quaternion_from_rotation(pose.R_base_tool))
+    m = " ".join(f"{v / 1000:.4f}" for v in pose.t_base_tool_mm)
+    return (f"  capture {k}: hand at ({x}, {y}, {z}) mm, hand angle {c.hand_angle_deg:g} deg "
+            f"({seen}); tool0 in the base frame at [{m}] m, quaternion (x y z w) [{q}]: "
+            f"handeye-jax detect CAP{k}.png DEP{k}.png --dataset {target} "
+            f"--capture {k}")  # fmt: skip
+
+
+def _views_line(views: dict, size: tuple[int, int], size_given: bool) -> str:
+    """What the check of the planned pictures found, and how it was made."""
+    mount = next(iter(views.values())).describe_mount()
+    how = (f"a {size[0]} x {size[1]} px picture" + ("" if size_given else
+           " (twice the principal point)") + ", by the rig's approximate model (camera "
+           f"mount {mount})")  # fmt: skip
+    if all(v.in_view for v in views.values()):
+        return f"Each planned picture shows every landmark ({how})."
+    return (f"Checked against {how}: plan other poses (less turn or rise) for the "
+            "pictures that may lose landmarks.")  # fmt: skip
+
+
+def _lost(view) -> str:
+    """Which landmarks a planned picture loses, in words."""
+    parts = []
+    if view.outside:
+        parts.append(f"{landmarks_named(view.outside)} outside the picture")
+    if view.at_risk:
+        parts.append(f"{landmarks_named(view.at_risk)} near its edge (may fall outside)")
+    return "; ".join(parts)
 
 
 def add_dataset_commands(sub: argparse._SubParsersAction) -> None:
@@ -95,24 +178,35 @@ def add_dataset_commands(sub: argparse._SubParsersAction) -> None:
         description="Add an empty capture for each further picture the toolkit recommends: "
         "higher than the dataset's first capture by each --rise-mm, with the hand turned by "
         "each --turn-deg, so that the tablet page lists their poses and 'detect --capture K' "
-        "fills each. A pose the dataset already has is not added twice. Prints the poses and "
-        "the detect command of each picture.",
+        "fills each. A pose the dataset already has is not added twice. Prints the poses, "
+        "the detect command of each picture, and the landmarks each may not show (by the "
+        "rig's approximate model, from what the first capture saw).",
     )
     p.add_argument("dataset", help="the version-2 dataset (TOML)")
     p.add_argument(
-        "--rise-mm", type=_numbers(MAX_MM, "mm"), default=rises,
+        "--rise-mm", type=numbers(MAX_MM, "mm"), default=rises,
         metavar="MM,MM", help=f"how much higher than the first capture each picture is, mm "
         f"(default: {rises})",
     )  # fmt: skip
     p.add_argument(
-        "--turn-deg", type=_numbers(MAX_DEG, "deg"), default=turns,
+        "--turn-deg", type=numbers(MAX_DEG, "deg"), default=turns,
         metavar="DEG,DEG", help=f"each picture's hand angle minus the first capture's, deg; "
         f"write --turn-deg=-30,30 when the first is negative (default: {turns})",
+    )  # fmt: skip
+    p.add_argument(
+        "--image-size-px", type=_image_size, metavar="W,H",
+        help="the pictures' width and height, px, to check each planned picture against "
+        "(default: twice the camera's principal point)",
     )  # fmt: skip
     p.add_argument(
         "--out", metavar="NEW.toml",
         help="write here (default: update DATASET in place, the old one kept as "
         "DATASET.<UTC time>.bak)",
+    )  # fmt: skip
+    p.add_argument(
+        "--poses-csv", metavar="POSES.csv",
+        help="also write each picture's tool0 pose (the hand frame; metres, quaternion x y z w) "
+        "as a poses CSV, to drive the robot there (default: none, printed only)",
     )  # fmt: skip
     p.set_defaults(func=_cmd_plan, imports=("data.load_dataset", "vision.plan_captures"))
 

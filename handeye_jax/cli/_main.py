@@ -30,6 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
     from ._dataset import add_dataset_commands
     from ._report import add_report_command
     from ._robot import add_export_command, add_predict_command
+    from ._robot_input import add_robot_input_commands
     from ._tablet import add_tablet_command
     from ._twin import add_evaluate_command, add_simulate_command
     from ._vision import add_detect_command
@@ -42,7 +43,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
     for add in (add_calibrate_command, add_simulate_command, add_detect_command,
                 add_evaluate_command, add_export_command, add_dataset_commands,
-                add_predict_command, add_tablet_command, add_report_command):  # fmt: skip
+                add_robot_input_commands, add_predict_command, add_tablet_command,
+                add_report_command):  # fmt: skip
         add(sub)  # in this order in --help
     return parser
 
@@ -52,9 +54,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     with interrupts.recording_interrupts():
         try:
             return _run_command(argv)
-        except KeyboardInterrupt:
-            print(f"{PROG}: interrupted; nothing was written", file=sys.stderr)
-            return 130
+        except KeyboardInterrupt:  # Ctrl-C or SIGTERM
+            what, code = interrupts.stopped_by()
+            print(f"{PROG}: {what}; nothing was written", file=sys.stderr)
+            return code
 
 
 def _run_command(argv: Sequence[str] | None) -> int:
@@ -73,6 +76,9 @@ def _run_command(argv: Sequence[str] | None) -> int:
     except InputError as e:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # `... | head`: the reader has what it wanted; files are complete
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141  # 128 + SIGPIPE, as a shell tool killed by the closed pipe reports
     except Exception as e:  # the user gets one line; developers can ask for the traceback
         if interrupts.pending():  # a Ctrl-C that C++ code turned into another error
             raise KeyboardInterrupt from None

@@ -6,24 +6,21 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
-from .._core import InputError, write_output
+from .._core import MAX_MM, InputError, write_output
 
-# constants only: the formats import their libraries on use
+# names only: the exports (and NumPy) load when a command runs, not for --help
 from ..robot import (
+    DEFAULT_BASE_FRAME,
     DEFAULT_CAMERA_FRAME,
     DEFAULT_PARENT_LINK,
     DEFAULT_PEN_FRAME,
     FORMATS,
     NAME_PATTERN,
-    StageError,
-    carried_stage,
-    check_parses,
-    export_text,
-    zero_filled,
 )
 from ._runtime import start_jax
-from ._types import PROG, output_path, whole_number
+from ._types import PROG, numbers, output_path, whole_number
 
 
 def _name(text: str) -> str:
@@ -74,7 +71,26 @@ def add_export_command(sub: argparse._SubParsersAction) -> None:
         "--pen-frame", type=_name, default=DEFAULT_PEN_FRAME, metavar="NAME",
         help=f"the pen tip frame (urdf, ros2; default {DEFAULT_PEN_FRAME})",
     )  # fmt: skip
+    p.add_argument(
+        "--base-frame", type=_name, default=DEFAULT_BASE_FRAME, metavar="NAME",
+        help=f"the robot's base frame (easy_handeye; default {DEFAULT_BASE_FRAME})",
+    )  # fmt: skip
+    p.add_argument(
+        "--camera-z-mm", type=_length_mm, metavar="MM",
+        help="the camera's optical centre along the flange's z axis, mm, measured: the data "
+        "does not determine it; with the touches' hand heights the pen tip's z follows (default: "
+        "none; the file writes 0 there and says so)",
+    )  # fmt: skip
+    p.add_argument(
+        "--pen-z-mm", type=_length_mm, metavar="MM",
+        help="the pen tip along the flange's z axis, mm, measured (instead of --camera-z-mm "
+        "when the calibration determined z_pen - z_camera; else as well; default: none)",
+    )  # fmt: skip
     p.set_defaults(func=_cmd_export, imports=("calibration.load_frames", "robot.export_text"))
+
+
+def _length_mm(text: str) -> float:
+    return numbers(MAX_MM, "mm", 1)(text)[0]
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
@@ -85,56 +101,67 @@ def _cmd_export(args: argparse.Namespace) -> int:
               f"(got {', '.join(names)})", file=sys.stderr)  # fmt: skip
         return 2
     from ..calibration import load_frames  # JAX: not imported for --help
+    from ..robot import (
+        StageError,
+        carried_stage,
+        check_parses,
+        export_text,
+        filled_translations_mm,
+        with_heights,
+        zero_filled,
+    )
 
     frames = load_frames(args.result)
     try:
         stage = carried_stage(frames, args.fmt, args.stage)
     except StageError as e:
         raise InputError(args.result, "--format", str(e)) from None
+    try:
+        frames = with_heights(frames, args.camera_z_mm, args.pen_z_mm)
+    except ValueError as e:
+        flag = "--pen-z-mm" if args.camera_z_mm is None else "--camera-z-mm"
+        raise InputError(args.result, flag, str(e)) from None
     text = export_text(
         frames, args.fmt, parent_link=args.parent_link, camera_frame=args.camera_frame,
-        pen_frame=args.pen_frame, source=str(args.result), stage=stage,
+        pen_frame=args.pen_frame, base_frame=args.base_frame, source=str(args.result),
+        stage=stage,
     )  # fmt: skip
     check_parses(text, args.fmt)
     zeros = zero_filled(frames, args.fmt)
     if zeros:
         print(f"{PROG}: warning: {', '.join(zeros)} not determined by the data: written as 0 "
-              f"in the {args.fmt} file, which says so", file=sys.stderr)  # fmt: skip
-    if out is None:
-        sys.stdout.write(text)
-    else:
-        write_output(out, text, "--out")
-        print(f"{args.fmt} export (stage {stage}) written to {out}")
-    return 0
+              f"in the {args.fmt} file, which says so; give --camera-z-mm (the camera's "
+              "optical centre along the flange's z, measured)" + (
+                  f"; t_hand_pen_mm.z written as z_pen - z_camera = "
+                  f"{frames.pen_minus_camera_z_mm:.3f} mm above it"
+                  if filled_translations_mm(frames)[3] and args.fmt != "easy_handeye" else ""),
+              file=sys.stderr)  # fmt: skip
+    return _emit(text, out, f"{args.fmt} export (stage {stage})")
 
 
 def _cmd_predict(args: argparse.Namespace) -> int:
     from ..data import points_csv_text, read_capture_columns, read_points_csv
-    from ..robot import Predictor, stored_frames
+    from ..robot import Predictor, check_reach, result_reach, stored_result
 
     out = output_path(args.out, "--out", [args.result, args.points])
-    frames = stored_frames(args.result)  # NumPy only: no JAX for a file as it was written
-    if frames is None:  # older or edited: validated, its frames checked against its parameters
+    checked = stored_result(args.result)  # NumPy only: no JAX for a file as it was written
+    if checked is None:  # older or edited: validated, its frames checked against its parameters
         start_jax()
         from ..calibration import load_frames
 
-        frames = load_frames(args.result)
-    predictor = Predictor.from_frames(frames)
+        checked = (load_frames(args.result), result_reach(args.result))
+    predictor = Predictor.from_frames(*checked)
     header, rows, values = read_points_csv(args.points)
     position, angle = read_capture_columns(args.points, header, rows)
     stage = predictor.stage if args.stage is None else args.stage
     hand_xy = predictor.hand_command(values[:, :2], values[:, 2], values[:, 3], stage=stage,
                                      capture_position_mm=position, capture_hand_angle_deg=angle,
                                      axes=predictor.axes)  # fmt: skip
+    check_reach(args.points, hand_xy, predictor.reach.including(position), args.result)
     text = points_csv_text(header, rows, hand_xy)
-    if out is None:
-        sys.stdout.write(text)
-    else:
-        write_output(out, text, "--out")
-        chosen = "the stage the calibration deploys" if stage == predictor.stage else (
-            f"not the stage the calibration deploys, {predictor.stage}")  # fmt: skip
-        print(f"{len(rows)} hand commands (stage {stage}, {chosen}; mm) written to {out}")
-    return 0
+    chosen = "the stage the calibration deploys" if stage == predictor.stage else (
+        f"not the stage the calibration deploys, {predictor.stage}")  # fmt: skip
+    return _emit(text, out, f"{len(rows)} hand commands (stage {stage}, {chosen}; mm)")
 
 
 def add_predict_command(sub: argparse._SubParsersAction) -> None:
@@ -160,3 +187,14 @@ def add_predict_command(sub: argparse._SubParsersAction) -> None:
         "stage the calibration chose to deploy, which its summary names)",
     )  # fmt: skip
     pre.set_defaults(func=_cmd_predict, jax=False)  # only for files it must check (see there)
+
+
+def _emit(text: str, out: Path | None, what: str) -> int:
+    """``text`` written to ``out`` (saying so, as ``what written to OUT``), or to standard
+    output."""
+    if out is None:
+        sys.stdout.write(text)
+    else:
+        write_output(out, text, "--out")
+        print(f"{what} written to {out}")
+    return 0

@@ -26,7 +26,8 @@ def add_tablet_command(sub: argparse._SubParsersAction) -> None:
         help="serve the tablet page: draw landmarks, record touches, measure touching errors",
         description="Serve the page the tablet shows. Calibration mode writes each landmark's "
         "touch_error_px (tablet px) into the dataset, changing only those values so its "
-        "comments stay (every previous version kept as DATASET.<UTC time>.bak); evaluation "
+        "comments stay (previous versions kept as DATASET.<UTC time>.bak: the first and the "
+        "last 50); evaluation "
         "mode saves trials of touches with their mean and max error in px and mm. Only who "
         "opens the printed URL (or scans its QR code) gets in: it carries a secret, new at "
         "each start.",

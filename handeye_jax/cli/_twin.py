@@ -18,11 +18,9 @@ from .._core import (
     TWIN_FILES,
     InputError,
     check_folder_output,
-    parse_int,
 )
 from .._core import MAX_TWIN_CAPTURES as MAX_CAPTURES
-from .._core import TWIN_SEED_RANGE as SEED_RANGE
-from ._types import number_at_most, whole_number
+from ._types import number_at_most, seed, whole_number
 
 
 def _heldout(text: str) -> int:
@@ -31,17 +29,6 @@ def _heldout(text: str) -> int:
 
 def _captures(text: str) -> int:
     return whole_number(text, 1, MAX_CAPTURES)
-
-
-def _twin_seed(text: str) -> int:
-    try:
-        v = parse_int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
-    if not SEED_RANGE[0] <= v <= SEED_RANGE[1]:
-        why = f"must be 0 to 2^63 - 1: numpy's generators take no other seed (got {v})"
-        raise argparse.ArgumentTypeError(why)
-    return v
 
 
 _dot_px = number_at_most(MAX_DOT_PX)
@@ -119,7 +106,7 @@ def add_simulate_command(sub: argparse._SubParsersAction) -> None:
         "or empty folder (see --force).",
     )
     sim.add_argument("out_dir", help="folder to write: new or empty (created if missing)")
-    sim.add_argument("--seed", type=_twin_seed, default=1,
+    sim.add_argument("--seed", type=seed, default=1,
                      help="seeds the truth and every noise draw, 0 to 2^63 - 1")  # fmt: skip
     sim.add_argument(
         "--preset",

@@ -1,4 +1,5 @@
-"""The command line's parser and the argument types its commands share, each written once.
+"""The command line's parser, the argument types its commands share and the words they share,
+each written once.
 
 A type turns the text of one option into its value or raises ``ArgumentTypeError``, which the
 parser prints as one line naming the option. Imports no JAX.
@@ -12,12 +13,16 @@ from pathlib import Path
 
 from .._core import (
     MAX_GENERATIONS,
+    MAX_LANDMARKS,
     MAX_POPULATION,
     MAX_RESTARTS,
     check_output,
     parse_float,
     parse_int,
     parse_numbers,
+)
+from .._core import (
+    TWIN_SEED_RANGE as SEED_RANGE,
 )
 
 PROG = "handeye-jax"
@@ -95,9 +100,11 @@ def restarts(text: str) -> int:
 
 
 def seed(text: str) -> int:
+    """A seed of NumPy's generators (the diagnostics' and the twin's): 0 to 2^63 - 1."""
     v = whole_number(text)
-    if not -(2**63) <= v < 2**63:
-        raise argparse.ArgumentTypeError(f"must fit in 64 bits, -2^63 to 2^63 - 1 (got {v})")
+    if not SEED_RANGE[0] <= v <= SEED_RANGE[1]:
+        why = f"must be 0 to 2^63 - 1: numpy's generators take no other seed (got {v})"
+        raise argparse.ArgumentTypeError(why)
     return v
 
 
@@ -155,3 +162,20 @@ def numbers(limit: float, unit: str, n: int | None = None) -> Callable[[str], li
             raise argparse.ArgumentTypeError(str(e)) from None
 
     return parse
+
+
+def landmark_indices(text: str) -> tuple[int, ...]:
+    """Comma-separated landmark numbers m (``"0,4,8"``): whole numbers, each once. Whether
+    the dataset has them is checked once it is read."""
+    parts = [part.strip() for part in text.split(",")]
+    ms = tuple(whole_number(part, 0, MAX_LANDMARKS - 1) for part in parts)
+    twice = sorted({m for m in ms if ms.count(m) > 1})
+    if twice:
+        raise argparse.ArgumentTypeError(f"{landmarks_named(twice)} given twice")
+    return ms
+
+
+def landmarks_named(ms) -> str:
+    """``landmark 3`` or ``landmarks 3, 5``."""
+    ms = list(ms)
+    return ("landmark " if len(ms) == 1 else "landmarks ") + ", ".join(map(str, ms))

@@ -4,6 +4,8 @@ over :mod:`handeye_jax.vision`); :func:`add_detect_command` adds it to the comma
 from __future__ import annotations
 
 import argparse
+import statistics
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -18,7 +20,7 @@ from .._core import (
     same_file,
     write_output,
 )
-from ._types import numbers, output_path, positive_int
+from ._types import PROG, landmarks_named, number_at_most, numbers, output_path, positive_int
 
 if TYPE_CHECKING:  # the command imports OpenCV and tomlkit when it runs, not for --help
     import numpy as np
@@ -131,11 +133,6 @@ def _check_landmarks(args: argparse.Namespace, n: int) -> None:
                          "needs at least 4 landmarks in the picture")  # fmt: skip
 
 
-def _listed(ms) -> str:
-    ms = list(ms)
-    return ("landmark " if len(ms) == 1 else "landmarks ") + ", ".join(map(str, ms))
-
-
 def _cmd_detect(args: argparse.Namespace) -> int:
     from ..data import load_dataset
     from ..vision import fill_capture
@@ -159,10 +156,24 @@ def _cmd_detect(args: argparse.Namespace) -> int:
     where = f"capture {len(dataset.captures) if target is None else target}"
     where += " (new)" if target is None else ""
     lost = sorted(set(range(n)) - set(found.landmarks.tolist()) - set(found.no_depth))
-    left = "".join(f"; {_listed(ms)} {why}, left out" for ms, why in
+    left = "".join(f"; {landmarks_named(ms)} {why}, left out" for ms, why in
                    ((lost, "not found"), (found.no_depth, "without depth")) if ms)  # fmt: skip
     print(f"{k} of {n} landmarks found in {where}{left}; {done}")
+    print(f"depth: {args.depth} read as 16-bit, {args.depth_scale_mm:g} mm per unit, aligned to "
+          f"the picture pixel for pixel (as librealsense's align to colour or realsense2_camera's "
+          f"aligned_depth_to_color image gives it); landmark depths "
+          f"{found.depth_mm.min():.1f} to {found.depth_mm.max():.1f} mm")  # fmt: skip
+    median = statistics.median(found.depth_mm.tolist())
+    if not DEPTH_PLAUSIBLE_MM[0] <= median <= DEPTH_PLAUSIBLE_MM[1]:
+        print(f"{PROG}: warning: the landmarks' median depth is {median:.1f} mm at "
+              f"--depth-scale-mm {args.depth_scale_mm:g}: a camera over a tablet sees it at "
+              f"{DEPTH_PLAUSIBLE_MM[0]:g} to {DEPTH_PLAUSIBLE_MM[1]:g} mm; check the depth "
+              "scale (RealSense: its depth_scale in metres times 1000)", file=sys.stderr)
     return 0
+
+
+#: Landmark depths a camera over a tablet sees, mm: outside, the depth scale is likely wrong.
+DEPTH_PLAUSIBLE_MM = (20.0, 1000.0)
 
 
 def _written(dataset: str, out: Path | None, in_place: bool) -> list:
@@ -181,7 +192,8 @@ def _found(args: argparse.Namespace, dataset, overlay: Path | None):
         why = f"must be <= --max-area (got {args.min_area} > {args.max_area})"
         raise InputError(None, "--min-area", why)
     settings = DetectSettings(threshold=args.threshold, min_area_px=args.min_area,
-                              max_area_px=args.max_area)  # fmt: skip
+                              max_area_px=args.max_area,
+                              depth_scale_mm=args.depth_scale_mm)  # fmt: skip
     try:
         return detect_landmarks(args.capture_png, args.depth, dataset.tablet_px, settings,
                                 partial=dataset.version == 2,
@@ -240,7 +252,7 @@ def add_detect_command(sub: argparse._SubParsersAction) -> None:
         "left out of that capture (the printout names them).",
     )
     det.add_argument("capture_png", metavar="capture", help="colour picture of the tablet (PNG)")
-    det.add_argument("depth", help="depth image (16-bit PNG, mm)")
+    det.add_argument("depth", help="depth image (16-bit PNG, aligned to the picture)")
     det.add_argument("--dataset", required=True, help="the dataset to fill (TOML)")
     det.add_argument(
         "--capture", type=_capture_index, metavar="K|new",
@@ -279,6 +291,11 @@ def add_detect_command(sub: argparse._SubParsersAction) -> None:
         "--threshold", choices=("otsu", "adaptive"), default="otsu",
         help="how dots are told from the background: Otsu's threshold on the top-hat, or "
         "OpenCV's adaptive threshold",
+    )  # fmt: skip
+    det.add_argument(
+        "--depth-scale-mm", type=number_at_most(100.0), default=1.0, metavar="MM",
+        help="mm per unit of the depth image: RealSense's depth_scale (metres) times 1000, e.g. "
+        "1 for 0.001 m units, 0.1 for 0.0001 m (default: %(default)s)",
     )  # fmt: skip
     det.add_argument("--min-area", type=positive_int, default=MIN_AREA_PX,
                      help="smallest blob, px² (default: %(default)s)")  # fmt: skip

@@ -22,17 +22,43 @@ from .. import geometry as geo
 from .._core import MAX_MEMBER_LANDMARKS, InputError
 from .._jax import in_float64
 from ..models import Rig
+from ._lens import undistort_px
 from ._observations import Observations, centre_landmark
 
 
 @dataclass(frozen=True)
 class Camera:
-    """Pinhole intrinsics: focal lengths and principal point, px."""
+    """Intrinsics: focal lengths and principal point, px, and the lens distortion.
+
+    Attributes:
+        fx_px, fy_px, cx_px, cy_px: the pinhole's focal lengths and principal point, px.
+        distortion: Brown–Conrady (``plumb_bob``) ``(k1, k2, p1, p2, k3)``, or ``None``: the
+            pictures have none (:mod:`._lens`). Image points are undistorted before the chain.
+    """
 
     fx_px: float
     fy_px: float
     cx_px: float
     cy_px: float
+    distortion: tuple[float, float, float, float, float] | None = None
+
+    def __post_init__(self):
+        if self.distortion is not None:
+            d = tuple(float(c) for c in self.distortion)
+            if len(d) != 5:
+                raise ValueError(f"distortion must be (k1, k2, p1, p2, k3), got {len(d)} numbers")
+            object.__setattr__(self, "distortion", d)
+
+    @property
+    def px(self) -> tuple[float, float, float, float]:
+        """``(fx, fy, cx, cy)``, px."""
+        return (self.fx_px, self.fy_px, self.cx_px, self.cy_px)
+
+    def undistort(self, image_px: Any) -> np.ndarray:
+        """Measured image points as an ideal pinhole camera would record them, px (NaN where
+        the distortion cannot be inverted); unchanged without distortion."""
+        return undistort_px(np.asarray(image_px, dtype=np.float64).reshape(-1, 2), self.px,
+                            self.distortion)  # fmt: skip
 
 
 def capture_angle_at_zero(zero_deg: float, sign: int) -> float:
@@ -78,6 +104,56 @@ class Capture:
         )
 
     __hash__ = None  # arrays inside
+
+
+def _single_capture(
+    n: int, position_mm: Any, hand_angle_deg: float, image_px: Any, depth_mm: Any
+) -> Capture:
+    """The one capture of a version-1 dataset, seeing its ``n`` landmarks in order, from the
+    arrays :class:`Dataset` takes for it (checked: one row per landmark)."""
+    image = np.array(image_px, dtype=np.float64)
+    depth = np.array(depth_mm, dtype=np.float64)
+    if image.shape != (n, 2) or depth.shape != (n,):
+        raise ValueError(
+            f"image_px must have shape ({n}, 2) and depth_mm ({n},), one row per "
+            f"landmark; got {image.shape} and {depth.shape} (tablet_px: ({n}, 2))"
+        )
+    position = np.array(position_mm, dtype=np.float64)
+    if position.shape != (3,):
+        raise ValueError(f"capture_position_mm must have shape (3,), got {position.shape}")
+    return Capture(position, float(hand_angle_deg), np.arange(n), image, depth)
+
+
+def _touch_arrays(
+    n: int,
+    hand_xy_mm: Any,
+    hand_angle_deg: Any,
+    touch_error_px: Any,
+    hand_z_mm: Any,
+    touch_landmark: Any,
+) -> dict[str, np.ndarray]:
+    """The touches' arrays of a :class:`Dataset` with ``n`` landmarks, by field, checked: one
+    row per touch (``hand_z_mm`` NaN and ``touch_landmark`` in order when not given)."""
+    hand = np.array(hand_xy_mm, dtype=np.float64)
+    t = hand.shape[0] if hand.ndim == 2 else -1
+    if touch_landmark is None:
+        touch_landmark = np.arange(t)
+    if hand_z_mm is None:
+        hand_z_mm = np.full(max(t, 0), np.nan)
+    landmark = np.array(touch_landmark, dtype=np.int64).reshape(-1)
+    arrays = {"hand_xy_mm": (hand, (2,)),
+              "hand_angle_deg": (np.array(hand_angle_deg, dtype=np.float64), ()),
+              "touch_error_px": (np.array(touch_error_px, dtype=np.float64), (2,)),
+              "hand_z_mm": (np.array(hand_z_mm, dtype=np.float64), ()),
+              "touch_landmark": (landmark, ())}  # fmt: skip
+    for key, (a, tail) in arrays.items():
+        if t < 0 or a.shape != (t, *tail):
+            want = ", ".join(["t", *map(str, tail)])
+            raise ValueError(f"{key} must have shape ({want}), one row per touch; got "
+                             f"{a.shape} (hand_xy_mm: {hand.shape})")  # fmt: skip
+    if t and not (landmark.min() >= 0 and landmark.max() < n):
+        raise ValueError(f"touch_landmark must be landmark indices 0 to {n - 1}")
+    return {key: a for key, (a, _) in arrays.items()}
 
 
 def _setter(obj):
@@ -164,23 +240,12 @@ class Dataset:
         put("tablet_px", tablet)
         simple_given = any(a is not None for a in (capture_position_mm, image_px, depth_mm))
         if captures is None:
-            if not simple_given or any(a is None for a in (capture_position_mm, image_px,
-                                                           depth_mm)):  # fmt: skip
+            if any(a is None for a in (capture_position_mm, image_px, depth_mm)):
                 raise ValueError("give captures, or capture_position_mm, image_px and depth_mm")
             angle = capture_angle_at_zero(hand_angle_zero_deg, hand_angle_sign)
             if capture_hand_angle_deg is not None:
                 angle = float(capture_hand_angle_deg)
-            image = np.array(image_px, dtype=np.float64)
-            depth = np.array(depth_mm, dtype=np.float64)
-            if image.shape != (n, 2) or depth.shape != (n,):
-                raise ValueError(
-                    f"image_px must have shape ({n}, 2) and depth_mm ({n},), one row per "
-                    f"landmark; got {image.shape} and {depth.shape} (tablet_px: {tablet.shape})"
-                )
-            position = np.array(capture_position_mm, dtype=np.float64)
-            if position.shape != (3,):
-                raise ValueError(f"capture_position_mm must have shape (3,), got {position.shape}")
-            captures = (Capture(position, angle, np.arange(n), image, depth),)
+            captures = (_single_capture(n, capture_position_mm, angle, image_px, depth_mm),)
         elif simple_given:
             raise ValueError("give captures or the single-capture arrays, not both")
         captures = tuple(captures)
@@ -190,26 +255,10 @@ class Dataset:
             if cap.landmarks.size and not (0 <= cap.landmarks.min() and cap.landmarks.max() < n):
                 raise ValueError(f"captures[{c}].landmarks must be landmark indices 0 to {n - 1}")
         put("captures", captures)
-        hand = np.array(hand_xy_mm, dtype=np.float64)
-        t = hand.shape[0] if hand.ndim == 2 else -1
-        if touch_landmark is None:
-            touch_landmark = np.arange(t)
-        put("touch_landmark", np.array(touch_landmark, dtype=np.int64).reshape(-1))
-        if hand_z_mm is None:
-            hand_z_mm = np.full(max(t, 0), np.nan)
-        arrays = {"hand_xy_mm": (hand, (2,)),
-                  "hand_angle_deg": (np.array(hand_angle_deg, dtype=np.float64), ()),
-                  "touch_error_px": (np.array(touch_error_px, dtype=np.float64), (2,)),
-                  "hand_z_mm": (np.array(hand_z_mm, dtype=np.float64), ()),
-                  "touch_landmark": (self.touch_landmark, ())}  # fmt: skip
-        for key, (a, tail) in arrays.items():
-            if t < 0 or a.shape != (t, *tail):
-                want = ", ".join(["t", *map(str, tail)])
-                raise ValueError(f"{key} must have shape ({want}), one row per touch; got "
-                                 f"{a.shape} (hand_xy_mm: {hand.shape})")  # fmt: skip
+        touches = _touch_arrays(n, hand_xy_mm, hand_angle_deg, touch_error_px, hand_z_mm,
+                                touch_landmark)  # fmt: skip
+        for key, a in touches.items():
             put(key, a)
-        if t and not (self.touch_landmark.min() >= 0 and self.touch_landmark.max() < n):
-            raise ValueError(f"touch_landmark must be landmark indices 0 to {n - 1}")
         if version is None:
             version = 1 if self.is_simple() and not self.has_hand_z else 2
         put("version", int(version))
@@ -350,7 +399,7 @@ class Dataset:
         mm = self.mm_per_tablet_px
         return Observations(
             rig=self.rig(),
-            image_px=jnp.asarray(cap.image_px, dtype=float),
+            image_px=jnp.asarray(self.camera.undistort(cap.image_px), dtype=float),
             depth_mm=jnp.asarray(cap.depth_mm, dtype=float),
             tablet_mm=jnp.asarray(self.tablet_px * mm, dtype=float),
             hand_xy_mm=jnp.asarray(self.hand_xy_mm, dtype=float),
@@ -366,6 +415,7 @@ class Dataset:
             raise ValueError("no capture sees a touched landmark: nothing to calibrate")
         mm = self.mm_per_tablet_px
         image = np.stack([self.captures[c].image_px[v] for c, v in zip(caps, views, strict=True)])
+        image = self.camera.undistort(image)  # the chain back-projects through a pinhole
         depth = np.array([self.captures[c].depth_mm[v] for c, v in zip(caps, views, strict=True)])
         position = np.stack([self.captures[c].hand_position_mm for c in caps])
         angle = np.array([self.captures[c].hand_angle_deg for c in caps])

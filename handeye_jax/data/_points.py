@@ -34,7 +34,7 @@ def read_points_csv(path: str | Path) -> tuple[list[str], list[list[str]], np.nd
     """Read a points CSV; returns ``(header, rows, values)`` with ``values`` (n, 4) float64.
 
     The header must start with ``u,v,depth,hand_angle``; extra columns are kept as they are.
-    At most 100,000 points (:data:`~handeye_jax._validate.MAX_POINTS`) in at most 16 MiB.
+    At most 100,000 points (:data:`~handeye_jax._core.MAX_POINTS`) in at most 16 MiB.
     """
     path = Path(path)
     _, text = read_text(path, MAX_TEXT_BYTES)  # a BOM, as spreadsheets write, is fine

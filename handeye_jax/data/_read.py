@@ -58,7 +58,7 @@ def known_search_names() -> frozenset[str]:
 def check_tablet_px(ppi: float, scale: float, path: str | Path | None, field: str) -> float:
     """One tablet px in mm (eq. 9); :class:`InputError` naming ``field`` unless a screen's.
 
-    A screen's pixel is :data:`~handeye_jax._validate.MM_PER_TABLET_PX` (0.01 to 3 mm); ppi
+    A screen's pixel is :data:`~handeye_jax._core.MM_PER_TABLET_PX` (0.01 to 3 mm); ppi
     and scale that make it larger or smaller are a typo (``ppi = 1``, ``scale = 100``: 2.5 m).
     """
     mm = geo.mm_per_tablet_px(ppi, scale)
@@ -73,9 +73,14 @@ def check_tablet_px(ppi: float, scale: float, path: str | Path | None, field: st
 
 
 def _check_ray(r: Reader, uv: list[float], camera: Camera, where: str) -> None:
-    """Refuse an image point more than MAX_RAY_DEG off the optical axis: not in a picture."""
-    x = (uv[0] - camera.cx_px) / camera.fx_px
-    y = (uv[1] - camera.cy_px) / camera.fy_px
+    """Refuse an image point more than MAX_RAY_DEG off the optical axis (not in a picture),
+    or one the camera's distortion cannot undistort."""
+    ideal = camera.undistort(uv)[0]
+    if not np.isfinite(ideal).all():
+        r.fail(where, f"cannot be undistorted with [camera]'s distortion (the model does not "
+               f"invert there; got [{uv[0]:g}, {uv[1]:g}]): check camera.distortion")  # fmt: skip
+    x = (ideal[0] - camera.cx_px) / camera.fx_px
+    y = (ideal[1] - camera.cy_px) / camera.fy_px
     angle = math.degrees(math.atan(math.hypot(x, y)))
     if angle > MAX_RAY_DEG:
         r.fail(where, f"is {angle:.1f} deg off the camera's optical axis (at most "
@@ -101,7 +106,7 @@ def _common(r: Reader, doc: dict, path: Path | None) -> dict[str, Any]:
     if not isinstance(name, str) or not name.strip():
         r.fail("name", f"must be a non-empty string (got {describe(name)})")
     cam = _read_table(r, doc["camera"], "camera", CAMERA)
-    camera = Camera(cam["fx"], cam["fy"], cam["cx"], cam["cy"])
+    camera = Camera(cam["fx"], cam["fy"], cam["cx"], cam["cy"], cam.get("distortion"))
     tablet = _read_table(r, doc["tablet"], "tablet", TABLET)
     try:
         check_tablet_px(tablet["ppi"], tablet["scale"], path, "tablet")
@@ -264,7 +269,7 @@ def load_dataset(path: str | Path) -> Dataset:
     :class:`InputError` naming the file and the field.
 
     The file must be a regular file of at most 4 MiB
-    (:data:`~handeye_jax._io.MAX_DATASET_BYTES`) with at most 10,000 landmarks.
+    (:data:`~handeye_jax._core.MAX_DATASET_BYTES`) with at most 10,000 landmarks.
     """
     path = Path(path)
     return _parse_text(read_text(path, MAX_DATASET_BYTES)[1], path)

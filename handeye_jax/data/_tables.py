@@ -10,6 +10,7 @@ Version 2 (several captures, touches referencing their landmark, an optional han
     fy = 617.7
     cx = 316.5
     cy = 242.3
+    distortion = [0.0, 0.0, 0.0, 0.0, 0.0]   # optional: plumb_bob k1 k2 p1 p2 k3
 
     [tablet]                        # eq. (9): one tablet px is 25.4 / ppi * scale mm
     ppi = 267.0
@@ -98,11 +99,15 @@ class Field:
 
 
 # The schema: every field of every table, once.
+#: Largest magnitude of a distortion coefficient: real lenses' are below 1 (fisheyes' ~ 10).
+MAX_DISTORTION = 100.0
 CAMERA = (
     Field("fx", 0, "px", MAX_PX, positive=True, minimum=1),
     Field("fy", 0, "px", MAX_PX, positive=True, minimum=1),
     Field("cx", 0, "px", MAX_PX),
     Field("cy", 0, "px", MAX_PX),
+    # plumb_bob (Brown–Conrady) k1, k2, p1, p2, k3 in OpenCV's order; absent: none.
+    Field("distortion", 5, "1", MAX_DISTORTION, optional=True),
 )
 TABLET = (
     Field("ppi", 0, "1", 1e5, positive=True, minimum=1),

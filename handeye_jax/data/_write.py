@@ -39,7 +39,8 @@ def dataset_to_document(ds: Dataset, version: int | None = None) -> dict[str, An
         "format": FORMAT_V1 if version == 1 else FORMAT_V2,
         "name": ds.name,
         "camera": _write_table(CAMERA, {"fx": ds.camera.fx_px, "fy": ds.camera.fy_px,
-                                        "cx": ds.camera.cx_px, "cy": ds.camera.cy_px}),
+                                        "cx": ds.camera.cx_px, "cy": ds.camera.cy_px,
+                                        "distortion": ds.camera.distortion}),
     }  # fmt: skip
     tablet = _write_table(TABLET, {"ppi": ds.tablet_ppi, "scale": ds.tablet_scale})
     angle = {"zero": float(ds.hand_angle_zero_deg), "sign": int(ds.hand_angle_sign)}

@@ -97,7 +97,7 @@ class Refits:
         declared_params, declared_F: every multi-start refit under the declared convention
             (the last one started from the fit) and its F1st: the local optima of stage 1.
         errors1, jacobian1, errors2, jacobian2: each stage's stacked error vectors at the
-            full fit and their Jacobian (see :mod:`handeye_jax._identifiability`).
+            full fit and their Jacobian (see :mod:`handeye_jax.problem._linearise`).
         loo_method: how leave-one-out was computed, in words.
         refit_landmarks: how many landmarks the convention refits searched on.
     """

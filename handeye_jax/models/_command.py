@@ -15,6 +15,7 @@ def hand_command(
     image_px: Float[Array, "n 2"],
     depth_mm: Float[Array, " n"],
     hand_angle_deg: Float[Array, " n"],
+    *,
     correction: AbstractCorrection | None = None,
     centres_mm: Float[Array, "2 2"] | None = None,
     capture_position_mm: Float[Array, "n 3"] | None = None,
@@ -23,6 +24,9 @@ def hand_command(
 ) -> Float[Array, "n 2"] | Float[Array, "n 3"]:
     """Where to send the hand, ``(x, y)`` (or ``(x, y, z)``) in mm in the base frame, so the
     pen touches each point.
+
+    The model, rig and targets are positional; what changes the answer from eq. (8) at the
+    rig's capture is named (keywords only): the correction, the capture pose, the height.
 
     A target is any point seen in a picture at its depth, on the tablet or not, taken from any
     capture pose: the hand pointing down, at ``capture_position_mm``, turned by

@@ -166,7 +166,7 @@ def minimise_batch(
                          converged=quiet >= _QUIET_ITERATIONS)  # fmt: skip
 
 
-# Called once per LM iteration, hence LLVM level 1 (see handeye_jax._xla).
+# Called once per LM iteration, hence LLVM level 1 (see handeye_jax._jax._xla).
 @fast_compile(llvm_opt_level=1)
 def _starts_rj(fn: Problem, X):
     return jax.vmap(lambda x: residuals_and_jacobian(fn.residuals, x))(X)

@@ -14,6 +14,7 @@ from ..calibration import (
     PolishSummary,
     StageDiagnostics,
     StageResult,
+    change_line,
 )
 from ..diagnostics import scope_lines
 from ..models import AffinePair
@@ -216,6 +217,8 @@ def _fit_lines(result: CalibrationResult) -> list[str]:
                   else "given its posterior as their prior")  # fmt: skip
         lines.append(f"  recalibrated from {recal.previous}: refitted "
                      f"{', '.join(recal.refit)}; the other parameters {others}")  # fmt: skip
+        if recal.rig_changes:
+            lines.append(change_line(recal.rig_changes))
     return lines
 
 

@@ -1,6 +1,7 @@
 """The robot's side, NumPy only (no JAX): the fitted frames as plain numbers
-(:class:`Frames`), the hand command from them (:class:`Predictor`), and their exports (URDF,
-ROS 2, OpenCV, YAML, JSON, a NumPy module). A robot PC needs nothing above this folder."""
+(:class:`Frames`), a result file's parts checked against each other and the rig's reach, the
+hand command from them (:class:`Predictor`), and their exports (URDF, ROS 2, OpenCV, YAML,
+JSON, a NumPy module). A robot PC needs nothing above this folder."""
 
 from __future__ import annotations
 
@@ -10,12 +11,17 @@ from .._core import lazy_exports
 # fmt: off
 _EXPORTS = {
     "_export": (
-        "carried_stage", "check_parses", "DEFAULT_CAMERA_FRAME", "DEFAULT_PARENT_LINK",
-        "DEFAULT_PEN_FRAME", "export_text", "FORMATS", "NAME_PATTERN", "RIGID_ONLY_FORMATS",
-        "StageError", "zero_filled",
+        "carried_stage", "check_parses", "EASY_HANDEYE_PARAMETERS", "export_text",
+        "quaternion_xyzw", "RIGID_ONLY_FORMATS", "StageError", "zero_filled",
     ),
     "_frames": ("Affine", "Frames", "TRANSLATIONS"),
-    "_predictor": ("Predictor", "read_json", "stored_frames"),
+    "_names": (
+        "DEFAULT_BASE_FRAME", "DEFAULT_CAMERA_FRAME", "DEFAULT_PARENT_LINK", "DEFAULT_PEN_FRAME",
+        "FORMATS", "NAME_PATTERN",
+    ),
+    "_heights": ("filled_translations_mm", "with_heights"),
+    "_predictor": ("Predictor", "read_json", "result_reach", "stored_frames", "stored_result"),
+    "_trust": ("check_reach", "check_result_document"),
 }
 # fmt: on
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

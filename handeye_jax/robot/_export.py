@@ -12,13 +12,17 @@ Every format holds the same :class:`~handeye_jax.Frames`, each in its ecosystem'
 * ``opencv``: ``R_cam2gripper`` and ``t_cam2gripper`` as ``cv2.calibrateHandEye`` returns them
   (plus the rest of the chain), written with ``cv2.FileStorage``.
 * ``python``: a standalone, NumPy-only module with the fitted numbers inside.
+* ``easy_handeye``: the YAML easy_handeye (ROS) stores an eye-on-hand calibration in: its
+  ``parameters`` (frames named) and ``transformation`` (``x y z`` in metres, ``qx qy qz qw``)
+  of the camera's optical frame in the flange frame.
 
 URDF, ROS and OpenCV cannot hold "unknown": they get 0 for an undetermined component, with a
 comment in the file saying so (:func:`zero_filled` lists them for the command's warning).
 
 Every file says which stage it carries: by default the one the calibration chose to deploy
-(:attr:`Frames.deploy_stage`). URDF and ROS 2 hold rigid transforms only, stage 1: they refuse
-a calibration that deploys stage 2 unless stage 1 is asked for (:class:`StageError`).
+(:attr:`Frames.deploy_stage`). URDF, ROS 2 and easy_handeye hold rigid transforms only,
+stage 1: they refuse a calibration that deploys stage 2 unless stage 1 is asked for
+(:class:`StageError`).
 Rotation conversions are jaxlie's. jaxlie, OpenCV and PyYAML are imported when a format
 needs them: the command line builds its parser from this module's constants.
 """
@@ -29,19 +33,29 @@ import ast
 import inspect
 import json
 import math
-import re
 import shlex
 import textwrap
 
 import numpy as np
 
 from .._core import package_version
+from ..data import distort_px, undistort_px
 from . import _npchain
 from ._frames import AXES, REASONS, Frames
+from ._heights import filled_translations_mm
+from ._names import (
+    DEFAULT_BASE_FRAME,
+    DEFAULT_CAMERA_FRAME,
+    DEFAULT_PARENT_LINK,
+    DEFAULT_PEN_FRAME,
+    DEFAULT_TABLET_FRAME,
+    FORMATS,
+    NAME_PATTERN,
+    ZERO_FILLED_FORMATS,
+)
 
-FORMATS = ("json", "yaml", "urdf", "ros2", "opencv", "python")
 #: Formats that hold rigid transforms only: stage 1 (eq. 8), never stage 2's affine maps.
-RIGID_ONLY_FORMATS = ("urdf", "ros2")
+RIGID_ONLY_FORMATS = ("urdf", "ros2", "easy_handeye")
 
 
 class StageError(ValueError):
@@ -72,13 +86,7 @@ def _stage_line(frames: Frames, stage: int) -> str:
     chose = ("the stage the calibration chose to deploy" if stage == frames.deploy_stage
              else f"not the stage the calibration chose to deploy (stage {frames.deploy_stage})")
     return f"Carries {what}; {chose}."
-#: Formats that cannot hold an unknown value and write 0 (with a comment) instead.
-ZERO_FILLED_FORMATS = ("urdf", "ros2", "opencv")
-DEFAULT_PARENT_LINK = "tool0"
-DEFAULT_CAMERA_FRAME = "camera_optical_frame"
-DEFAULT_PEN_FRAME = "pen_tip"
-#: Link and frame names: what URDF, tf2 and ROS node names all accept.
-NAME_PATTERN = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,127}")
+
 MM_PER_M = 1000.0
 
 
@@ -94,8 +102,12 @@ def zero_filled(frames: Frames, fmt: str) -> list[str]:
         "urdf": ("t_hand_camera_mm", "t_hand_pen_mm"),
         "ros2": ("t_hand_camera_mm", "t_hand_pen_mm"),
         "opencv": ("t_hand_camera_mm", "t_hand_pen_mm", "t_base_tablet_mm"),
+        "easy_handeye": ("t_hand_camera_mm",),
     }[fmt]
-    return [c for c in frames.undetermined if c.split(".")[0] in carried]
+    zeros = [c for c in frames.undetermined if c.split(".")[0] in carried]
+    if filled_translations_mm(frames)[3] and "t_hand_pen_mm.z" in zeros:
+        zeros.remove("t_hand_pen_mm.z")  # written relative to the camera's: z_pen - z_camera
+    return zeros
 
 
 def rpy_radians(R: np.ndarray) -> tuple[float, float, float]:
@@ -118,9 +130,9 @@ def quaternion_xyzw(R: np.ndarray) -> tuple[float, float, float, float]:
     return (x, y, z, w) if w >= 0 else (-x, -y, -z, -w)
 
 
-def _filled_m(v: np.ndarray) -> list[float]:
-    """A translation in metres, an undetermined (NaN) component as 0."""
-    return [0.0 if math.isnan(x) else float(x) / MM_PER_M for x in v]
+def _m(v: np.ndarray) -> list[float]:
+    """A translation in mm as metres."""
+    return [float(x) / MM_PER_M for x in v]
 
 
 def _num(x: float) -> str:
@@ -148,9 +160,20 @@ def _header_lines(frames: Frames, fmt: str, source: str, stage: int) -> list[str
 
 def _undetermined_lines(frames: Frames, fmt: str) -> list[str]:
     zeros = zero_filled(frames, fmt)
+    *_, relative = filled_translations_mm(frames)
+    lines = []
+    if frames.given:
+        lines.append("GIVEN by the user, not determined by the calibration data (mm): " + ", ".join(
+            f"{c} = {getattr(frames, c.split('.')[0])[2]:.3f}" for c in frames.given))
+    if relative and fmt != "easy_handeye":
+        lines.append(f"t_hand_pen_mm.z is written as t_hand_camera_mm.z + (z_pen - z_camera) = "
+                     f"0 + {frames.pen_minus_camera_z_mm:.3f} mm: only the difference is "
+                     "determined (from the hand's heights), so the pen sits right relative to "
+                     "the camera; give export --camera-z-mm to place both on the flange.")
     if not zeros:
-        return []
-    lines = ["NOT DETERMINED by the calibration data, written as 0 here (do not trust them):"]
+        return lines
+    lines.append("NOT DETERMINED by the calibration data, written as 0 here (do not trust them; "
+                 "export --camera-z-mm or --pen-z-mm gives them):")
     lines += [f"  {c}: {REASONS.get(c, 'not determined by the data')}" for c in zeros]
     return lines
 
@@ -162,6 +185,7 @@ def export_text(
     parent_link: str = DEFAULT_PARENT_LINK,
     camera_frame: str = DEFAULT_CAMERA_FRAME,
     pen_frame: str = DEFAULT_PEN_FRAME,
+    base_frame: str = DEFAULT_BASE_FRAME,
     source: str = "",
     stage: int | None = None,
 ) -> str:
@@ -169,14 +193,17 @@ def export_text(
 
     Args:
         frames: the fitted frames.
-        fmt: ``json``, ``yaml``, ``urdf``, ``ros2``, ``opencv`` or ``python``.
+        fmt: ``json``, ``yaml``, ``urdf``, ``ros2``, ``opencv``, ``python`` or
+            ``easy_handeye``.
         parent_link: the URDF/tf2 name of the hand (flange) frame.
         camera_frame, pen_frame: names of the camera's optical frame and of the pen tip.
+        base_frame: the robot's base frame (easy_handeye's ``robot_base_frame``).
         source: where the frames came from (a file name), for the file's header.
         stage: the stage the file carries (default: the one the calibration deploys); URDF and
-            ROS 2 hold stage 1 only (:func:`carried_stage` raises :class:`StageError`).
+            ROS 2 and easy_handeye hold stage 1 only (:func:`carried_stage` raises
+            :class:`StageError`).
     """
-    for name in (parent_link, camera_frame, pen_frame):
+    for name in (parent_link, camera_frame, pen_frame, base_frame):
         if not NAME_PATTERN.fullmatch(name):
             raise ValueError(f"not a valid link or frame name: {name!r} (letters, digits, _)")
     if len({parent_link, camera_frame, pen_frame}) != 3:
@@ -198,7 +225,11 @@ def export_text(
         return _ros2(frames, parent_link, camera_frame, pen_frame, source)
     if fmt == "opencv":
         return _opencv(frames, source, stage)
-    return _python(frames, source, stage)
+    if fmt == "python":
+        return _python(frames, source, stage)
+    if fmt == "easy_handeye":
+        return _easy_handeye(frames, base_frame, parent_link, camera_frame, source)
+    raise ValueError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
 
 
 def _frame_lines(parent: str, camera: str, pen: str) -> list[str]:
@@ -211,6 +242,7 @@ def _frame_lines(parent: str, camera: str, pen: str) -> list[str]:
 
 
 def _urdf(frames: Frames, parent: str, camera: str, pen: str, source: str) -> str:
+    cam, pen_t, _, _ = filled_translations_mm(frames)
     lines = [
         *_header_lines(frames, "urdf", source, 1),
         "ROS conventions: lengths in metres, angles in radians; rpy is fixed-axis roll, pitch,",
@@ -235,8 +267,8 @@ def _urdf(frames: Frames, parent: str, camera: str, pen: str, source: str) -> st
         '<?xml version="1.0"?>\n'
         f"<!--\n{comment}\n-->\n"
         '<robot xmlns:xacro="http://www.ros.org/wiki/xacro" name="handeye_jax_end_effector">\n'
-        + joint(camera, _filled_m(frames.t_hand_camera_mm), rpy_radians(frames.R_hand_camera))
-        + joint(pen, _filled_m(frames.t_hand_pen_mm), (0.0, 0.0, 0.0))
+        + joint(camera, _m(cam), rpy_radians(frames.R_hand_camera))
+        + joint(pen, _m(pen_t), (0.0, 0.0, 0.0))
         + "</robot>\n"
     )
 
@@ -245,7 +277,7 @@ def static_transform_arguments(
     t_mm: np.ndarray, R: np.ndarray, parent: str, child: str
 ) -> list[str]:
     """The arguments of ``ros2 run tf2_ros static_transform_publisher`` (metres, x y z w)."""
-    xyz = _filled_m(t_mm)
+    xyz = _m(t_mm)
     q = quaternion_xyzw(R)
     args = []
     for flag, value in zip(("x", "y", "z", "qx", "qy", "qz", "qw"), (*xyz, *q), strict=True):
@@ -254,11 +286,10 @@ def static_transform_arguments(
 
 
 def _ros2(frames: Frames, parent: str, camera: str, pen: str, source: str) -> str:
+    cam, pen_t, _, _ = filled_translations_mm(frames)
     transforms = {
-        camera: static_transform_arguments(
-            frames.t_hand_camera_mm, frames.R_hand_camera, parent, camera
-        ),
-        pen: static_transform_arguments(frames.t_hand_pen_mm, np.eye(3), parent, pen),
+        camera: static_transform_arguments(cam, frames.R_hand_camera, parent, camera),
+        pen: static_transform_arguments(pen_t, np.eye(3), parent, pen),
     }
     lines = [
         *_header_lines(frames, "ros2", source, 1),
@@ -306,7 +337,8 @@ def _opencv(frames: Frames, source: str, stage: int) -> str:
         "t_pentip2gripper: the pen tip (tool centre point) in the gripper frame, mm.",
         f"Frames: gripper = {AXES['hand']}. camera = {AXES['camera_optical']}.",
         f"tablet = {AXES['tablet']}.",
-        "camera_matrix: [fx 0 cx; 0 fy cy; 0 0 1], px (no distortion model).",
+        "camera_matrix: [fx 0 cx; 0 fy cy; 0 0 1], px; distortion_coefficients: (k1 k2 p1 p2",
+        "k3) as cv2.undistortPoints takes them (zeros: the pictures have no distortion).",
         "hand_angle: phi = zero_deg + sign * theta_h turns the gripper about its own z.",
         "stage2_A1, stage2_A2: (X mm, Y mm, theta deg, Sx, Sy) of eq. (24); stage2_centres_mm:",
         "their centres (rows). Hand command = A2(A1(x_bi) - x'), see the json export; with",
@@ -315,15 +347,16 @@ def _opencv(frames: Frames, source: str, stage: int) -> str:
     ]
     for line in _wrap(lines):
         fs.writeComment(line)
-    t = lambda v: np.nan_to_num(v, nan=0.0).reshape(3, 1)  # noqa: E731 (mm, unknowns as 0)
+    cam, pen, tab, _ = filled_translations_mm(frames)  # mm, unknowns as 0
     fx, fy, cx, cy = frames.camera_px
     fs.write("R_cam2gripper", frames.R_hand_camera)
-    fs.write("t_cam2gripper", t(frames.t_hand_camera_mm))
+    fs.write("t_cam2gripper", cam.reshape(3, 1))
     fs.write("translation_unit", "mm")
     fs.write("R_tablet2base", frames.R_base_tablet)
-    fs.write("t_tablet2base", t(frames.t_base_tablet_mm))
-    fs.write("t_pentip2gripper", t(frames.t_hand_pen_mm))
+    fs.write("t_tablet2base", tab.reshape(3, 1))
+    fs.write("t_pentip2gripper", pen.reshape(3, 1))
     fs.write("camera_matrix", np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]))
+    fs.write("distortion_coefficients", np.array(frames.distortion or (0.0,) * 5).reshape(1, 5))
     fs.write("hand_angle_zero_deg", float(frames.hand_angle_zero_deg))
     fs.write("hand_angle_sign", int(frames.hand_angle_sign))
     fs.write("capture_position_mm", frames.capture_position_mm.reshape(3, 1))
@@ -338,11 +371,13 @@ def _opencv(frames: Frames, source: str, stage: int) -> str:
 
 
 def _kernel_source() -> str:
-    """The functions of :mod:`handeye_jax._npchain`, as source (no docstring, no imports)."""
+    """The classes and functions of :mod:`handeye_jax.robot._npchain` and the lens's
+    undistortion, as source (no docstring, no imports)."""
     source = inspect.getsource(_npchain)
     tree = ast.parse(source)
     parts = [ast.get_source_segment(source, node) for node in tree.body
-             if isinstance(node, ast.FunctionDef)]  # fmt: skip
+             if isinstance(node, ast.FunctionDef | ast.ClassDef)]  # fmt: skip
+    parts += [inspect.getsource(distort_px).rstrip(), inspect.getsource(undistort_px).rstrip()]
     return "\n\n\n".join(parts) + "\n"
 
 
@@ -389,6 +424,8 @@ Units: mm, deg, px. Frames (R_a_b maps frame b to frame a, p_a = R_a_b·p_b + t_
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 MODEL = {f.model!r}
@@ -400,8 +437,10 @@ R_BASE_TABLET = {_py_matrix(f.R_base_tablet)}
 T_BASE_TABLET_MM = {_py_vector(f.t_base_tablet_mm)}
 # The pen tip (tool centre point) in the hand frame, mm.
 T_HAND_PEN_MM = {_py_vector(f.t_hand_pen_mm)}
-# Intrinsics (fx, fy, cx, cy), px.
+# Intrinsics (fx, fy, cx, cy), px, and the lens distortion: plumb_bob (k1, k2, p1, p2, k3), or
+# None. Image points are undistorted with it before the chain.
 CAMERA_PX = ({_num(f.fx_px)}, {_num(f.fy_px)}, {_num(f.cx_px)}, {_num(f.cy_px)})
+DISTORTION = {None if f.distortion is None else "(" + ", ".join(map(_num, f.distortion)) + ")"}
 # The controller's hand angle θh turns the hand about its own z by φ = ZERO + SIGN·θh, deg.
 HAND_ANGLE_ZERO_DEG = {_num(f.hand_angle_zero_deg)}
 HAND_ANGLE_SIGN = {f.hand_angle_sign}
@@ -445,7 +484,8 @@ def hand_command(
         raise ValueError(f"stage must be 1 or 2 (got {{stage!r}})")
     if axes not in ("xy", "xyz") or (axes == "xyz" and PEN_MINUS_CAMERA_Z_MM is None):
         raise ValueError(f"axes must be 'xy' (or 'xyz' with heights; got {{axes!r}})")
-    uv = np.asarray(image_px, dtype=np.float64).reshape(-1, 2)
+    uv = undistort_px(np.asarray(image_px, dtype=np.float64).reshape(-1, 2), CAMERA_PX,
+                      DISTORTION)
     n = uv.shape[0]
     depth = np.broadcast_to(np.asarray(depth_mm, dtype=np.float64), (n,))
     angle = np.broadcast_to(np.asarray(hand_angle_deg, dtype=np.float64), (n,))
@@ -454,28 +494,63 @@ def hand_command(
         np.asarray(capture_hand_angle_deg, dtype=np.float64)
     )
     cap = np.asarray(cap, dtype=np.float64)
+    chain = Chain(CAMERA_PX, R_HAND_CAMERA, T_HAND_CAMERA_MM, T_HAND_PEN_MM, A1, A2, CENTRES_MM)
     xy = hand_command_xy(
-        uv, depth, HAND_ANGLE_ZERO_DEG + HAND_ANGLE_SIGN * angle, stage, CAMERA_PX,
-        R_HAND_CAMERA, T_HAND_CAMERA_MM, T_HAND_PEN_MM, cap,
-        HAND_ANGLE_ZERO_DEG + HAND_ANGLE_SIGN * cap_angle, A1, A2, CENTRES_MM,
+        chain, uv, depth, HAND_ANGLE_ZERO_DEG + HAND_ANGLE_SIGN * angle, cap,
+        HAND_ANGLE_ZERO_DEG + HAND_ANGLE_SIGN * cap_angle, stage=stage,
     )
     if axes == "xy":
         return xy
-    z = image_to_base_z(uv, depth, CAMERA_PX, R_HAND_CAMERA, cap)
+    z = image_to_base_z(chain, uv, depth, cap)
     return np.column_stack([xy, z + PEN_MINUS_CAMERA_Z_MM])
 
 
-# The chain: handeye_jax._npchain, verbatim.
+# The chain: handeye_jax.robot._npchain and the lens's undistortion, verbatim.
 
 
 {_kernel_source()}'''
+
+
+#: easy_handeye's calibration parameters, as its ``HandeyeCalibrationParameters`` takes them.
+EASY_HANDEYE_PARAMETERS = ("namespace", "move_group_namespace", "move_group", "eye_on_hand",
+                           "robot_base_frame", "robot_effector_frame", "tracking_base_frame",
+                           "tracking_marker_frame")  # fmt: skip
+
+
+def _easy_handeye(frames: Frames, base: str, parent: str, camera: str, source: str) -> str:
+    import yaml
+
+    cam, _, _, _ = filled_translations_mm(frames)
+    x, y, z = _m(cam)
+    qx, qy, qz, qw = quaternion_xyzw(frames.R_hand_camera)
+    lines = [
+        *_header_lines(frames, "easy_handeye", source, 1),
+        "An eye-on-hand calibration in easy_handeye's file format (~/.ros/easy_handeye/NAME.yaml; "
+        "HandeyeCalibration.from_file reads it): transformation is the camera's optical frame "
+        f"({camera}) in the flange frame ({parent}), as tf publishes it from "
+        "robot_effector_frame to tracking_base_frame: x y z in metres, the quaternion qx qy qz "
+        "qw. The tracking marker is the tablet.",
+        f"{parent}: the hand (flange) frame: {AXES['hand']}.",
+        f"{camera}: {AXES['camera_optical']}.",
+        "The pen tip, the tablet and the stage-2 correction are not part of this format: see the "
+        "json or yaml export.",
+        *_undetermined_lines(frames, "easy_handeye"),
+    ]
+    doc = {
+        "parameters": dict(zip(EASY_HANDEYE_PARAMETERS, (
+            "/handeye_jax_eye_on_hand/", "/", "manipulator", True, base, parent, camera,
+            DEFAULT_TABLET_FRAME), strict=True)),
+        "transformation": {"x": x, "y": y, "z": z, "qx": qx, "qy": qy, "qz": qz, "qw": qw},
+    }  # fmt: skip
+    head = "".join(f"# {line}".rstrip() + "\n" for line in _wrap(lines))
+    return head + yaml.safe_dump(doc, sort_keys=False, default_flow_style=False)
 
 
 def check_parses(text: str, fmt: str) -> None:
     """Parse ``text`` as its format's reader would (a last guard before writing)."""
     if fmt == "json":
         json.loads(text)
-    elif fmt == "yaml":
+    elif fmt in ("yaml", "easy_handeye"):
         import yaml
 
         yaml.safe_load(text)
@@ -494,6 +569,7 @@ def check_parses(text: str, fmt: str) -> None:
 
 
 __all__ = [
+    "EASY_HANDEYE_PARAMETERS",
     "FORMATS",
     "RIGID_ONLY_FORMATS",
     "StageError",

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from .._core import MAX_DEG, MAX_MM, MAX_PX, InputError
+from ..data import DISTORTION_COEFFICIENTS, DISTORTION_MODEL
 
 FORMAT = "handeye-jax.frames/1"
 UNITS = {"length": "mm", "angle": "deg", "image": "px"}
@@ -71,6 +72,17 @@ HEIGHT_RULE = (
     "with t_hand_camera z taken as 0: only z_pen − z_camera is determined (from the hand's "
     "heights at the touches), not each"
 )
+GIVEN_NOTE = (
+    "not determined by the calibration data: given by the user (export --camera-z-mm or "
+    "--pen-z-mm), or following from the one given and heights.pen_minus_camera_mm"
+)
+DISTORTION_RULE = (
+    "plumb_bob (Brown–Conrady, OpenCV's distCoeffs order): a measured image point is first "
+    "undistorted to the pixel a pinhole camera with camera_px would record "
+    "(cv2.undistortPoints with P = K), then back-projected"
+)
+#: Largest magnitude of a distortion coefficient read from a file.
+MAX_DISTORTION = 100.0
 #: Largest file :func:`read_json` reads: a result with its data is well under 1 MB.
 MAX_FILE_BYTES = 64 * 1024 * 1024
 #: How far from orthonormal a rotation read from a file may be.
@@ -130,6 +142,12 @@ class Frames:
         deploy_stage: the stage the calibration chose to deploy (1: eq. 8; 2: eq. 25 with
             A1, A2), which hand commands use by default; 2 in files that do not say (written
             before the choice was recorded, when stage 2 was the default).
+        distortion: the lens's Brown–Conrady (``plumb_bob``) ``(k1, k2, p1, p2, k3)``, or
+            ``None``; image points are undistorted with it before the chain.
+        given: components the data leaves undetermined whose values were given by the user
+            (a measured camera height, :func:`~handeye_jax.robot.with_heights`), or follow from
+            one given and ``z_p − z_c``.
+
     """
 
     R_hand_camera: np.ndarray
@@ -152,6 +170,9 @@ class Frames:
     model: str = ""
     pen_minus_camera_z_mm: float | None = None
     deploy_stage: int = 2
+    distortion: tuple[float, float, float, float, float] | None = None
+    given: tuple[str, ...] = ()
+
 
     def __post_init__(self):
         shapes = {"R_hand_camera": (3, 3), "R_base_tablet": (3, 3), "capture_position_mm": (3,),
@@ -165,7 +186,11 @@ class Frames:
         object.__setattr__(self, "deploy_stage", int(self.deploy_stage))
         object.__setattr__(self, "hand_angle_sign", int(self.hand_angle_sign))
         object.__setattr__(self, "undetermined", tuple(self.undetermined))
+        object.__setattr__(self, "given", tuple(self.given))
         known = {f"{t}.{a}" for t in TRANSLATIONS for a in AXIS_NAMES}
+        for name in self.given:
+            if name not in known or name in self.undetermined:
+                raise ValueError(f"given: {name!r} must be a known component with a value")
         for name in self.undetermined:
             if name not in known:
                 raise ValueError(f"unknown component {name!r}; known: {sorted(known)}")
@@ -185,6 +210,11 @@ class Frames:
             object.__setattr__(self, "pen_minus_camera_z_mm", float(self.pen_minus_camera_z_mm))
             if not math.isfinite(self.pen_minus_camera_z_mm):
                 raise ValueError("pen_minus_camera_z_mm must be finite or None (undetermined)")
+        if self.distortion is not None:
+            d = tuple(float(c) for c in self.distortion)
+            if len(d) != 5 or not all(math.isfinite(c) for c in d):
+                raise ValueError("distortion must be five finite numbers (k1, k2, p1, p2, k3)")
+            object.__setattr__(self, "distortion", d)
 
     @property
     def has_height(self) -> bool:
@@ -266,6 +296,12 @@ class Frames:
         if self.has_height:
             doc["heights"] = {"pen_minus_camera_mm": self.pen_minus_camera_z_mm,
                               "rule": HEIGHT_RULE}  # fmt: skip
+        if self.given:
+            doc["given"] = [{"component": c, "note": GIVEN_NOTE} for c in self.given]
+        if self.distortion is not None:
+            doc["distortion"] = {"model": DISTORTION_MODEL,
+                                 **dict(zip(DISTORTION_COEFFICIENTS, self.distortion, strict=True)),
+                                 "rule": DISTORTION_RULE}  # fmt: skip
         return doc
 
     @classmethod
@@ -280,9 +316,9 @@ class Frames:
         r = _Check(path)
         d = r.table(doc, where, ("format", "model", "units", "T_hand_camera", "T_base_tablet",
                                  "pen_tip", "camera_px", "hand_angle", "capture", "stage2",
-                                 "undetermined"), ("axes", "convention", "heights",
-                                                   "deploy_stage", "deploy_note", "stage",
-                                                   "stage_note"))  # fmt: skip
+                                 "undetermined"),
+                     ("axes", "convention", "heights", "deploy_stage", "deploy_note", "stage",
+                      "stage_note", "distortion", "given"))  # fmt: skip
         at = lambda key: f"{where}.{key}" if where else key  # noqa: E731
         if d["format"] != FORMAT:
             r.fail(at("format"), f"expected {FORMAT!r} (got {d['format']!r:.60})")
@@ -316,6 +352,15 @@ class Frames:
             hd = r.table(d["heights"], at("heights"), ("pen_minus_camera_mm",), ("rule",))
             height = r.number(hd["pen_minus_camera_mm"], at("heights.pen_minus_camera_mm"),
                               MAX_MM)  # fmt: skip
+        distortion = None
+        if "distortion" in d:
+            dd = r.table(d["distortion"], at("distortion"), ("model", *DISTORTION_COEFFICIENTS),
+                         ("rule",))  # fmt: skip
+            if dd["model"] != DISTORTION_MODEL:
+                r.fail(at("distortion.model"), f"must be {DISTORTION_MODEL!r} (got "
+                       f"{dd['model']!r:.40})")  # fmt: skip
+            distortion = tuple(r.number(dd[k], at(f"distortion.{k}"), MAX_DISTORTION)
+                               for k in DISTORTION_COEFFICIENTS)  # fmt: skip
         return cls(
             R_hand_camera=r.rotation(T_hc["R"], at("T_hand_camera.R")),
             t_hand_camera_mm=values["t_hand_camera_mm"],
@@ -341,6 +386,10 @@ class Frames:
             model=d["model"],
             pen_minus_camera_z_mm=height,
             deploy_stage=int(deploy),
+            distortion=distortion,
+            given=tuple(r.table(g, at(f"given[{i}]"), ("component",), ("note",))["component"]
+                        for i, g in enumerate(r.table_list(d.get("given", []), at("given")))),
+
         )  # fmt: skip
 
 

@@ -14,10 +14,13 @@ from typing import Any
 
 import numpy as np
 
-from .._core import DIGEST_KEY, InputError, document_digest
+from .._core import DIGEST_KEY, InputError, document_digest, read_text
+from ..data import undistort_px
 from . import _npchain
 from ._frames import FORMAT as FRAMES_FORMAT
 from ._frames import MAX_FILE_BYTES, Frames
+from ._npframes import MODELS, chain_of
+from ._trust import Checked, Reach, check_result_document
 
 RESULT_FORMAT = "handeye-jax.result/1"
 
@@ -41,14 +44,11 @@ def read_json(path: str | Path) -> Any:
     """A JSON file, parsed; :class:`InputError` naming the file if it cannot be (too large,
     unreadable, not JSON, a key twice in one object)."""
     path = Path(path)
-    try:
-        with open(path, "rb") as f:
-            data = f.read(MAX_FILE_BYTES + 1)
-        if len(data) > MAX_FILE_BYTES:
-            raise InputError(path, "", f"too large: more than {MAX_FILE_BYTES >> 20} MiB")
-        text = data.decode("utf-8")
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(path, "", f"cannot read file: {e}") from None
+    _, text = read_text(path, MAX_FILE_BYTES)  # a regular file only: a FIFO would hang open()
+    return _parse_json(text, path)
+
+
+def _parse_json(text: str, path: Path) -> Any:
     try:
         return json.loads(text, object_pairs_hook=_no_duplicates)
     except _Duplicate as e:
@@ -61,16 +61,29 @@ def read_json(path: str | Path) -> Any:
 
 
 def stored_frames(path: str | Path) -> Frames | None:
-    """A result file's ``frames`` section if the file is as handeye-jax wrote it, else ``None``.
+    """A result file's ``frames`` section if the file is as handeye-jax wrote it and its
+    parts agree (:func:`stored_result`), else ``None``."""
+    checked = stored_result(path)
+    return None if checked is None else checked.frames
+
+
+def stored_result(path: str | Path) -> Checked | None:
+    """A result file's frames and reach, checked with NumPy alone, if the file is as
+    handeye-jax wrote it; else ``None``.
 
     The writer stores the SHA-256 of the rest of the document (``content_sha256``). While it
-    matches, the frames are the ones the file's own parameters gave when it was written, so
-    they need no check against them, which takes JAX and a second or more. An older result,
-    an edited one, a frames file or one that cannot be read give ``None``: for those,
-    :func:`~handeye_jax.load_frames` validates the whole file and checks the frames.
+    matches, the file needs no validation of every field, which takes JAX and a second or
+    more; but anyone editing a file can recompute the digest, so its parts are still checked
+    against each other (:func:`~handeye_jax.robot.check_result_document`: an
+    :class:`InputError` if they disagree). An older result, an edited one, a frames file or
+    one that is not JSON give ``None``: for those, :func:`~handeye_jax.load_frames` validates
+    the whole file and makes the same checks. A file that cannot be read at all (missing, a
+    FIFO, too large) is an :class:`InputError` here.
     """
+    path = Path(path)
+    _, text = read_text(path, MAX_FILE_BYTES)  # unreadable is an error either way
     try:
-        doc = read_json(path)
+        doc = _parse_json(text, path)
     except InputError:  # the full reader says what is wrong, in its own words
         return None
     if not isinstance(doc, dict) or doc.get("format") != RESULT_FORMAT or "frames" not in doc:
@@ -81,31 +94,41 @@ def stored_frames(path: str | Path) -> Frames | None:
             return None
     except ValueError:  # NaN or infinity, which the writer never writes
         return None
-    return Frames.from_dict(doc["frames"], path, "frames")
+    if not isinstance(doc.get("model"), str) or doc["model"] not in MODELS:  # checked by JAX
+        return None
+    return check_result_document(doc, path)
+
+
+def result_reach(path: str | Path) -> Reach:
+    """The reach of a result file's rig (:class:`~handeye_jax.robot.Reach`), its parts
+    checked as :func:`stored_result` checks them."""
+    return check_result_document(read_json(path), path).reach
 
 
 class Predictor:
     """Where to send the hand so that the pen touches image points: NumPy, no JAX.
 
     Build it with :meth:`from_result` (a result file or a frames file) or :meth:`from_frames`.
+    :attr:`reach` says where its commands may go.
     """
 
-    def __init__(self, frames: Frames):
+    def __init__(self, frames: Frames, reach: Reach | None = None):
         if not isinstance(frames, Frames):
             raise TypeError(f"expected Frames, got {type(frames).__name__}")
         self._frames = frames
-        # x and y of the camera and the pen: the chain's x-y never reads a z (_npchain says why).
-        self._t_hand_camera = frames.t_hand_camera_mm[:2].copy()
-        self._t_hand_pen = frames.t_hand_pen_mm[:2].copy()
+        self._reach = Reach.of_frames(frames) if reach is None else reach
+        self._chain = chain_of(frames)
 
     @classmethod
-    def from_frames(cls, frames: Frames) -> Predictor:
-        return cls(frames)
+    def from_frames(cls, frames: Frames, reach: Reach | None = None) -> Predictor:
+        return cls(frames, reach)
 
     @classmethod
     def from_result(cls, path: str | Path) -> Predictor:
         """Read a result file's ``frames`` section, or a frames file; :class:`InputError`
-        names the file and field when it is missing or malformed."""
+        names the file and field when it is missing or malformed, or when a result's parts
+        disagree (its frames, parameters, rig, data and residuals, checked with NumPy:
+        :func:`~handeye_jax.robot.check_result_document`)."""
         doc = read_json(path)
         if not isinstance(doc, dict):
             raise InputError(path, "", "must be a JSON object")
@@ -121,7 +144,7 @@ class Predictor:
                 f"frames; run `handeye-jax export {path} --format json --out FRAMES.json` and "
                 "load FRAMES.json",
             )  # fmt: skip
-        return cls(Frames.from_dict(doc["frames"], path, "frames"))
+        return cls(*check_result_document(doc, path))
 
     @property
     def frames(self) -> Frames:
@@ -131,6 +154,13 @@ class Predictor:
     def stage(self) -> int:
         """The stage hand commands use by default: the one the calibration chose to deploy."""
         return self._frames.deploy_stage
+
+    @property
+    def reach(self) -> Reach:
+        """Where the calibration's commands may go: around the hand positions it recorded
+        (:class:`~handeye_jax.robot.Reach`); :meth:`Reach.excess_mm` says how far a command
+        lies beyond."""
+        return self._reach
 
     @property
     def axes(self) -> str:
@@ -179,32 +209,44 @@ class Predictor:
         if uv.ndim != 2 or uv.shape[1] != 2:
             raise ValueError(f"image_px must have shape (n, 2), got {uv.shape}")
         n = uv.shape[0]
+        f = self._frames
+        uv = undistort_px(uv, f.camera_px, f.distortion)  # the chain is a pinhole's
+        if not np.isfinite(uv).all():
+            bad = int(np.flatnonzero(~np.isfinite(uv).all(axis=1))[0])
+            raise ValueError(f"image_px[{bad}] cannot be undistorted with the calibration's "
+                             "lens distortion (the model does not invert there)")  # fmt: skip
         depth = _finite(depth_mm, "depth_mm", (n,))
         if (depth <= 0).any():
             raise ValueError("depth_mm must be > 0")
-        f = self._frames
         phi = f.phi_deg(_finite(hand_angle_deg, "hand_angle_deg", (n,)))
-        cap = f.capture_position_mm
-        if capture_position_mm is not None:
-            cap = _finite(capture_position_mm, "capture_position_mm")
-            if cap.shape not in ((3,), (n, 3)):
-                raise ValueError(f"capture_position_mm must have shape (3,) or ({n}, 3), got "
-                                 f"{cap.shape}")  # fmt: skip
-        cap_angle = f.capture_hand_angle_deg
-        if capture_hand_angle_deg is not None:
-            cap_angle = _finite(capture_hand_angle_deg, "capture_hand_angle_deg")
-            if cap_angle.shape not in ((), (n,)):
-                raise ValueError(f"capture_hand_angle_deg must be a scalar or have shape "
-                                 f"({n},), got {cap_angle.shape}")  # fmt: skip
-        xy = _npchain.hand_command_xy(
-            uv, depth, phi, stage, f.camera_px, f.R_hand_camera, self._t_hand_camera,
-            self._t_hand_pen, cap, f.phi_deg(cap_angle), f.A1.as_tuple(), f.A2.as_tuple(),
-            f.centres_mm,
-        )  # fmt: skip
+        cap, cap_angle = _capture_pose(f, n, capture_position_mm, capture_hand_angle_deg)
+        xy = _npchain.hand_command_xy(self._chain, uv, depth, phi, cap, f.phi_deg(cap_angle),
+                                      stage=stage)  # fmt: skip
         if axes == "xy":
             return xy
-        z = _npchain.image_to_base_z(uv, depth, f.camera_px, f.R_hand_camera, cap)
+        z = _npchain.image_to_base_z(self._chain, uv, depth, cap)
         return np.column_stack([xy, z + f.pen_minus_camera_z_mm])
+
+
+def _capture_pose(
+    frames: Frames, n: int, position_mm: Any, hand_angle_deg: Any
+) -> tuple[np.ndarray, Any]:
+    """The capture pose of ``n`` targets, checked: the hand position, mm, ``(3,)`` or
+    ``(n, 3)``, and its hand angle θh, deg, scalar or ``(n,)``; the calibration's for each
+    one not given."""
+    position = frames.capture_position_mm
+    if position_mm is not None:
+        position = _finite(position_mm, "capture_position_mm")
+        if position.shape not in ((3,), (n, 3)):
+            raise ValueError(f"capture_position_mm must have shape (3,) or ({n}, 3), got "
+                             f"{position.shape}")  # fmt: skip
+    angle = frames.capture_hand_angle_deg
+    if hand_angle_deg is not None:
+        angle = _finite(hand_angle_deg, "capture_hand_angle_deg")
+        if angle.shape not in ((), (n,)):
+            raise ValueError(f"capture_hand_angle_deg must be a scalar or have shape "
+                             f"({n},), got {angle.shape}")  # fmt: skip
+    return position, angle
 
 
 def _finite(x: Any, name: str, shape: tuple[int, ...] | None = None) -> np.ndarray:

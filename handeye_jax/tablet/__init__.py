@@ -1,11 +1,17 @@
-"""The tablet app: a page that draws the landmarks, records the pen, and measures touch errors.
+"""The tablet app: a page that draws the landmarks, records the pen, and measures touch errors;
+and its server: the app's state and the files it writes (touch errors into the dataset with
+bounded backups, trials), HTTP on asyncio and h11 with a cap on connections and a deadline per
+request, the answers to each route, the guard (the secret, ``Host`` and ``Origin``), the posts'
+validation, a printable, rate-bounded log, and the start-up that checks every file first.
 
-:func:`make_server` binds the HTTP server (standard library); :func:`serve` runs it until
-Ctrl-C. Only whoever has the secret the server prints (in its URL and QR code) can use it
-(:mod:`.guard`). The page lives in ``static/`` (HTML, JS and CSS; no build step).
+:func:`make_server` checks the inputs and binds the server; :func:`serve` runs it until
+Ctrl-C. Only whoever has the secret the server
+prints (in its URL and QR code) can use it (:mod:`.guard`). The page lives in ``static/``
+(HTML, JS and CSS; no build step).
 """
 
 from ..data import backup_path as versioned_backup_path
+from ._app import TabletApp
 from ._calibration import apply_touch_errors
 from ._guard import new_token
 from ._posts import (
@@ -16,7 +22,7 @@ from ._posts import (
     parse_calibration,
     parse_evaluation,
 )
-from ._server import DEFAULT_HOST, DEFAULT_PORT, TabletApp, TabletServer, make_server, serve
+from ._server import DEFAULT_HOST, DEFAULT_PORT, TabletServer, make_server, serve
 from ._targets import grid_targets, load_targets
 from ._trials import format_summary, load_trials, summarise
 

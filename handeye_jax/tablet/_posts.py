@@ -89,6 +89,8 @@ def parse_json_body(body: bytes) -> Any:
 
     try:
         return json.loads(body.decode("utf-8"), parse_constant=no_constants)
+    except PostError:  # a ValueError too: it says which literal
+        raise
     except RecursionError:
         raise PostError(400, "", "body is nested too deep to be a run of touches") from None
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
@@ -115,6 +117,10 @@ def _object(
 def _string(x: Any, where: str, max_chars: int = MAX_LABEL_CHARS) -> str:
     if not isinstance(x, str) or not x.strip() or len(x) > max_chars:
         raise PostError(400, where, f"must be a non-empty string of at most {max_chars} chars")
+    if not x.isprintable():  # a control character (ESC) or a lone surrogate: shown, saved
+        bad = next(c for c in x if not c.isprintable())  # and printed, it breaks them
+        raise PostError(400, where, f"must be printable text (got {ascii(bad)} at "
+                        f"{x.index(bad)})")  # fmt: skip
     return x
 
 
@@ -129,6 +135,10 @@ def _point(x: Any, where: str, lo: float, hi: float) -> list[float]:
         raise PostError(400, where, "must be an array of 2 numbers [x, y], px")
     out = []
     for i, v in enumerate(x):
+        if isinstance(v, int) and not isinstance(v, bool) and not lo <= v <= hi:
+            # before any float(): a 4,000-digit integer has none (OverflowError)
+            got = v if abs(v) < 10**15 else f"an integer of {len(str(abs(v)))} digits"
+            raise PostError(400, f"{where}[{i}]", f"must be within [{lo:g}, {hi:g}] px (got {got})")
         if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
             raise PostError(400, f"{where}[{i}]", f"must be a finite number (got {v!r})")
         if not lo <= v <= hi:

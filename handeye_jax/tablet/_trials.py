@@ -26,6 +26,7 @@ import numpy as np
 
 from .._core import Reader, describe, load_json, write_output
 from ..geometry import mm_per_tablet_px
+from ._log import printable
 from ._posts import EvaluationPost
 
 FORMAT = "handeye-jax.trials/1"
@@ -149,11 +150,12 @@ def summarise(doc: dict[str, Any]) -> list[dict[str, Any]]:
 
 
 def format_summary(doc: dict[str, Any]) -> str:
-    """The summary as text, one block per label, like Tables 9 and 12."""
+    """The summary as text, one block per label, like Tables 9 and 12; each label's
+    non-printable characters (ESC, a lone surrogate) escaped (``\\x1b``)."""
     lines = []
     for s in summarise(doc):
         heads = [f"{t['trial']:>6d}" for t in s["trials"]]
-        lines.append(f"{s['label']}: mean touching error per trial")
+        lines.append(f"{printable(s['label'])}: mean touching error per trial")
         lines.append("trial        " + " ".join(heads) + "  average")
         for unit in ("px", "mm"):
             cells = [f"{t[f'mean_{unit}']:6.2f}" for t in s["trials"]]

@@ -13,13 +13,14 @@ _EXPORTS = {
         "evaluate", "evaluate_points", "evaluate_twin", "format_evaluation", "Heldout",
         "load_heldout", "PointErrors", "TouchingError",
     ),
-    "_render": ("render_capture",),
+    "_render": ("render_capture", "render_depth"),
     "_simulate": (
         "check_twin_folder", "encode_png", "heldout_targets", "NoisePreset", "PRESETS", "simulate",
         "simulate_captures", "Twin", "write_twin",
     ),
     "_synthetic": ("seen_from", "synthesize_captures", "synthesize_dataset", "true_command"),
-    "_truth": ("change_truth", "draw_truth", "load_truth", "TwinTruth"),
+    "_poses": ("tool_poses",),
+    "_truth": ("change_truth", "draw_truth", "load_truth", "REALSENSE_LIKE", "TwinTruth"),
 }
 # fmt: on
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

@@ -166,11 +166,12 @@ def evaluate(
     for label, stage in (("stage 1", 1), ("stage 2", 2)):
         rows.append((label, result.predict(image_px, depth_mm, angle_deg, stage)))
     model, rig = truth.htm(), truth.rig()
-    rows.append(("oracle", hand_command(model, rig, image_px, depth_mm, angle_deg)))
+    ideal_px = jnp.asarray(truth.undistort(heldout.image_px))  # the truth knows its lens
+    rows.append(("oracle", hand_command(model, rig, ideal_px, depth_mm, angle_deg)))
     if dataset is not None:
         correction, centres = fit_correction(dataset, model, oracle_settings(result))
-        cmd = hand_command(model, rig, image_px, depth_mm, angle_deg, correction,
-                           jnp.asarray(centres))  # fmt: skip
+        cmd = hand_command(model, rig, ideal_px, depth_mm, angle_deg, correction=correction,
+                           centres_mm=jnp.asarray(centres))  # fmt: skip
         rows.append(("oracle + stage 2", cmd))
     return [
         TouchingError(
@@ -234,13 +235,14 @@ def evaluate_points(
     model, rig = truth.htm(), truth.rig()
     jpose = {k: jnp.asarray(v) for k, v in pose.items()}
     dz = jnp.asarray(truth.pen_z_mm - truth.camera_z_mm)
-    rows.append(("oracle", hand_command(model, rig, image_px, depth_mm, angle, **jpose,
+    ideal_px = jnp.asarray(truth.undistort(heldout.image_px))  # the truth knows its lens
+    rows.append(("oracle", hand_command(model, rig, ideal_px, depth_mm, angle, **jpose,
                                         pen_minus_camera_mm=dz)))  # fmt: skip
     if dataset is not None:
         correction, centres = fit_correction(dataset, model, oracle_settings(result))
         rows.append(("oracle + stage 2", hand_command(
-            model, rig, image_px, depth_mm, angle, correction, jnp.asarray(centres), **jpose,
-            pen_minus_camera_mm=dz)))  # fmt: skip
+            model, rig, ideal_px, depth_mm, angle, correction=correction,
+            centres_mm=jnp.asarray(centres), **jpose, pen_minus_camera_mm=dz)))  # fmt: skip
     want = truth.true_command(heldout.true_mm, heldout.hand_angle_deg)
     rise = heldout.capture_position_mm[:, 2] - truth.capture_position_mm[2]
     out = []
@@ -304,7 +306,7 @@ def evaluate_twin(
     if not twin_dir.is_dir():
         raise InputError(twin_dir, "", "not a folder written by 'handeye-jax simulate'")
     dataset = load_dataset(twin_dir / "dataset.toml")
-    check_fitted_on(result, dataset, result_path)
+    dataset = check_fitted_on(result, dataset, result_path)
     truth = load_truth(twin_dir / "truth.json")
     heldout = load_heldout(twin_dir / "heldout.csv")
     if heldout.true_mm is not None:
@@ -314,8 +316,9 @@ def evaluate_twin(
 
 def check_fitted_on(
     result: CalibrationResult, dataset: Dataset, result_path: str | Path | None = None
-) -> None:
-    """Raise :class:`InputError` unless ``result`` was fitted on ``dataset``.
+) -> Dataset:
+    """The part of ``dataset`` ``result`` was fitted on: all of it, or the landmarks
+    ``calibrate --landmarks`` kept; :class:`InputError` if it was fitted on other data.
 
     Compared: the dataset's name and, when the result carries its data, the whole dataset
     (camera, captures, landmarks, touches, tablet); else the rig (camera, capture position,
@@ -335,8 +338,11 @@ def check_fitted_on(
     fitted = result.data
     if fitted is not None:
         if fitted.n_landmarks != dataset.n_landmarks:
-            refuse(f"fitted on {fitted.n_landmarks} landmarks of a dataset {name!r}; {where} "
-                   f"has {dataset.n_landmarks}")  # fmt: skip
+            subset = landmarks_fitted(fitted, dataset)
+            if subset is None:
+                refuse(f"fitted on {fitted.n_landmarks} landmarks of a dataset {name!r} that "
+                       f"are not a part of {where}'s {dataset.n_landmarks}")  # fmt: skip
+            dataset = dataset.landmark_subset(subset)
         if fitted.mm_per_tablet_px != dataset.mm_per_tablet_px:
             refuse(f"fitted on a dataset {name!r} with another tablet ppi or scale than {where}")
         for what in Dataset.FIELDS:
@@ -347,7 +353,7 @@ def check_fitted_on(
                     if isinstance(ours, np.ndarray) else ours == theirs)  # fmt: skip
             if not same:
                 refuse(f"fitted on a dataset {name!r} whose {what} differs from {where}'s")
-        return
+        return dataset
     c, rig = dataset.camera, result.rig
     mine = [c.fx_px, c.fy_px, c.cx_px, c.cy_px, *dataset.captures[0].hand_position_mm,
             dataset.hand_angle_zero_deg, dataset.hand_angle_sign]  # fmt: skip
@@ -360,6 +366,16 @@ def check_fitted_on(
     if n != dataset.n_rows:
         refuse(f"fitted on {n} landmarks of a dataset {name!r}; {where} has "
                f"{dataset.n_rows}")  # fmt: skip
+    return dataset
+
+
+def landmarks_fitted(fitted: Dataset, dataset: Dataset) -> tuple[int, ...] | None:
+    """The landmarks m of ``dataset`` a result was fitted on when it was fitted on a part of
+    them (``calibrate --landmarks``): each fitted landmark found by its place on the tablet
+    (places are distinct), or ``None`` when some is not ``dataset``'s."""
+    where = {tuple(p): m for m, p in enumerate(np.asarray(dataset.tablet_px).tolist())}
+    ms = tuple(where.get(tuple(p), -1) for p in np.asarray(fitted.tablet_px).tolist())
+    return None if -1 in ms else ms
 
 
 def format_evaluation(rows: list[TouchingError] | list[PointErrors]) -> str:

@@ -1,7 +1,7 @@
 """Render what the twin's RGB-D camera sees of the tablet: a colour picture and a depth image.
 
 The display is projected into the camera through the twin's true chain
-(:meth:`~handeye_jax._twin.TwinTruth.project`). Each landmark dot is a square of ``dot_px``
+(:meth:`~handeye_jax.twin.TwinTruth.project`). Each landmark dot is a square of ``dot_px``
 tablet px; the paper's one-pixel dot is about 0.7 image px wide, so it lands as a small blob
 only through the lens's point-spread function. The dot is sampled on a fine grid in the tablet
 plane and each sample's darkness is spread over the pixels by the exact integral of a Gaussian
@@ -147,6 +147,9 @@ def true_depth_mm(truth: TwinTruth) -> Float[np.ndarray, "h w"]:
     normal = np.cross(px - p0, py - p0)
     c = truth.camera_px
     v, u = np.mgrid[0:h, 0:w].astype(float)
+    if truth.distortion is not None:  # each pixel sees along its undistorted ray
+        u, v = np.moveaxis(truth.undistort(np.stack([u, v], -1).reshape(-1, 2)), -1, 0)
+        u, v = u.reshape(h, w), v.reshape(h, w)
     rays = np.stack([(u - c["cx"]) / c["fx"], (v - c["cy"]) / c["fy"], np.ones_like(u)], -1)
     return float(normal @ p0) / (rays @ normal)
 

@@ -1,21 +1,22 @@
 """The synthetic twin: every input the real rig produces, from a rig whose truth is known.
 
-:func:`simulate` takes a :class:`~handeye_jax._twin.TwinTruth` and a :class:`NoisePreset` and
+:func:`simulate` takes a :class:`~handeye_jax.twin.TwinTruth` and a :class:`NoisePreset` and
 makes what the rig would: the picture of the tablet and its depth image
-(:mod:`~handeye_jax._render`), the landmarks found in them (:mod:`~handeye_jax._detect`), the
-touches (operator error, the tablet's report of it, the controller's hand positions), and
-held-out targets for :mod:`~handeye_jax._evaluate`. :func:`write_twin` writes them to a folder:
+(:mod:`~handeye_jax.twin._render`), the landmarks found in them
+(:mod:`~handeye_jax.vision._detect`), the touches (operator error, the tablet's report of it,
+the controller's hand positions), and held-out targets for :mod:`~handeye_jax.twin._evaluate`.
+:func:`write_twin` writes them to a folder:
 
 ``dataset.toml``  the core format, ``image_px`` and ``depth`` from the detector (or exact)
 ``capture.png``   the colour picture, 8-bit BGR
 ``depth.png``     the depth image, 16-bit, mm (0 = no measurement)
-``truth.json``    the rig truth (:func:`~handeye_jax._twin.load_truth` reads it back)
+``truth.json``    the rig truth (:func:`~handeye_jax.twin.load_truth` reads it back)
 ``heldout.csv``   held-out targets: ``u,v,depth,hand_angle`` as measured (px, px, mm, deg)
                   and where they are drawn, ``tablet_x,tablet_y`` (tablet px)
 
 It writes into a new or empty folder only: with ``force=True`` it replaces an old twin's
-files and removes what the README's loop made from them (:data:`DERIVED_FILES`), so nothing
-stale is left beside the new twin.
+files and removes what the loop of docs/twin.md made from them (:data:`DERIVED_FILES`), so
+nothing stale is left beside the new twin.
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ from .._core import (
 )
 from .._core import MAX_TWIN_CAPTURES as MAX_CAPTURES
 from .._core import TWIN_SEED_RANGE as SEED_RANGE
-from ..data import Camera, Capture, Dataset, dataset_to_toml
+from ..data import Capture, Dataset, dataset_to_toml
 from ..vision import BlobCountError, DetectSettings, depth_at, find_blobs, order_blobs
 from ._render import DepthSensing, Imaging, render_capture, render_depth
 from ._synthetic import synthesize_dataset
@@ -192,6 +193,9 @@ def simulate(
     capture = render_capture(truth, preset.imaging, rng_image)
     depth = render_depth(truth, preset.depth, rng_depth)
     exact_ds, touch_px = _touched(truth, preset, seed, rng_touch)
+    if truth.distortion is not None:  # the lens moves every point of the picture
+        exact_ds = exact_ds.replace(camera=truth.camera(), image_px=truth.project(
+            truth.landmarks_tablet_px)[0])  # fmt: skip
     hand_xy = exact_ds.hand_xy_mm
     if preset.hand_round_mm:
         hand_xy = np.round(hand_xy / preset.hand_round_mm) * preset.hand_round_mm
@@ -293,13 +297,7 @@ def _pictures(
     if exact:
         image_px, depth_mm = truth_c.project(truth_c.landmarks_tablet_px)
         return picture, depth, image_px, depth_mm
-    n = len(truth_c.landmarks_tablet_px)
-    blobs = find_blobs(picture, settings)
-    if len(blobs.image_px) != n:
-        hint = "; try exact=True (simulate --exact) or larger dots (--dot-px)"
-        raise BlobCountError("capture.png (simulated)", blobs, n, hint)
-    image_px = blobs.image_px[order_blobs(blobs.image_px, truth_c.landmarks_tablet_px)]
-    return picture, depth, image_px, depth_at(depth, image_px, settings.depth_window_px)
+    return picture, depth, *_detected(truth_c, picture, depth, settings)
 
 
 def simulate_captures(
@@ -335,10 +333,9 @@ def simulate_captures(
         hand = np.round(hand / preset.hand_round_mm) * preset.hand_round_mm
     caps = [Capture(p, a, np.arange(n), image_px, depth_mm)
             for (p, a), (_, _, image_px, depth_mm) in zip(poses, shots, strict=True)]  # fmt: skip
-    c = truth.camera_px
     dataset = Dataset(
         name=f"twin-seed{seed}-{preset.name}-{captures}captures",
-        camera=Camera(c["fx"], c["fy"], c["cx"], c["cy"]), tablet_ppi=truth.ppi,
+        camera=truth.camera(), tablet_ppi=truth.ppi,
         tablet_scale=truth.scale, hand_angle_zero_deg=truth.hand_angle_zero_deg,
         hand_angle_sign=truth.hand_angle_sign, search={}, tablet_px=truth.landmarks_tablet_px,
         captures=caps, hand_xy_mm=hand[:, :2], hand_z_mm=hand[:, 2],
@@ -455,7 +452,7 @@ def check_twin_folder(out_dir: str | Path, force: bool = False, field: str = "")
 
     Returns the stale files :func:`write_twin` with ``force`` removes once the new twin is in
     place: :data:`DERIVED_FILES` and the figures of ``result_report/``. Raises
-    :class:`~handeye_jax._errors.InputError` naming ``out_dir`` and ``field``.
+    :class:`~handeye_jax._core.InputError` naming ``out_dir`` and ``field``.
     """
     folder = Path(out_dir)
     try:
@@ -503,7 +500,7 @@ def write_twin(
     (:func:`check_twin_folder`) is removed; other files are left as they are.
 
     Every file is encoded before the first is written, and all are put in place together:
-    on failure (an :class:`~handeye_jax._errors.InputError` naming the file and ``field``)
+    on failure (an :class:`~handeye_jax._core.InputError` naming the file and ``field``)
     the folder is as it was.
     """
     stale = check_twin_folder(out_dir, force, field)

@@ -35,7 +35,7 @@ from .._core import (
     load_json,
 )
 from .._jax import in_float64
-from ..data import check_tablet_px, snake_grid_px
+from ..data import Camera, check_tablet_px, distort_px, snake_grid_px, undistort_px
 from ..models import HTMModel, Rig
 from ._synthetic import tablet_to_camera
 
@@ -61,6 +61,11 @@ HAND_ANGLE_CONVENTIONS = ((90.0, -1), (90.0, 1), (0.0, 1), (0.0, -1))  # (zero d
 MARGIN_PX = 24.0
 #: Largest lens blur σ in a truth file, image px: the PSF patch of each dot is 10 σ wide.
 MAX_LENS_BLUR_PX = 20.0
+#: Largest magnitude of a distortion coefficient in a truth file.
+MAX_DISTORTION = 1.0
+#: A RealSense-like colour lens: coefficients of the size a D400-series colour camera reports
+#: (plumb_bob k1 k2 p1 p2 k3); they move the corner of a 640 × 480 picture by about 4.5 px.
+REALSENSE_LIKE = (-0.0555, 0.0665, -0.0004, 0.0007, -0.0213)
 
 
 @dataclass(frozen=True, eq=False)
@@ -89,6 +94,9 @@ class TwinTruth:
             (eq. 1). The camera turns with the hand: ``R_base_hand = Ry(-180)·Rz(φc)``.
         pen_z_mm: the pen tip's offset along the hand's z axis, ``zp``, mm (the hand's height
             at a touch is the touched point's plus this).
+        distortion: the lens's Brown–Conrady (``plumb_bob``) ``(k1, k2, p1, p2, k3)``, or
+            ``None`` (a pinhole). Pictures, depth images and held-out targets are distorted
+            with it; the dataset's ``[camera]`` carries it.
     """
 
     image_size_px: tuple[int, int]
@@ -109,6 +117,7 @@ class TwinTruth:
     seed: int | None = None
     capture_hand_angle_deg: float | None = None
     pen_z_mm: float = 0.0
+    distortion: tuple[float, float, float, float, float] | None = None
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, TwinTruth):
@@ -179,11 +188,27 @@ class TwinTruth:
     def project(
         self, tablet_px: Float[np.ndarray, "n 2"]
     ) -> tuple[Float[np.ndarray, "n 2"], Float[np.ndarray, " n"]]:
-        """Where display points appear in the picture: ``(image_px (n, 2), depth_mm (n,))``."""
+        """Where display points appear in the picture: ``(image_px (n, 2), depth_mm (n,))``,
+        through the lens's distortion."""
         c = self.camera_px
         uv, z = geo.project(jnp.asarray(self.camera_points(tablet_px)), c["fx"], c["fy"],
                             c["cx"], c["cy"])  # fmt: skip
-        return np.asarray(uv), np.asarray(z)
+        return distort_px(np.asarray(uv), self.camera_tuple_px, self.distortion), np.asarray(z)
+
+    @property
+    def camera_tuple_px(self) -> tuple[float, float, float, float]:
+        """``(fx, fy, cx, cy)``, image px."""
+        c = self.camera_px
+        return (c["fx"], c["fy"], c["cx"], c["cy"])
+
+    def undistort(self, image_px: Float[np.ndarray, "n 2"]) -> Float[np.ndarray, "n 2"]:
+        """Picture points as the pinhole of the same intrinsics would see them, px."""
+        return undistort_px(np.asarray(image_px, float).reshape(-1, 2), self.camera_tuple_px,
+                            self.distortion)  # fmt: skip
+
+    def camera(self) -> Camera:
+        """The dataset's ``[camera]``: intrinsics and distortion."""
+        return Camera(*self.camera_tuple_px, self.distortion)
 
     def sees(self, tablet_px: Float[np.ndarray, "n 2"]) -> bool:
         """Whether every display point (tablet px) is in the picture, :data:`MARGIN_PX` in."""
@@ -205,6 +230,10 @@ class TwinTruth:
             del d["capture_hand_angle_deg"]
         if d["pen_z_mm"] == 0.0:
             del d["pen_z_mm"]
+        if d["distortion"] is None:
+            del d["distortion"]
+        else:
+            d["distortion"] = list(d["distortion"])
         return {"format": FORMAT, **d}
 
     def to_json(self) -> str:
@@ -376,7 +405,7 @@ def load_truth(path: str | Path) -> TwinTruth:
     if doc.get("format") != FORMAT:
         r.fail("format", f"expected {FORMAT!r} (got {describe(doc.get('format'))})")
     keys = ("format", *TwinTruth.__dataclass_fields__)
-    r.table(doc, "", keys, optional=("seed", "capture_hand_angle_deg", "pen_z_mm"))
+    r.table(doc, "", keys, optional=("seed", "capture_hand_angle_deg", "pen_z_mm", "distortion"))
     size, camera = _picture(r, doc)
     m = r.table(doc["model"], "model", HTMModel.param_names)
     model = {k: r.number(m[k], f"model.{k}", limit=MAX_MM) for k in HTMModel.param_names}
@@ -410,6 +439,8 @@ def load_truth(path: str | Path) -> TwinTruth:
         capture_hand_angle_deg=None if doc.get("capture_hand_angle_deg") is None else
         r.number(doc["capture_hand_angle_deg"], "capture_hand_angle_deg", limit=MAX_DEG),
         pen_z_mm=r.number(doc.get("pen_z_mm", 0.0), "pen_z_mm", limit=MAX_MM),
+        distortion=None if doc.get("distortion") is None else
+        tuple(r.vector(doc["distortion"], "distortion", 5, MAX_DISTORTION)),
     )  # fmt: skip
     if not _in_view(truth, truth.landmarks_tablet_px):
         r.fail("", f"some landmark is not in the picture (or within {MARGIN_PX:g} px of its edge)")

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import io
 import itertools
+import math
 import os
 import struct
 import sys
@@ -66,6 +67,8 @@ class DetectSettings:
         min_area_px, max_area_px: blobs outside these areas (image px²) are ignored.
         centroid_window_px: the centroid is taken over ``±centroid_window_px`` pixels.
         depth_window_px: depth is the median over ``±depth_window_px`` pixels.
+        depth_scale_mm: mm per unit of the 16-bit depth image (RealSense's ``depth_scale``
+            in mm: 1 for its default 0.001 m units, 0.1 for 0.0001 m).
     """
 
     threshold: str = "otsu"
@@ -79,8 +82,12 @@ class DetectSettings:
     max_area_px: int = MAX_AREA_PX
     centroid_window_px: int = 1
     depth_window_px: int = 2
+    depth_scale_mm: float = 1.0
 
     def __post_init__(self):
+        if not (math.isfinite(self.depth_scale_mm) and 0 < self.depth_scale_mm <= 100):
+            raise ValueError(f"depth_scale_mm must be > 0 and at most 100 mm per unit (got "
+                             f"{self.depth_scale_mm})")  # fmt: skip
         if self.threshold not in ("otsu", "adaptive"):
             raise ValueError(f"threshold must be 'otsu' or 'adaptive' (got {self.threshold!r})")
         for name in ("background_px", "adaptive_block_px"):
@@ -220,6 +227,14 @@ def _max_area_quad(points: np.ndarray, what: str) -> np.ndarray:
     return best
 
 
+def _spread(points: np.ndarray, among: np.ndarray | None = None) -> bool:
+    """Whether some four of the points have no three nearly in a row (:data:`MIN_TRIANGLE`
+    of the nearest two of ``among``, by default the points themselves)."""
+    among = points if among is None else among
+    spacing = min(np.linalg.norm(a - b) for a, b in itertools.combinations(among, 2))
+    return bool(_frames(points)[2].max() >= MIN_TRIANGLE * spacing**2)
+
+
 def order_blobs(
     blobs_px: Float[np.ndarray, "n 2"], layout_px: Float[np.ndarray, "n 2"]
 ) -> Int[np.ndarray, " n"]:
@@ -234,7 +249,11 @@ def order_blobs(
     when turned by a quarter turn. So the picture may show the grid turned by less than ±45°
     in its plane, and in perspective, not mirrored (as a camera above the display sees it). A
     square grid turned by more than 45° is indistinguishable from one turned by less, and is
-    ordered as the latter: keep the tablet's x axis roughly along the picture's u axis.
+    ordered as the latter: keep the tablet's x axis roughly along the picture's u axis. A
+    layout whose outermost four have three nearly in a row (a staircase or an L of at most
+    :data:`MAX_PARTIAL_LANDMARKS` landmarks), or a picture of it, fixes no map that way: it
+    is matched as :func:`match_blobs` matches a part (within that function's bounds on the
+    view).
 
     Args:
         blobs_px: blob centroids, image px, ``(n, 2)``.
@@ -249,30 +268,22 @@ def order_blobs(
     if len(blobs_px) != n or n < 4:
         raise ValueError(f"need the same number (>= 4) of blobs and landmarks, got {len(blobs_px)}"
                          f" and {n}")  # fmt: skip
-    q_layout = _max_area_quad(layout_px, "drawn landmarks (tablet_px)")
-    q_blobs = _max_area_quad(blobs_px, "blobs")
+    try:
+        q_layout = _max_area_quad(layout_px, "drawn landmarks (tablet_px)")
+        q_blobs = _max_area_quad(blobs_px, "blobs")
+        spread = _spread(layout_px[q_layout], layout_px) and _spread(blobs_px[q_blobs], blobs_px)
+    except ValueError:
+        if n > MAX_PARTIAL_LANDMARKS or not (_spread(layout_px) and _spread(blobs_px)):
+            raise
+        spread = False
+    if not spread and n <= MAX_PARTIAL_LANDMARKS:
+        # Three of the outermost four in a row (a staircase, an L) fix no map: match the
+        # whole layout as a part is matched.
+        return match_blobs(blobs_px, layout_px)[1]
     spacing = np.min([np.linalg.norm(a - b) for a, b in itertools.combinations(blobs_px, 2)])
-    candidates = []
-    for mirror in (False, True):
-        ring = q_blobs[::-1] if mirror else q_blobs
-        for turn in range(4):
-            dst = np.roll(ring, turn)
-            H = cv2.getPerspectiveTransform(
-                layout_px[q_layout].astype(np.float32), blobs_px[dst].astype(np.float32)
-            )
-            mapped = cv2.perspectiveTransform(layout_px[None].astype(np.float64), H)[0]
-            dist = np.linalg.norm(mapped[:, None] - blobs_px[None], axis=2)
-            order = dist.argmin(axis=1)
-            if len(set(order.tolist())) != n:
-                continue
-            rms = float(np.sqrt(np.mean(dist[np.arange(n), order] ** 2)))
-            # Direction of tablet +x in the picture, at the layout's centre.
-            c = layout_px.mean(axis=0)
-            ends = cv2.perspectiveTransform(np.array([[c, c + [1.0, 0.0]]]), H)[0]
-            x_dir = ends[1] - ends[0]
-            cos_u = x_dir[0] / (np.linalg.norm(x_dir) + 1e-300)
-            det = np.linalg.det(H[:2, :2])
-            candidates.append((rms, cos_u, det > 0, order))
+    candidates = [m for m in (_corner_match(blobs_px, layout_px, q_layout, np.roll(ring, turn))
+                              for ring in (q_blobs, q_blobs[::-1]) for turn in range(4))
+                  if m is not None]  # fmt: skip
     if not candidates:
         raise ValueError("no turn or mirror of the drawn layout matches the blobs one to one")
     best_rms = min(c[0] for c in candidates)
@@ -280,6 +291,28 @@ def order_blobs(
     # Prefer unmirrored matches, then tablet +x along +u.
     good.sort(key=lambda c: (not c[2], -c[1]))
     return good[0][3]
+
+
+def _corner_match(blobs_px, layout_px, q_layout, q_blobs):
+    """The layout's outermost four mapped onto the blobs' four ``q_blobs`` (in that order), and
+    every landmark onto its nearest blob: ``(rms px, cos of tablet +x from +u, unmirrored,
+    order)``, or ``None`` if two landmarks take one blob."""
+    n = len(layout_px)
+    H = cv2.getPerspectiveTransform(
+        layout_px[q_layout].astype(np.float32), blobs_px[q_blobs].astype(np.float32)
+    )
+    mapped = cv2.perspectiveTransform(layout_px[None].astype(np.float64), H)[0]
+    dist = np.linalg.norm(mapped[:, None] - blobs_px[None], axis=2)
+    order = dist.argmin(axis=1)
+    if len(set(order.tolist())) != n:
+        return None
+    rms = float(np.sqrt(np.mean(dist[np.arange(n), order] ** 2)))
+    # Direction of tablet +x in the picture, at the layout's centre.
+    c = layout_px.mean(axis=0)
+    ends = cv2.perspectiveTransform(np.array([[c, c + [1.0, 0.0]]]), H)[0]
+    x_dir = ends[1] - ends[0]
+    cos_u = x_dir[0] / (np.linalg.norm(x_dir) + 1e-300)
+    return rms, cos_u, np.linalg.det(H[:2, :2]) > 0, order
 
 
 #: Most landmarks for which :func:`match_blobs` tries every subset (C(n, 4) quadrilaterals).
@@ -291,21 +324,133 @@ MAX_PARTIAL_LANDMARKS = 16
 MAX_ANISOTROPY = 1.5
 #: A match whose tablet x axis is within this of +u in the picture is a plausible reading.
 PLAUSIBLE_TURN_DEG = 55.0
+#: Four points fix a homography only if no three of them are nearly on a line: in
+#: :func:`match_blobs` (and :func:`order_blobs`) the smallest triangle three of four blobs
+#: make must cover at least this fraction of the square of the nearest two blobs' distance
+#: (a cell of a square grid gives 0.5; three dots of one row give 0, plus noise).
+MIN_TRIANGLE = 0.1
 
 
-def _local_map(H: np.ndarray, layout_px: np.ndarray) -> tuple[float, float, bool]:
-    """How ``H`` maps the tablet near the layout's centre: the direction of tablet +x in the
-    picture (deg from +u), the ratio of its largest to its smallest scale, and whether it
-    keeps handedness (unmirrored)."""
-    c = layout_px.mean(axis=0)
-    p = cv2.perspectiveTransform(np.array([[c, c + [1.0, 0.0], c + [0.0, 1.0]]]), H)[0]
-    J = np.stack([p[1] - p[0], p[2] - p[0]], axis=1)  # columns: images of tablet x and y
+def _frames(points: Float[np.ndarray, "n 2"]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every four of the points, as the four correspondences that fix a homography.
+
+    Returns:
+        ``(quads, convex, area)``: each four's indices ``(m, 4)``, in order around their
+        quadrilateral if they are its corners (``convex``), else the three around the
+        triangle that holds the fourth, then the fourth; and the smallest triangle three
+        of them make, px² (near 0 when three are nearly on a line, which fixes no map).
+    """
+    quads = np.array(list(itertools.combinations(range(len(points)), 4))).reshape(-1, 4)
+    p = points[quads]
+    # twice the area of the triangle without corner i, for each i
+    others = ((1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2))
+    tri = np.stack([np.abs(_cross(p[:, b] - p[:, a], p[:, c] - p[:, a])) for a, b, c in others],
+                   axis=1)  # fmt: skip
+    # A corner inside the triangle of the other three: that triangle is the other three's sum.
+    convex = tri.max(axis=1) < 0.5 * tri.sum(axis=1) * (1 - 1e-9)
+    inner = ~convex[:, None] & (np.arange(4) == tri.argmax(axis=1)[:, None])
+    centre = p.mean(axis=1, keepdims=True)
+    angle = np.arctan2(p[..., 1] - centre[..., 1], p[..., 0] - centre[..., 0])
+    # around the centre, the inner corner (angles are at most pi) last
+    quads = np.take_along_axis(quads, np.argsort(np.where(inner, 10.0, angle), axis=1), axis=1)
+    return quads, convex, 0.5 * tri.min(axis=1)
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
+def _rings(frame: Int[np.ndarray, " 4"], convex: bool) -> Int[np.ndarray, "r 4"]:
+    """Each way four points in order can meet another four of the same kind: the corners of
+    a quadrilateral in each of 4 turns and 2 senses; a triangle's in 3 and 2, the inner last."""
+    m = 4 if convex else 3
+    ring = [np.r_[np.roll(frame[:m][::s], t), frame[m:]] for s in (1, -1) for t in range(m)]
+    return np.array(ring)
+
+
+def _fit_homographies(
+    src: Float[np.ndarray, "m p 2"], dst: Float[np.ndarray, "m p 2"]
+) -> Float[np.ndarray, "m 3 3"]:
+    """The homography taking each ``src`` onto its ``dst``: exact for 4 points (what
+    ``cv2.getPerspectiveTransform`` does), least squares in the algebraic error for more; all at
+    once. Both are scaled to about unit size first (Hartley's normalisation)."""
+
+    def normaliser(pts):
+        c = pts.reshape(-1, 2).mean(axis=0)
+        s = np.sqrt(2.0) / np.mean(np.linalg.norm(pts.reshape(-1, 2) - c, axis=1))
+        return np.array([[s, 0.0, -s * c[0]], [0.0, s, -s * c[1]], [0.0, 0.0, 1.0]])
+
+    Ts, Td = normaliser(src), normaliser(dst)
+    a, b = src @ Ts[:2, :2].T + Ts[:2, 2], dst @ Td[:2, :2].T + Td[:2, 2]
+    x, y, u, v = a[..., 0], a[..., 1], b[..., 0], b[..., 1]
+    zero, one = np.zeros_like(x), np.ones_like(x)
+    A = np.concatenate([np.stack([x, y, one, zero, zero, zero, -u * x, -u * y], axis=-1),
+                        np.stack([zero, zero, zero, x, y, one, -v * x, -v * y], axis=-1)],
+                       axis=1)  # fmt: skip
+    rhs = np.concatenate([u, v], axis=1)[..., None]
+    At = np.swapaxes(A, 1, 2)
+    h = np.linalg.solve(At @ A, At @ rhs)[..., 0]
+    Hn = np.concatenate([h, np.ones((len(h), 1))], axis=1).reshape(-1, 3, 3)
+    return np.linalg.inv(Td) @ Hn @ Ts
+
+
+def _project(H: Float[np.ndarray, "m 3 3"], points: Float[np.ndarray, "n 2"]):
+    """The points mapped by each ``H``, px, ``(m, n, 2)``, and whether each ``H`` keeps all of
+    them in front of the camera (on one side of the line it sends to infinity), ``(m,)``.
+    A map that puts some landmarks behind the camera folds the tablet: no camera sees that."""
+    p = np.einsum("mij,nj->mni", H, np.c_[points, np.ones(len(points))])
+    w = p[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):  # w = 0: on the horizon, not in front
+        return p[..., :2] / w[..., None], w.min(axis=-1) * w.max(axis=-1) > 0
+
+
+def _local_maps(H: Float[np.ndarray, "m 3 3"], at_px: Float[np.ndarray, "2"]):
+    """How each ``H`` maps the tablet near the point ``at_px``: the direction of tablet +x in
+    the picture (deg from +u), the ratio of its largest to its smallest scale, and whether it
+    keeps handedness (unmirrored); each ``(m,)``."""
+    p = H @ np.append(at_px, 1.0)
+    uv = p[:, :2] / p[:, 2:]
+    # the Jacobian of the map; columns: the images of tablet x and y
+    J = (H[:, :2, :2] - uv[:, :, None] * H[:, None, 2, :2]) / p[:, 2, None, None]
     s = np.linalg.svd(J, compute_uv=False)
-    return (
-        float(np.degrees(np.arctan2(J[1, 0], J[0, 0]))),
-        s[0] / max(s[1], 1e-300),
-        bool(np.linalg.det(J) > 0),
-    )
+    x_deg = np.degrees(np.arctan2(J[:, 1, 0], J[:, 0, 0]))
+    return x_deg, s[:, 0] / np.maximum(s[:, 1], 1e-300), np.linalg.det(J) > 0
+
+
+def _nearest(blobs_px: np.ndarray, mapped: np.ndarray) -> np.ndarray:
+    """The mapped landmark nearest each blob, ``(m, k)``."""
+    return np.linalg.norm(blobs_px[None, :, None] - mapped[:, None], axis=3).argmin(axis=2)
+
+
+def _readings(blobs_px: np.ndarray, layout_px: np.ndarray, frame: np.ndarray, convex: bool):
+    """Every landmark of each blob, ``(r, k)``, that four landmarks mapped onto the four blobs
+    ``frame`` (of the same kind, in each way they can meet) give one to one, with every
+    landmark in front of the camera."""
+    quads, kind, area = _frames(layout_px)
+    spacing = min(np.linalg.norm(a - b) for a, b in itertools.combinations(layout_px, 2))
+    # No three landmarks nearly on a line: their picture would be too (a plausible view changes
+    # the ratio by at most its anisotropy, hence the margin).
+    quads = quads[(kind == convex) & (area >= MIN_TRIANGLE / 3 * spacing**2)]
+    rings = _rings(frame, convex)
+    src = np.repeat(layout_px[quads], len(rings), axis=0)
+    dst = np.tile(blobs_px[rings], (len(quads), 1, 1))
+    mapped, in_front = _project(_fit_homographies(src, dst), layout_px)
+    which = _nearest(blobs_px, mapped)
+    one_to_one = np.all(np.diff(np.sort(which, axis=1), axis=1) > 0, axis=1)
+    return np.unique(which[in_front & one_to_one], axis=0)
+
+
+def _assess(H, which, blobs_px, layout_px, max_anisotropy):
+    """Which readings ``which`` (``(r, k)``) a camera could see through their maps ``H``:
+    every landmark in front, each blob's landmark mapped nearest it, the two scales within
+    ``max_anisotropy`` (a shear can map a part onto another part); and each reading's rms
+    distance from the blobs (px), its tablet x axis (deg from +u) and handedness."""
+    mapped, in_front = _project(H, layout_px)
+    x_deg, anisotropy, unmirrored = _local_maps(H, layout_px.mean(axis=0))
+    gap = np.take_along_axis(mapped, which[..., None], axis=1) - blobs_px
+    ok = in_front & np.all(_nearest(blobs_px, mapped) == which, axis=1)
+    ok &= anisotropy <= max_anisotropy
+    return ok, np.sqrt(np.mean(np.sum(gap**2, axis=2), axis=1)), x_deg, unmirrored
 
 
 def match_blobs(
@@ -313,16 +458,23 @@ def match_blobs(
 ) -> tuple[Int[np.ndarray, " k"], Int[np.ndarray, " k"]]:
     """Which landmark each blob is, when the picture shows only some of them (``k <= n``).
 
-    Every quadrilateral of four landmarks is matched to the blobs' outermost four, in each
-    turn and mirror; a homography that maps some landmark onto every blob (one to one, within
-    10 % of the blobs' spacing of the best match) and could be a camera's view of a flat
-    tablet (its scales along two directions differ by at most :data:`MAX_ANISOTROPY`; no
-    shear) is a candidate. As in :func:`order_blobs`,
-    unmirrored candidates win, then the one whose tablet x axis points most nearly along +u.
-    If another candidate of the same handedness names different landmarks and is about as
-    plausible (turned within 15 deg of the winner, or within :data:`PLAUSIBLE_TURN_DEG` of
-    +u), the reading is ambiguous (a 2 x 3 part of a 3 x 3 grid may be either end): then
-    nothing is guessed.
+    Four blobs that fix a homography are chosen: the four whose smallest triangle (of three
+    of them) is the largest, so that no three are nearly on a line. Every four landmarks of
+    the same kind (the corners of a quadrilateral, or a triangle with one inside) are mapped
+    onto them, in each way they can meet; each map that pairs every blob with a different
+    landmark gives a reading, whose homography is then fitted to all its pairs (by algebraic
+    least squares, to sort out the readings far from plausible, then by reprojection error,
+    ``cv2.findHomography``). A reading is a candidate if that map could be a camera's view
+    of a flat tablet:
+    every landmark in front of the camera (the map does not fold the tablet through the line
+    it sends to infinity), its scales along two directions differ by at most
+    :data:`MAX_ANISOTROPY` (no shear), each blob's landmark is the one mapped nearest it; and
+    if it fits within 10 % of the blobs' spacing of the best reading. As in
+    :func:`order_blobs`, unmirrored candidates win, then the one whose tablet x axis points
+    most nearly along +u. If another candidate of the same handedness reads the blobs
+    otherwise and is about as plausible (turned within 15 deg of the winner, or within
+    :data:`PLAUSIBLE_TURN_DEG` of +u), the reading is ambiguous (a 2 x 3 part of a 3 x 3 grid
+    may be either end): then nothing is guessed.
 
     Args:
         blobs_px: blob centroids, image px, ``(k, 2)``, at least 4.
@@ -334,7 +486,8 @@ def match_blobs(
         ``blobs_px[order][j]`` is landmark ``landmarks[j]``.
 
     Raises:
-        ValueError: no match, an ambiguous one, or too few blobs or too many landmarks.
+        ValueError: no match, an ambiguous one, blobs nearly on one line, or too few blobs
+            or too many landmarks.
     """
     blobs_px, layout_px = np.asarray(blobs_px, float), np.asarray(layout_px, float)
     k, n = len(blobs_px), len(layout_px)
@@ -343,44 +496,45 @@ def match_blobs(
     if n > MAX_PARTIAL_LANDMARKS:
         raise ValueError(f"telling which of {n} landmarks {k} blobs are is tried for at most "
                          f"{MAX_PARTIAL_LANDMARKS} landmarks; name the landmarks seen")  # fmt: skip
-    q_blobs = _max_area_quad(blobs_px, "blobs")
     spacing = np.min([np.linalg.norm(a - b) for a, b in itertools.combinations(blobs_px, 2)])
-    candidates = []
-    for quad in itertools.combinations(range(n), 4):
-        hull = cv2.convexHull(layout_px[list(quad)].astype(np.float32), returnPoints=False)
-        if len(hull) < 4:
-            continue
-        src = layout_px[np.array(quad)[hull.ravel()]].astype(np.float32)
-        for mirror in (False, True):
-            ring = q_blobs[::-1] if mirror else q_blobs
-            for turn in range(4):
-                dst = blobs_px[np.roll(ring, turn)].astype(np.float32)
-                H = cv2.getPerspectiveTransform(src, dst)
-                mapped = cv2.perspectiveTransform(layout_px[None], H)[0]
-                dist = np.linalg.norm(blobs_px[:, None] - mapped[None], axis=2)  # (k, n)
-                which = dist.argmin(axis=1)
-                if len(set(which.tolist())) != k:
-                    continue
-                rms = float(np.sqrt(np.mean(dist[np.arange(k), which] ** 2)))
-                x_deg, anisotropy, unmirrored = _local_map(H, layout_px)
-                if anisotropy <= MAX_ANISOTROPY:  # a shear can map a part onto another part
-                    candidates.append((rms, unmirrored, x_deg, which))
-    if not candidates:
+    quads, convex, area = _frames(blobs_px)
+    best = area.argmax()
+    if area[best] < MIN_TRIANGLE * spacing**2:
+        raise ValueError(f"no four of the {k} blobs span a quadrilateral (nearly collinear?)")
+    which, H = _fitted_readings(blobs_px, layout_px, quads[best], convex[best])
+    ok, rms, x_deg, unmirrored = _assess(H, which, blobs_px, layout_px, MAX_ANISOTROPY)
+    if not ok.any():
         raise ValueError(f"no part of the drawn layout matches the {k} blobs one to one")
-    best_rms = min(c[0] for c in candidates)
-    good = [c for c in candidates if c[0] <= best_rms + 0.1 * spacing]
-    good.sort(key=lambda c: (not c[1], -np.cos(np.radians(c[2]))))
+    good = np.flatnonzero(ok & (rms <= rms[ok].min() + 0.1 * spacing))
+    good = good[np.lexsort((-np.cos(np.radians(x_deg[good])), ~unmirrored[good]))]
     first = good[0]
-    for other in good[1:]:
-        turned = abs((other[2] - first[2] + 180.0) % 360.0 - 180.0)
-        plausible = turned < 15.0 or abs(other[2]) < PLAUSIBLE_TURN_DEG
-        if other[1] == first[1] and plausible and not np.array_equal(other[3], first[3]):
-            a, b = (sorted(c[3].tolist()) for c in (first, other))
+    for other in good[1:]:  # another reading about as plausible: nothing is guessed
+        turned = abs((x_deg[other] - x_deg[first] + 180.0) % 360.0 - 180.0)
+        plausible = turned < 15.0 or abs(x_deg[other]) < PLAUSIBLE_TURN_DEG
+        if unmirrored[other] == unmirrored[first] and plausible:
+            a, b = (sorted(which[c].tolist()) for c in (first, other))
             raise ValueError(f"the {k} blobs fit landmarks {a} as well as {b}; name the "
                              "landmarks seen")  # fmt: skip
-    which = first[3]
-    order = np.argsort(which)
-    return which[order], order
+    order = np.argsort(which[first])
+    return which[first][order], order
+
+
+def _fitted_readings(blobs_px, layout_px, frame, convex):
+    """The readings (:func:`_readings`) from the four blobs ``frame`` that a camera might see,
+    ``(r, k)``, each with its homography fitted to all its pairs by reprojection error,
+    ``(r, 3, 3)``. Least squares in the algebraic error, all at once, first sorts out the
+    readings no camera sees (with a margin)."""
+    k = len(blobs_px)
+    which = _readings(blobs_px, layout_px, frame, convex)
+    if not len(which):
+        raise ValueError(f"no part of the drawn layout matches the {k} blobs one to one")
+    H = _fit_homographies(layout_px[which], np.broadcast_to(blobs_px, (len(which), k, 2)))
+    which = which[_assess(H, which, blobs_px, layout_px, 1.5 * MAX_ANISOTROPY)[0]]
+    fits = [(w, cv2.findHomography(layout_px[w], blobs_px, 0)[0]) for w in which]
+    fits = [(w, H) for w, H in fits if H is not None]
+    if not fits:
+        raise ValueError(f"no part of the drawn layout matches the {k} blobs one to one")
+    return np.array([w for w, _ in fits]), np.array([H for _, H in fits])
 
 
 def depth_at(
@@ -549,7 +703,8 @@ def detect_landmarks(
 
     Args:
         capture_path: the colour picture (8-bit PNG).
-        depth_path: the depth image (16-bit PNG, mm, 0 = no measurement), same size.
+        depth_path: the depth image (16-bit PNG in units of ``settings.depth_scale_mm``, 0 =
+            no measurement), aligned to the picture: the same size, pixel for pixel.
         layout_px: where the landmarks are drawn, tablet px, ``(n, 2)``, in landmark order.
         settings: detection settings.
         partial: the picture may show only some landmarks (a capture of a version-2
@@ -594,7 +749,7 @@ def detect_landmarks(
         raise BlobCountError(capture_path, blobs, expected, per="per landmark seen" * partial
                              or "per landmark")  # fmt: skip
     image_px = blobs.image_px[order]
-    depth_mm = depth_at(depth, image_px, settings.depth_window_px)
+    depth_mm = depth_at(depth, image_px, settings.depth_window_px) * settings.depth_scale_mm
     missing = np.flatnonzero(~np.isfinite(depth_mm))
     if missing.size and not partial:
         u, v = image_px[missing[0]]

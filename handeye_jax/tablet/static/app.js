@@ -535,7 +535,7 @@ async function flush() {
           `${fmt(doc.mean_mm)} mm, max ${fmt(doc.max_px)} px = ${fmt(doc.max_mm)} mm, in ${doc.saved}`, "ok");
         showSummary(doc.summary);
       }
-    } else if (r.status >= 400 && r.status < 500) {
+    } else if (r.status >= 400 && r.status < 500 && r.status !== 429) { // 429: saved too often, retry
       item.rejected = { status: r.status, error: (doc.field ? doc.field + ": " : "") + doc.error };
       store("outbox", app.outbox);
       showOutbox(`refused by the server: ${item.rejected.error}`, "error");
