@@ -186,8 +186,9 @@ def _capture_angle(rig: Rig) -> float:
 
 def _commands(model: AbstractModel, rig: Rig, targets: Targets, correction=None, centres=None):
     return hand_command(model, rig, targets.image_px, targets.depth_mm, targets.hand_angle_deg,
-                        correction, centres, targets.capture_position_mm,
-                        targets.capture_hand_angle_deg)  # fmt: skip
+                        correction=correction, centres_mm=centres,
+                        capture_position_mm=targets.capture_position_mm,
+                        capture_hand_angle_deg=targets.capture_hand_angle_deg)  # fmt: skip
 
 
 def _target_covariance(model, rig, targets: Targets, variances, correction=None,
