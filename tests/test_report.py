@@ -100,9 +100,11 @@ def test_bad_loss_arguments_are_one_line(args, capsys):
 
 def test_no_diagnostics_leaves_them_out(tmp_path, capsys):
     out = tmp_path / "r.json"
-    assert main(["calibrate", str(PAPER), "--no-diagnostics", "--out", str(out), *FAST]) == 0
+    argv = ["calibrate", str(PAPER), "--no-diagnostics", "--verbose", "--out", str(out), *FAST]
+    assert main(argv) == 0
     text = capsys.readouterr().out
-    assert "convention check" not in text and "leave-one-out" not in text
+    assert "convention check" not in text and "held-out F" not in text
+    assert "expected touching error: not computed (diagnostics skipped)" in text
     assert "diagnostics" not in json.loads(out.read_text())
 
 
