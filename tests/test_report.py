@@ -121,6 +121,18 @@ def figures(result_file):
     return figs
 
 
+def test_the_leave_one_out_figure_carries_the_summarys_verdict(figures, result_file):
+    from handeye_jax import format_summary
+
+    r = load_result(result_file)
+    title = figures["loo"]._suptitle.get_text()
+    e = r.diagnostics.expected
+    assert f"verdict: deploy stage {r.deploy_stage}" in title
+    assert f"{e.mean_mm:.2g} mm mean, {e.p95_mm:.2g} mm 95th percentile" in title
+    assert f"VERDICT  deploy stage {r.deploy_stage}" in format_summary(r)  # the same stage
+    assert f"{e.mean_mm:.2g} mm mean, {e.p95_mm:.2g} mm 95th percentile" in format_summary(r)
+
+
 def _inside(inner, outer, tol_px=1.0):
     return (inner.x0 >= outer.x0 - tol_px and inner.x1 <= outer.x1 + tol_px
             and inner.y0 >= outer.y0 - tol_px and inner.y1 <= outer.y1 + tol_px)  # fmt: skip
