@@ -259,8 +259,11 @@ def coverage_table(rows: list[dict]) -> list[str]:
     cfgs = sorted({c for v in names.values() for c in v if c != "all"})
     lines = ["| parameter | " + " | ".join(cfgs) + " | all twins |",
              "|---|" + "---|" * (len(cfgs) + 1)]  # fmt: skip
+    names["all parameters"] = {c: [h for v in names.values() for h in v.get(c, [])]
+                               for c in [*{c for v in names.values() for c in v}]}  # fmt: skip
     order = [*HTMModel.param_names, *DHModel.param_names]
-    keys = sorted(names, key=lambda n: (order.index(n) if n in order else 99, n))
+    keys = sorted(names, key=lambda n: (order.index(n) if n in order else
+                                        100 if n == "all parameters" else 99, n))  # fmt: skip
     for name in keys:
         cells = []
         for c in [*cfgs, "all"]:
