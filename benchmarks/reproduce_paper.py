@@ -4,8 +4,11 @@
 
 Prints one Markdown table per model with F, f1, f2 per stage (mm), the sign twin found, the
 evaluations used and the wall time: in the paper's ranges (``search="paper"``), the DH fit
-with a_c1's range widened (see docs/method.md), and both models with the default search, around a
-closed-form estimate from the data.
+with a_c1's range widened (see docs/method.md), and both models with the default search, around
+a closed-form estimate from the data. The seeds' rows are fitted under the paper's own loss
+(``l1``, the mean error length), which the tables report; the last row of each table is the
+default fit, maximum likelihood under the noise model (``ml``, seed 1), beside them: its F is
+the paper's measure of another optimum.
 
 "stage-1 evaluations" counts DE's evaluations plus the polish's, each LM step counted as
 1 + D objective evaluations (one residual vector and a D-column Jacobian).
@@ -60,13 +63,15 @@ def main() -> None:
     for model, data, title, search in runs:
         print(f"\n## {title}\n\n{head}")
         warnings = set()
-        for seed in args.seeds:
+        seeds = [(f"seed {seed}", seed, "l1") for seed in args.seeds]
+        for label, seed, loss in [*seeds, ("ML (default loss), seed 1", 1, "ml")]:
             s = Settings(model=model, seed=seed, population=args.population,
-                         generations=args.generations, search=search)  # fmt: skip
+                         generations=args.generations, search=search, loss=loss)  # fmt: skip
             t0 = time.perf_counter()
             r = calibrate(data, s)
-            print(row(f"seed {seed}", r, time.perf_counter() - t0), flush=True)
-            warnings.update(w.text.split(" is on")[0] for w in r.warnings)
+            print(row(label, r, time.perf_counter() - t0), flush=True)
+            if loss == "l1":
+                warnings.update(w.text.split(" is on")[0] for w in r.warnings)
         if warnings:
             print(f"\non a search bound: {'; '.join(sorted(warnings))}")
 

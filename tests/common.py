@@ -8,5 +8,5 @@ ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "data" / "paper2023.toml"
 #: The tests' DE budget, as command-line options and as settings: every fit with it shares
 #: the compiled programs of the session's paper calibration.
-FAST = ["--population", "200", "--generations", "400", "--quiet"]
+FAST = ["--population", "200", "--generations", "400", "--no-progress"]
 FAST_SETTINGS = Settings(population=200, generations=400)

@@ -75,3 +75,16 @@ def paper_result(paper_result_file):
     from handeye_jax import load_result
 
     return load_result(paper_result_file)
+
+
+@pytest.fixture(scope="session")
+def paper_l1_result():
+    """The paper's data fitted under its own loss (``l1``, the mean error length; the tests'
+    budget), diagnosed: for what the paper's loss determines (its optima, its refits)."""
+    from dataclasses import replace
+
+    from handeye_jax import calibrate, diagnose, load_dataset
+    from tests.common import FAST_SETTINGS, PAPER
+
+    with jax.enable_x64(True):
+        return diagnose(calibrate(load_dataset(PAPER), replace(FAST_SETTINGS, loss="l1")))

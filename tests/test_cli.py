@@ -32,7 +32,7 @@ def test_calibrate_writes_a_loadable_result(result_file, capsys):
 
 
 def test_calibrate_summary_names_units(tmp_path, capsys):
-    assert main(["calibrate", str(PAPER), *FAST]) == 0
+    assert main(["calibrate", str(PAPER), *FAST, "--verbose"]) == 0
     out = capsys.readouterr().out
     assert "stage 1: F = " in out and "stage 2: F = " in out and " mm" in out
     assert "xc" in out and "alpha_t" in out and "deg" in out and "time:" in out
@@ -234,7 +234,7 @@ def test_a_fit_that_does_not_fit_the_data_is_plainly_warned_about(tmp_path, caps
     # Read as written: the result's own reach check may refuse a fit this far off the data.
     warning = next(w for w in json.loads(out.read_text())["warnings"]
                    if w.startswith("the data do not fit"))  # fmt: skip
-    assert f"warning: {warning}" in summary and "do not use this result" in warning
+    assert warning in summary and "do not use this result" in warning
     F = float(warning.split("F = ")[1].split(" mm")[0])
     assert F > 100
 
@@ -249,7 +249,7 @@ def test_console_script_exit_keeps_every_output(tmp_path):
                         "--population", "40", "--generations", "5", "--no-diagnostics",
                         "--out", str(out)], capture_output=True, text=True, env=env)  # fmt: skip
     assert p.returncode == 0, p.stderr
-    assert p.stdout.rstrip().endswith(f"result written to {out}")
+    assert f"saved: {out}" in p.stdout and p.stdout.rstrip().splitlines()[-1].startswith("time:")
     assert "stage 1 DE" in p.stderr  # the progress bars
     assert load_result(out).stage1.F > 0
 
@@ -412,9 +412,9 @@ def test_a_ctrl_c_that_a_callback_swallowed_still_stops_before_the_write(
     import gc
     import signal
 
-    import handeye_jax.report
+    import handeye_jax.calibration
 
-    summary = handeye_jax.report.format_summary
+    to_json = handeye_jax.calibration.result_to_json
 
     def swallowing(result):  # the last step before the write
         # gc off, so that the handler runs here and not inside another gc callback (such as
@@ -426,9 +426,9 @@ def test_a_ctrl_c_that_a_callback_swallowed_still_stops_before_the_write(
             pass  # as JAX's _xla_gc_callback swallows it
         finally:
             gc.enable()
-        return summary(result)
+        return to_json(result)
 
-    monkeypatch.setattr(handeye_jax.report, "format_summary", swallowing)  # as the CLI finds it
+    monkeypatch.setattr(handeye_jax.calibration, "result_to_json", swallowing)  # the CLI finds it
     out = tmp_path / "result.json"
     out.write_text("precious\n")
     assert main(["calibrate", str(PAPER), *FAST, "--no-diagnostics", "--out", str(out)]) == 130

@@ -25,7 +25,13 @@ from scipy.spatial.transform import Rotation
 from handeye_jax import Frames, Predictor, compute_frames, draw_truth, save_result
 from handeye_jax.calibration._result_frames import UNDETERMINED
 from handeye_jax.cli import main
-from handeye_jax.robot import FORMATS, Affine, export_text, zero_filled
+from handeye_jax.robot import (
+    FORMATS,
+    RIGID_ONLY_FORMATS,
+    Affine,
+    export_text,
+    zero_filled,
+)
 
 NAMES = {"parent": "flange_link", "camera": "cam_optical", "pen": "pen_tcp"}
 SUFFIX = {"json": ".json", "yaml": ".yaml", "urdf": ".urdf.xacro", "ros2": ".launch.py",
@@ -34,8 +40,10 @@ SUFFIX = {"json": ".json", "yaml": ".yaml", "urdf": ".urdf.xacro", "ros2": ".lau
 
 def _export(frames: Frames, fmt: str, folder: Path) -> Path:
     path = folder / f"export{SUFFIX[fmt]}"
+    # URDF and ROS 2 hold stage 1 alone; they refuse to stand for a stage-2 deployment.
+    stage = 1 if fmt in RIGID_ONLY_FORMATS else None
     text = export_text(frames, fmt, parent_link=NAMES["parent"], camera_frame=NAMES["camera"],
-                       pen_frame=NAMES["pen"], source="drawn.json")  # fmt: skip
+                       pen_frame=NAMES["pen"], source="drawn.json", stage=stage)  # fmt: skip
     path.write_text(text, encoding="utf-8")
     return path
 
@@ -229,6 +237,12 @@ def test_cli_export_writes_each_format_and_warns_of_zeros(tmp_path, case_file, c
     args = ["export", str(case_file), "--format", fmt, "--out", str(out),
             "--parent-link", NAMES["parent"], "--camera-frame", NAMES["camera"],
             "--pen-frame", NAMES["pen"]]  # fmt: skip
+    if fmt in RIGID_ONLY_FORMATS:  # the case deploys stage 2, which these cannot hold
+        assert main(args) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "--format" in err and "--stage 1" in err
+        assert not out.exists()
+        args.insert(4, "--stage=1")
     assert main(args) == 0
     io = capsys.readouterr()
     frames = Predictor.from_result(case_file).frames
@@ -312,7 +326,8 @@ def test_a_hostile_source_name_cannot_break_out_of_a_comment_or_string():
     frames = _paper_case().frames()
     source = 'x"""\n-->\nimport os\n#\r<!--'
     for fmt in ("urdf", "ros2", "python", "yaml", "opencv"):
-        text = export_text(frames, fmt, source=source)
+        text = export_text(frames, fmt, source=source,
+                           stage=1 if fmt in RIGID_ONLY_FORMATS else None)  # fmt: skip
         if fmt == "urdf":
             assert len(list(ET.fromstring(text).iter("joint"))) == 2
         elif fmt in ("ros2", "python"):
@@ -320,7 +335,7 @@ def test_a_hostile_source_name_cannot_break_out_of_a_comment_or_string():
                         if isinstance(n, ast.Import | ast.ImportFrom) for a in n.names]  # fmt: skip
             assert "os" not in imported and imported  # the file's own imports are there
         elif fmt == "yaml":
-            assert set(yaml.safe_load(text)) == set(frames.to_dict())
+            assert set(yaml.safe_load(text)) == set(frames.to_dict()) | {"stage", "stage_note"}
         else:
             fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
             assert fs.getNode("R_cam2gripper").mat().shape == (3, 3)

@@ -81,8 +81,9 @@ def test_without_a_given_z_the_pen_sits_at_the_determined_difference(heights_res
 
 
 def test_without_heights_camera_z_fills_only_the_camera(paper_result_file, capsys):
-    assert main(["export", str(paper_result_file), "--format", "urdf", "--camera-z-mm",
-                 "12"]) == 0  # fmt: skip
+    # The paper's ML fit deploys stage 2: URDF carries stage 1's frames when asked.
+    assert main(["export", str(paper_result_file), "--format", "urdf", "--stage", "1",
+                 "--camera-z-mm", "12"]) == 0  # fmt: skip
     captured = capsys.readouterr()
     z = _urdf_z(captured.out)
     assert z["camera_optical_frame"] == pytest.approx(0.012) and z["pen_tip"] == 0.0
@@ -120,6 +121,6 @@ def test_easy_handeye_yaml_reads_back_as_easy_handeye_reads_it(heights_result, t
 def test_easy_handeye_zero_fills_with_a_comment_when_z_is_not_given(paper_result, heights_result,
                                                                     which):
     r = paper_result if which == "paper" else heights_result[1]
-    text = export_text(r.frames(), "easy_handeye")
+    text = export_text(r.frames(), "easy_handeye", stage=1)  # rigid: stage 1's frames
     assert yaml.safe_load(text)["transformation"]["z"] == 0.0
     assert "NOT DETERMINED" in text and "t_hand_camera_mm.z" in text

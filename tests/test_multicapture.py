@@ -310,12 +310,14 @@ def test_summary_says_where_the_calibration_holds():
 
     rig, ds3 = _dataset("htm", 90.0, -1)
     ds1 = synthesize_dataset(_truth("htm"), rig, snake_grid_px(), 22.5 * np.arange(9))
-    s = Settings(seed=0, population=200, generations=300, restarts=4)
+    # The paper's loss: the scope's errors from its Gauss-Newton covariance (the ML fit's
+    # scope is not validated yet; benchmarks/RESULTS.md, issue 26).
+    s = Settings(seed=0, population=200, generations=300, restarts=4, loss="l1")
     scopes = {}
     for k, ds in ((1, ds1), (3, ds3)):
         ds = ds.replace(hand_xy_mm=np.round(ds.hand_xy_mm, 1))
         r = diagnose(calibrate(ds, s))
-        scopes[k] = (r.diagnostics.scope, format_summary(r))
+        scopes[k] = (r.diagnostics.scope, format_summary(r, verbose=True))
     one, text1 = scopes[1]
     three, text3 = scopes[3]
     assert one.captures == 1 and one.camera_tradeoffs

@@ -100,9 +100,11 @@ def test_bad_loss_arguments_are_one_line(args, capsys):
 
 def test_no_diagnostics_leaves_them_out(tmp_path, capsys):
     out = tmp_path / "r.json"
-    assert main(["calibrate", str(PAPER), "--no-diagnostics", "--out", str(out), *FAST]) == 0
+    argv = ["calibrate", str(PAPER), "--no-diagnostics", "--verbose", "--out", str(out), *FAST]
+    assert main(argv) == 0
     text = capsys.readouterr().out
-    assert "convention check" not in text and "leave-one-out" not in text
+    assert "convention check" not in text and "held-out F" not in text
+    assert "expected touching error: not computed (diagnostics skipped)" in text
     assert "diagnostics" not in json.loads(out.read_text())
 
 
@@ -117,6 +119,18 @@ def figures(result_file):
     for fig in figs.values():
         fig.draw_without_rendering()  # layout and limits as in the saved files
     return figs
+
+
+def test_the_leave_one_out_figure_carries_the_summarys_verdict(figures, result_file):
+    from handeye_jax import format_summary
+
+    r = load_result(result_file)
+    title = figures["loo"]._suptitle.get_text()
+    e = r.diagnostics.expected
+    assert f"verdict: deploy stage {r.deploy_stage}" in title
+    assert f"{e.mean_mm:.2g} mm mean, {e.p95_mm:.2g} mm 95th percentile" in title
+    assert f"VERDICT  deploy stage {r.deploy_stage}" in format_summary(r)  # the same stage
+    assert f"{e.mean_mm:.2g} mm mean, {e.p95_mm:.2g} mm 95th percentile" in format_summary(r)
 
 
 def _inside(inner, outer, tol_px=1.0):

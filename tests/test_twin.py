@@ -35,7 +35,7 @@ from handeye_jax.twin._evaluate import landing_tablet_px, landmarks_fitted
 from handeye_jax.twin._truth import RANGES
 
 ROOT = Path(__file__).resolve().parents[1]
-FAST = ["--population", "200", "--generations", "400", "--quiet"]
+FAST = ["--population", "200", "--generations", "400", "--no-progress"]
 
 
 @pytest.mark.parametrize("seed", [0, 7, 123])

@@ -16,9 +16,13 @@ _EXPORTS = {
     "_batch": ("calibrate_batch", "fit_batch", "WAVE"),
     "_fitted": ("fitted_stages", "FittedStage"),
     "_payloads": (
-        "BoundHit", "Convention", "ConventionCheck", "ConventionFit", "Convergence", "DESummary",
-        "Diagnostics", "FitWarning", "HeldOut", "LeaveOneOut", "LossInfo", "Mode", "PolishSummary",
+        "Ambiguity", "BoundHit", "Convention", "ConventionCheck", "ConventionFit", "Convergence",
+        "Deployment", "DESummary", "Diagnostics", "ExpectedError", "FitWarning", "HeldOut",
+        "LeaveOneOut", "LossInfo", "Mode", "Mount", "NO_EVIDENCE", "PolishSummary", "Pose",
         "PriorReport", "Pull", "Recalibration", "Residual", "Scope", "SignTwin", "StageDiagnostics",
+    ),
+    "_likelihood": (
+        "is_ml", "ml_objective", "noise_part", "polish", "prior_information", "refine_ml",
     ),
     "_pipeline": ("calibrate", "fit", "fit_correction", "recalibrate"),
     "_plans": ("full_plan", "Plan", "recalibration_plan"),

@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import jax
@@ -37,7 +37,16 @@ from ._search import fit_stages
 from ._settings import Settings
 from ._stage import with_prior
 from ._stage_result import _finished
-from ._tasks import Run, assemble, checked, padded_obs, padded_rows, stage1_task, stage2_task
+from ._tasks import (
+    Run,
+    assemble,
+    checked,
+    likelihood,
+    padded_obs,
+    padded_rows,
+    stage1_task,
+    stage2_task,
+)
 
 #: Problems per device in one wave of a batch.
 WAVE = BATCH_WAVE
@@ -185,7 +194,12 @@ def _wave(problems: list[_Problem], mesh: Mesh) -> list[CalibrationResult | Inpu
                                          for p, (o, _, _) in zip(filled, pads, strict=True)]
     fits1 = fit_stages(tasks1, settings, [k[0] for k in keys], padded=padded1, mask=mask,
                        mesh=mesh, live=live, progress=progress)  # fmt: skip
-    stages1 = [_finish(f, "stage 1", p) for f, p in zip(fits1[:real], problems, strict=True)]
+    # Under the ml loss each problem's fit is refined to maximum likelihood on its own.
+    ml1 = [likelihood(f, p.run, p.plan.noise1, None, estimate=p.plan.previous is None)
+           for f, p in zip(fits1[:real], problems, strict=True)]  # fmt: skip
+    fits1 = [f for f, _ in ml1] + list(fits1[real:])
+    stages1 = [_finish(f, "stage 1", p, noise) for (f, noise), p in zip(ml1, problems,
+                                                                        strict=True)]  # fmt: skip
     # Stage 2 on each real problem's stage-1 model; the fillers copy the first one's.
     models = [f.model() for f in fits1[:real]] + [fits1[0].model()] * (len(filled) - real)
     tasks2, points, padded2 = [], [], []
@@ -202,19 +216,21 @@ def _wave(problems: list[_Problem], mesh: Mesh) -> list[CalibrationResult | Inpu
     share = (time.perf_counter() - t_start) / real
     out: list[CalibrationResult | InputError] = []
     for j, p in enumerate(problems):
-        stage2 = _finish(fits2[j], "stage 2", p)
+        fit2, noise2 = likelihood(fits2[j], p.run, p.plan.noise2, models[j],
+                                  estimate=p.plan.previous is None)  # fmt: skip
+        stage2 = _finish(fit2, "stage 2", p, noise2)
         if isinstance(stages1[j], InputError) or isinstance(stage2, InputError):
             out.append(stages1[j] if isinstance(stages1[j], InputError) else stage2)
             continue
-        centres = np.asarray(_centres(fits2[j].model(), points[j], p.run.obs.centre_index))
-        out.append(assemble(p.dataset, p.plan, p.run, Stages(fits1[j], fits2[j]),
+        centres = np.asarray(_centres(fit2.model(), points[j], p.run.obs.centre_index))
+        out.append(assemble(p.dataset, p.plan, p.run, Stages(fits1[j], fit2),
                             Stages(stages1[j], stage2), centres, share))  # fmt: skip
     return out
 
 
-def _finish(fit, name: str, problem: _Problem):
+def _finish(fit, name: str, problem: _Problem, noise):
     try:
-        return _finished(fit, name, problem.dataset.source)
+        return replace(_finished(fit, name, problem.dataset.source), noise=noise)
     except InputError as e:
         return e
 

@@ -18,6 +18,7 @@ from ..problem import (
     get_loss,
     put,
 )
+from ._likelihood import ml_objective
 from ._plans import _spaces_of
 from ._programs import _points
 from ._result import CalibrationResult
@@ -66,9 +67,16 @@ def fitted_stages(result: CalibrationResult, search: dict | None = None) -> Stag
     # the fit's objectives (with_prior).
     gaussian = isinstance(get_loss(result.settings.loss, result.settings.loss_scale_mm), L1Loss)
     sp1, sp2 = spaces.stage1, spaces.stage2
-    s1 = with_prior(Stage1Objective(sp1.template, obs, sp1.free), sp1, n, gaussian=gaussian)
-    points = _points(put(sp1.template, sp1.free, jnp.asarray(xs.stage1)), obs)
-    s2 = Stage2Objective(sp2.template, points, obs.centre_index, sp2.free)
-    s2 = with_prior(s2, sp2, n, gaussian=gaussian)
+    model1 = put(sp1.template, sp1.free, jnp.asarray(xs.stage1))
+    data1 = Stage1Objective(sp1.template, obs, sp1.free)
+    points = _points(model1, obs)
+    data2 = Stage2Objective(sp2.template, points, obs.centre_index, sp2.free)
+    if result.stage1.noise is not None and result.stage2.noise is not None:
+        # The maximum-likelihood fit's objectives, with the noise each stage ended with.
+        s1 = ml_objective(data1, sp1, n, result.stage1.noise.noise, model1, obs)
+        s2 = ml_objective(data2, sp2, n, result.stage2.noise.noise, model1, obs)
+    else:
+        s1 = with_prior(data1, sp1, n, gaussian=gaussian)
+        s2 = with_prior(data2, sp2, n, gaussian=gaussian)
     return Stages(FittedStage(sp1, s1, xs.stage1, populations.stage1),
                   FittedStage(sp2, s2, xs.stage2, populations.stage2))  # fmt: skip

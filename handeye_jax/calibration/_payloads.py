@@ -118,7 +118,9 @@ class Convergence:
 class Pull:
     """How far the data pulled one prior parameter: its prior mean and σ, the fitted value
     and its posterior σ (each in the parameter's unit; σ ``None``: unbounded or
-    undetermined), Baarda's w-test ``pull`` and the marginal one, in σ."""
+    undetermined), Baarda's w-test ``pull`` and the marginal one, in σ; and ``follows``: the
+    parameter pulled most, when this one's pull vanishes once that one's shift is accounted
+    for (it follows it, correlated, rather than moving itself)."""
 
     param: str
     mean: float
@@ -127,12 +129,14 @@ class Pull:
     posterior_sigma: float | None
     pull: float
     marginal_pull: float | None = spec(omit="none", default=None)
+    follows: str | None = spec(omit="none", default=None)
 
 
 @dataclass(frozen=True)
 class PriorReport:
     """A stage's prior (its source, the parameters it covers, their mean and precision, the
-    data scale and noise σ of the fit it came from, mm) and each parameter's pull."""
+    data scale and noise σ of the fit it came from, mm) and each parameter's pull; the
+    ``untested`` ones (the fit it came from did not determine them) are not flagged."""
 
     source: str
     names: tuple[str, ...]
@@ -141,6 +145,7 @@ class PriorReport:
     data_scale_mm: float
     pulls: tuple[Pull, ...] = ()
     data_sigma_mm: float | None = spec(omit="none", default=None)
+    untested: tuple[str, ...] = spec(omit="empty", default=())
 
 
 @dataclass(frozen=True)
@@ -336,6 +341,108 @@ class Scope:
 
 
 @dataclass(frozen=True)
+class Deployment:
+    """Which stage to deploy, and the evidence for it.
+
+    Attributes:
+        stage: 1 (eq. 8, the model alone) or 2 (eq. 25, with the affine correction).
+        evidence: ``"leave-one-out"`` (each touch predicted by both stages refitted without
+            it), ``"held-out"`` (touches the fit never saw) or ``"none"``.
+        stage1_mm, stage2_mm: the mean held-out hand error of each stage, mm (what a touch
+            misses by), or ``None`` without evidence.
+        difference_se_mm: the standard error of the mean paired difference, mm.
+        touches: how many touches the evidence holds.
+        reason: the choice in words.
+    """
+
+    stage: Literal[1, 2]
+    evidence: Literal["leave-one-out", "held-out", "none"]
+    reason: str
+    stage1_mm: float | None = spec(omit="none", default=None)
+    stage2_mm: float | None = spec(omit="none", default=None)
+    difference_se_mm: float | None = spec(omit="none", default=None)
+    touches: int | None = spec(check=count, omit="none", default=None)
+
+
+#: The stage to deploy without evidence: the model alone.
+NO_EVIDENCE = Deployment(
+    stage=1, evidence="none",
+    reason="no leave-one-out evidence (diagnostics skipped): stage 1, the model alone; stage 2 "
+    "is deployed only where held-out touches show that it predicts better",
+)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class ExpectedError:
+    """The touching error the fit's covariance and noise model predict for the stage to
+    deploy: the mean and the 95th percentile of the hand command's x-y error over targets
+    like the calibration's (``where``), mm; validated on twins (``benchmarks/coverage.py``)."""
+
+    stage: Literal[1, 2]
+    mean_mm: float = spec(check=length)
+    p95_mm: float = spec(check=length)
+    targets: int = spec(check=count)
+    where: str = ""
+
+
+@dataclass(frozen=True)
+class Ambiguity:
+    """A fit the data cannot tell from the result's: what it is, how it differs, how far its
+    hand commands are from the result's elsewhere, and what would tell them apart.
+
+    Attributes:
+        kind: its name (``"tablet sign twin"``, ``"mirror camera mount"``, ``"sum only"``,
+            ``"shift-tilt trade-off"``).
+        differs: the parameters it changes and by how much (their units).
+        delta_F_mm: its F less the result's, mm (the paper's measure).
+        delta_chi2: its −2 log-likelihood less the result's under the noise model (at least
+            the preset's noise), or ``None``.
+        here_mm: the largest change of the hand commands for the calibration's own views, mm.
+        elsewhere_mm: the mean and largest change for the same points seen from
+            ``elsewhere``, mm.
+        elsewhere: where those views are taken from, in words.
+        separate_by: what would tell the two apart.
+    """
+
+    kind: str
+    differs: dict[str, float]
+    delta_F_mm: float
+    here_mm: float = spec(check=length)
+    elsewhere_mm: tuple[float, float] = spec()
+    elsewhere: str = ""
+    separate_by: str = ""
+    delta_chi2: float | None = spec(omit="none", default=None)
+
+
+@dataclass(frozen=True)
+class Pose:
+    """A frame on the flange as a robot engineer reads it: position (mm), fixed-axis roll,
+    pitch and yaw (deg, ``R = Rz(yaw)·Ry(pitch)·Rx(roll)``, URDF's) and the unit quaternion
+    ``(x, y, z, w)``, ``w ≥ 0``; each with its standard deviation from the fit's covariance,
+    ``None`` where the data do not determine it (then ``note`` says why). A point (the pen
+    tip) has no rotation."""
+
+    xyz_mm: tuple[float | None, float | None, float | None]
+    xyz_sigma_mm: tuple[float | None, float | None, float | None]
+    rpy_deg: tuple[float, float, float] | None = spec(omit="none", default=None)
+    rpy_sigma_deg: tuple[float | None, float | None, float | None] | None = spec(
+        omit="none", default=None)  # fmt: skip
+    quaternion_xyzw: tuple[float, float, float, float] | None = spec(omit="none", default=None)
+    quaternion_sigma: tuple[float | None, float | None, float | None, float | None] | None = spec(
+        omit="none", default=None)  # fmt: skip
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class Mount:
+    """``T_tool0_camera`` (the camera's optical frame in the flange, tool0) and the pen tip in
+    the flange, with what the data determine of them."""
+
+    camera: Pose
+    pen: Pose
+
+
+@dataclass(frozen=True)
 class LossInfo:
     """The loss a fit used and its scale, mm."""
 
@@ -346,7 +453,11 @@ class LossInfo:
 @dataclass(frozen=True)
 class Diagnostics:
     """What a result can and cannot tell (:func:`handeye_jax.diagnose`): the loss, the
-    outlier threshold (mm), each stage's diagnostics, the convention check and the scope."""
+    outlier threshold (mm), each stage's diagnostics, the convention check, the scope, the
+    touching error to expect from the stage to deploy, the fits the data cannot tell from
+    the result's, the camera and pen on the flange, and the stage-1 parameters whose σ is not
+    their error (``weak_params``: in a weak direction or an alternative fit; no σ is given
+    for them)."""
 
     loss: LossInfo | None = spec(omit="none", default=None)
     outlier_threshold_mm: float | None = spec(omit="none", default=None)
@@ -354,3 +465,7 @@ class Diagnostics:
     stage2: StageDiagnostics | None = spec(omit="none", default=None)
     convention: ConventionCheck | None = spec(omit="none", default=None)
     scope: Scope | None = None
+    expected: ExpectedError | None = spec(omit="none", default=None)
+    ambiguities: tuple[Ambiguity, ...] = ()
+    mount: Mount | None = spec(omit="none", default=None)
+    weak_params: tuple[str, ...] = ()

@@ -30,7 +30,7 @@ from ._search import fit_stages
 from ._settings import Settings
 from ._stage import StageFit
 from ._stage_result import _finished
-from ._tasks import Run, padded_obs, stage2_task
+from ._tasks import Run, likelihood, padded_obs, stage2_task
 
 
 @in_float64
@@ -61,16 +61,21 @@ def fit_correction_stage(
     space2: ParameterSpace,
     search2: Sequence[str],
     keys2: tuple[jax.Array, jax.Array],
+    *,
+    noise: NoiseModel | None = None,
+    estimate: bool = True,
 ) -> tuple[StageFit, StageResult, np.ndarray]:
     """Stage 2 on the chain points of a stage-1 ``model``: its fit, its result and its
-    centres of rotation (rows: A1, A2), mm."""
+    centres of rotation (rows: A1, A2), mm. Under the ``ml`` loss it is refined to maximum
+    likelihood (from ``noise``; ``estimate``: its scales from the residuals)."""
     task, points = stage2_task(run, model, space2, search2)
     pad = padded_obs(run)  # on the rows calibrate's stage 2 runs on, so the two compare
     padded = None if pad is None else [stage2_task(run, model, space2, search2, pad[2])[0].build]
     fit2 = fit_stages([task], run.settings, [keys2], padded=padded,
                       mask=None if pad is None else pad[1][None],
                       mesh=problem_mesh(jax.devices()[:1]), progress=run.progress)[0]  # fmt: skip
-    stage2 = _finished(fit2, "stage 2", run.source)
+    fit2, noise2 = likelihood(fit2, run, noise, model, estimate=estimate)
+    stage2 = replace(_finished(fit2, "stage 2", run.source), noise=noise2)
     return fit2, stage2, np.asarray(_centres(fit2.model(), points, run.obs.centre_index))
 
 

@@ -17,6 +17,7 @@ from ..data import Dataset
 from ..models import AffinePair, get_model
 from ..problem import (
     FIXED,
+    NoiseModel,
     ParameterSpace,
     Prior,
     resolve_names,
@@ -42,6 +43,8 @@ class Plan:
         starts1, labels1: further LM starts of stage 1 (in ``space1``'s box) and what each is
             (the closed-form estimate's polished candidates), or ``None``.
         search: where the stages searched (:class:`SearchReport`), or ``None``.
+        noise1, noise2: the noise model each stage's maximum-likelihood fit starts from
+            (``None``: the settings' preset); a recalibration's is its previous result's.
     """
 
     space1: ParameterSpace
@@ -55,6 +58,8 @@ class Plan:
     starts1: np.ndarray | None = None
     labels1: tuple[str, ...] = ()
     search: SearchReport | None = None
+    noise1: NoiseModel | None = None
+    noise2: NoiseModel | None = None
 
 
 @in_float64
@@ -197,14 +202,17 @@ def recalibration_plan(
         lo2, hi2 = _widened(AffinePair, dataset.search, free2, prior2, template2)
         space2 = ParameterSpace(template2, free2, lo2, hi2, prior2)
     report = _recalibration_report(preset, (space1, space2), dataset.search)
-    return Plan(space1, space2, refit_names, (), source, tuple(refit), fix, search=report)
+    noises = [None if s.noise is None else s.noise.noise
+              for s in (previous.stage1, previous.stage2)]  # fmt: skip
+    return Plan(space1, space2, refit_names, (), source, tuple(refit), fix, search=report,
+                noise1=noises[0], noise2=noises[1])
 
 
 def _prior_of(report: PriorReport | None) -> Prior | None:
     if report is None:
         return None
     return Prior(report.names, report.mean, report.precision, report.source, report.data_scale_mm,
-                 report.data_sigma_mm)  # fmt: skip
+                 report.data_sigma_mm, report.untested)  # fmt: skip
 
 
 def _spaces_of(result: CalibrationResult, search: dict) -> Stages[ParameterSpace]:

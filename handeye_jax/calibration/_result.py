@@ -23,6 +23,7 @@ from ..problem import (
     FIXED,
     FREE,
     Heights,
+    NoiseFit,
     Prior,
     Stage1Objective,
     Stage2Objective,
@@ -33,6 +34,7 @@ from ..problem import (
 from ..robot import Frames
 from ._payloads import (
     Convergence,
+    Deployment,
     DESummary,
     Diagnostics,
     FitWarning,
@@ -45,6 +47,9 @@ from ._payloads import (
 from ._ranges import SearchReport
 from ._result_frames import compute_frames
 from ._settings import Settings
+
+#: The stage a result that records no choice deploys: every tool's default before the choice.
+LEGACY_DEPLOY_STAGE = 2
 
 #: Largest magnitude of a fitted parameter: the widest search range a dataset admits (DE and
 #: the LM polish stay inside their range).
@@ -74,6 +79,8 @@ class StageResult:
     Its JSON form (``stage1``, ``stage2`` of a result file) is its fields'.
         prior_F: the prior block's value at the optimum, mm (the MAP objective is ``F`` plus
             it), or ``None``.
+        noise: the noise model of the maximum-likelihood fit (``ml`` loss), its scales
+            estimated from the residuals, and their redundancies; ``None`` for another loss.
     """
 
     F: float = spec(check=length)
@@ -88,6 +95,7 @@ class StageResult:
     fixed_source: dict[str, str] = spec(omit="empty", default_factory=dict)
     prior: PriorReport | None = spec(omit="none", default=None)
     prior_F: float | None = spec(check=length, omit="none", default=None)
+    noise: NoiseFit | None = spec(omit="none", default=None)
 
     def __post_init__(self):
         if not self.status:  # every parameter free: the paper's fit, and every older result
@@ -125,6 +133,9 @@ class CalibrationResult:
             ``z_p − z_c`` a height command needs, and how well); else ``None``.
         search: where each stage searched (the preset, the ranges and where they came from,
             the closed-form estimate), or ``None`` (older results).
+        deploy: which stage to deploy and the evidence for it (:func:`~handeye_jax.diagnose`
+            chooses by leave-one-out; without it, stage 1); ``None`` in results written
+            before the choice was recorded (:attr:`deploy_stage` is then 2, as it was).
     """
 
     model: AbstractModel
@@ -145,6 +156,7 @@ class CalibrationResult:
     fits: Stages[Any] | None = field(default=None, repr=False)
     heights: Heights | None = None
     search: SearchReport | None = None
+    deploy: Deployment | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "centres_mm", np.asarray(self.centres_mm, dtype=float))
@@ -159,6 +171,13 @@ class CalibrationResult:
     def seed(self) -> int:
         return self.settings.seed
 
+    @property
+    def deploy_stage(self) -> int:
+        """The stage :meth:`predict`, the :class:`~handeye_jax.Predictor` and every export use
+        by default: :attr:`deploy`'s, or 2 for a result that records none (written before
+        the choice was made, when stage 2 was every tool's default)."""
+        return LEGACY_DEPLOY_STAGE if self.deploy is None else int(self.deploy.stage)
+
     # -- use -----------------------------------------------------------------------------
     @in_float64
     def predict(
@@ -166,7 +185,7 @@ class CalibrationResult:
         image_px: Float[Array, "n 2"],
         depth_mm: Float[Array, " n"],
         hand_angle_deg: Float[Array, " n"],
-        stage: int = 2,
+        stage: int | None = None,
         capture_position_mm: Float[Array, "n 3"] | None = None,
         capture_hand_angle_deg: Float[Array, " n"] | None = None,
         axes: str = "xy",
@@ -177,7 +196,8 @@ class CalibrationResult:
             image_px, depth_mm: each target in its picture, px, and its depth, mm: any point
                 seen at any depth, on the tablet or not.
             hand_angle_deg: the hand angle θh to touch each with, deg.
-            stage: 2 (with the affine correction, a planar map) or 1.
+            stage: 2 (with the affine correction, a planar map) or 1; default: the stage to
+                deploy (:attr:`deploy_stage`).
             capture_position_mm: the hand position each picture was taken from, mm, ``(3,)``
                 or ``(n, 3)``; default: the calibration's first capture.
             capture_hand_angle_deg: the hand angle θc then, deg, scalar or ``(n,)``; default:
@@ -185,6 +205,7 @@ class CalibrationResult:
             axes: ``"xy"``, or ``"xyz"`` for ``(x, y, z)`` when the touches recorded the
                 hand's heights (:attr:`heights`).
         """
+        stage = self.deploy_stage if stage is None else stage
         if stage not in (1, 2):
             raise ValueError(f"stage must be 1 or 2 (got {stage})")
         if axes not in ("xy", "xyz"):
@@ -213,7 +234,8 @@ class CalibrationResult:
         """The fitted frames as plain numbers (NumPy), from the parameters and the rig."""
         z = None if self.heights is None else self.heights.pen_minus_camera_mm
         return compute_frames(self.model, self.rig, self.correction, self.centres_mm,
-                              pen_minus_camera_z_mm=z, distortion=self.distortion)  # fmt: skip
+                              pen_minus_camera_z_mm=z, deploy_stage=self.deploy_stage,
+                              distortion=self.distortion)  # fmt: skip
 
     @property
     def distortion(self) -> tuple[float, float, float, float, float] | None:
@@ -237,9 +259,11 @@ class CalibrationResult:
                 P, sigma = diag.precision, diag.sigma_mm
         if P is None:
             P, sigma = self._posterior_precision(stage, free)
+        untested = () if self.diagnostics is None or stage != "stage1" else tuple(
+            n for n in self.diagnostics.weak_params if n in free)  # fmt: skip
         return Prior(free, [s.params[n] for n in free], np.asarray(P, dtype=float),
                      source or f"previous result ({self.dataset_name})",
-                     max(s.F, 1e-6) / 4.0, sigma if sigma else None)  # fmt: skip
+                     max(s.F, 1e-6) / 4.0, sigma if sigma else None, untested)  # fmt: skip
 
     def _posterior_precision(self, stage: str, free: tuple[str, ...]) -> np.ndarray:
         if self.data is None:

@@ -44,6 +44,7 @@ def compute_frames(
     *,
     known: Mapping[str, float] | None = None,
     pen_minus_camera_z_mm: float | None = None,
+    deploy_stage: int = 2,
     distortion: tuple[float, float, float, float, float] | None = None,
 ) -> Frames:
     """The frames of a fitted model, as plain numbers.
@@ -58,6 +59,7 @@ def compute_frames(
             ``{"t_hand_camera_mm.z": 12.0}``.
         pen_minus_camera_z_mm: ``z_p − z_c``, mm, when the hand's heights at the touches
             determined it (see :class:`~handeye_jax.HeightOffsets`).
+        deploy_stage: the stage the calibration chose to deploy (1 or 2).
         distortion: the lens's plumb_bob ``(k1, k2, p1, p2, k3)`` (the dataset's camera), or
             ``None``.
     """
@@ -95,5 +97,6 @@ def compute_frames(
         undetermined=tuple(n for n in UNDETERMINED if n not in known),
         model=getattr(model, "name", ""),
         pen_minus_camera_z_mm=pen_minus_camera_z_mm,
+        deploy_stage=deploy_stage,
         distortion=distortion,
     )  # fmt: skip

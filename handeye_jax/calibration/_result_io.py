@@ -11,6 +11,7 @@ The layout (every section but the first eight is optional; older files load)::
     frames{...}                 # the fitted frames as numbers, for the NumPy predictor
     content_sha256              # of all the rest: while it matches, the frames need no check
     recalibration{previous, refit[], others}
+    deploy{stage, evidence, reason, stage1_mm, stage2_mm, ...}   # the stage to deploy
     heights{...}
     search{preset, stage1{name: {lower, upper, source}}, stage2{...}, estimate{...}, ...}
     diagnostics{...}
@@ -59,7 +60,7 @@ from ..data import Camera, Dataset, dataset_from_document, dataset_to_document
 from ..models import AffinePair, Rig, get_model, model_registry
 from ..problem import Heights
 from ..robot import TRANSLATIONS, Frames, check_result_document, read_json
-from ._payloads import Diagnostics, FitWarning, Recalibration, SignTwin
+from ._payloads import Deployment, Diagnostics, FitWarning, Recalibration, SignTwin
 from ._ranges import SOURCES, SearchReport
 from ._result import MAX_PARAM, CalibrationResult, StageResult
 from ._result_frames import UNDETERMINED
@@ -175,7 +176,7 @@ def result_to_document(result: CalibrationResult) -> dict[str, Any]:
         # The numbers a robot needs, for the NumPy predictor (handeye_jax.robot).
         "frames": result.frames().to_dict(),
     }
-    for key in ("recalibration", "heights", "search", "diagnostics"):
+    for key in ("recalibration", "deploy", "heights", "search", "diagnostics"):
         value = getattr(result, key)
         if value is not None:
             doc[key] = to_document(value)
@@ -247,8 +248,10 @@ def _result_of(r: Reader, doc: Any, path: Path) -> CalibrationResult:
         rig=rig.rig(), centres_mm=np.array(centres), centre_index=centre_index, stage1=stage1,
         stage2=stage2, settings=_settings(r, doc, model), data=data, dataset_name=dataset_name,
         timings_s=_timings(r, doc), sign_twin=_sign_twin(r, doc),
-        warnings=_warnings(r, doc), diagnostics=_diagnostics(r, doc, n, stage1, stage2),
+        warnings=_warnings(r, doc),
+        diagnostics=_diagnostics(r, doc, n, stage1, stage2, _touched(data)),
         recalibration=_optional(r, doc, "recalibration", Recalibration),
+        deploy=_optional(r, doc, "deploy", Deployment),
         heights=_optional(r, doc, "heights", Heights),
         search=_search(r, doc, model_cls),
     )  # fmt: skip
@@ -377,11 +380,12 @@ def _prior(r: Reader, prior, where: str, names: tuple[str, ...]) -> None:
 
 
 def _diagnostics(r: Reader, doc: dict[str, Any], n: int | None, stage1: StageResult,
-                 stage2: StageResult) -> Diagnostics | None:  # fmt: skip
-    """The ``diagnostics``, every field checked; each leave-one-out has one entry per
-    landmark and its stage its residuals."""
+                 stage2: StageResult, touches: int | None) -> Diagnostics | None:  # fmt: skip
+    """The ``diagnostics``, every field checked; each leave-one-out has one entry per touch
+    (older files: per row) and its stage its residuals."""
     if "diagnostics" not in doc:
         return None
+    touches = n if touches is None else touches
     diag = _table(r, doc, "diagnostics")
     for key, s in (("stage1", stage1), ("stage2", stage2)):
         d = diag.get(key)
@@ -391,8 +395,8 @@ def _diagnostics(r: Reader, doc: dict[str, Any], n: int | None, stage1: StageRes
         held = d["loo"].get("held_out_mm")
         if not s.residuals_mm:
             r.fail(f"{key}.residuals_mm", f"missing: {where} compares with it")
-        if not isinstance(held, list) or len(held) != n:
-            r.fail(f"{where}.held_out_mm", f"must be a list of {n} (one per landmark) "
+        if not isinstance(held, list) or len(held) not in (n, touches):
+            r.fail(f"{where}.held_out_mm", f"must be a list of {touches} (one per touch) "
                    f"(got {describe(held)})")  # fmt: skip
     out = read(r, Diagnostics, diag, "diagnostics")
     for key in ("stage1", "stage2"):
@@ -402,6 +406,15 @@ def _diagnostics(r: Reader, doc: dict[str, Any], n: int | None, stage1: StageRes
                 r.fail(f"diagnostics.{key}.loo.held_out_mm[{m}].m", f"must be {m}: entries "
                        f"are in landmark order (got {e.m})")  # fmt: skip
     return out
+
+
+def _touched(data: Dataset | None) -> int | None:
+    """How many touches a dataset's rows hold (a leave-one-out's entries), or ``None``."""
+    if data is None:
+        return None
+    if data.is_simple() and not data.has_hand_z:
+        return data.n_rows
+    return len(np.unique(data.rows()[2]))
 
 
 def _data(r: Reader, doc: dict[str, Any], rig: RigRecord, name: str,

@@ -39,9 +39,12 @@ class Settings:
             convention check's uniform starts and from the fit). 0 runs none of them. The DE
             alone can settle in a basin that is not the lowest (6 of 50 ``paper`` twins with
             these DE settings, ``benchmarks/miss_rate.py``).
-        loss: ``"l1"`` (the paper's mean error length), ``"huber"`` or ``"cauchy"``
-            (:mod:`handeye_jax.problem._losses`); a robust loss limits the pull of outlier
-            landmarks.
+        loss: ``"ml"`` (the default: maximum likelihood under the noise model ``noise``,
+            whose scales are estimated from the data; the search runs on the paper's F),
+            ``"l1"`` (the paper's mean error length, which reproduces its tables), ``"huber"``
+            or ``"cauchy"`` (:mod:`handeye_jax.problem._losses`); a robust loss limits the
+            pull of outlier landmarks. Only ``ml`` reports the uncertainty and the expected
+            touching error: they are validated for it (``benchmarks/coverage.py``).
         loss_scale_mm: the robust loss's scale, mm; landmarks with an error above
             ``OUTLIER_FACTOR`` (3) times it are flagged as outliers, whatever the loss.
         search: where stage 1's search ranges come from: ``"estimate"``, a box around a
@@ -49,6 +52,7 @@ class Settings:
             margin; ``"paper"``, the paper's Tables 5 and 6 (the model's ``default_ranges``);
             ``None``, the dataset's ``[search] preset``, else ``"estimate"``. The dataset's
             ``[search]`` ranges override either by name.
+        noise: the noise model ``ml`` starts from (:data:`~handeye_jax.NOISE_MODELS`).
 
     The paper's settings are ``population=10000, generations=10000, early_stop=False``; the
     defaults reach the same optimum on the paper's data in seconds.
@@ -64,9 +68,10 @@ class Settings:
     mutation: float = 0.5
     polish: bool = True
     restarts: int = 32
-    loss: str = "l1"
+    loss: str = "ml"
     loss_scale_mm: float = 1.0
     search: str | None = None
+    noise: str = "paper"
 
     def de(self) -> DifferentialEvolution:
         """The DE solver these settings configure."""
@@ -138,6 +143,12 @@ def _losses():
     return LOSS_NAMES
 
 
+def _noises():
+    from ..problem import NOISE_MODELS
+
+    return NOISE_MODELS
+
+
 #: Each setting's check in a result file: the schema of ``settings``, one entry per field.
 SETTINGS_SCHEMA: dict[str, Callable[[Reader, Any, str], Any]] = {
     "model": _choice(_models, "model"),
@@ -154,6 +165,7 @@ SETTINGS_SCHEMA: dict[str, Callable[[Reader, Any, str], Any]] = {
     "loss_scale_mm": _number(positive=True),
     "search": lambda r, x, where: x if x is None else _choice(lambda: SEARCH_PRESETS,
                                                               "search preset")(r, x, where),
+    "noise": _choice(_noises, "noise model"),
 }
 #: Settings older results recorded and the fit no longer has (checked, then ignored).
 LEGACY_SETTINGS = {"diagnostics": _boolean}

@@ -21,6 +21,7 @@ from ..problem import (
     AbstractObjective,
     GaussianObjective,
     LossObjective,
+    NoiseObjective,
     ParameterSpace,
     PriorObjective,
     put,
@@ -52,7 +53,8 @@ def with_prior(
     A prior that states the noise σ of the fit it came from (a previous result's posterior)
     also turns the paper's error lengths into Gaussian errors of that σ
     (:class:`~handeye_jax.GaussianObjective`): one noise model for the prior and the data. A
-    robust loss the user chose stays as it is.
+    robust loss the user chose stays as it is. Under the noise model
+    (:class:`~handeye_jax.NoiseObjective`) the prior's block is its −2 log-density over n.
 
     Args:
         objective: the data objective.
@@ -63,6 +65,11 @@ def with_prior(
     prior = space.prior
     if prior is None:
         return objective
+    inner = objective.base if isinstance(objective, LossObjective) else objective
+    if isinstance(inner, NoiseObjective):
+        # The data's blocks are χ²/n (−2 log-likelihood over n): the prior's, likewise.
+        return PriorObjective(objective, space.prior_indices(), jnp.asarray(prior.mean),
+                              jnp.asarray(prior.whitener()), jnp.asarray(2.0 / n))  # fmt: skip
     if gaussian and prior.data_sigma_mm is not None and not isinstance(objective, LossObjective):
         scale = prior.data_scale_mm / (2.0 * prior.data_sigma_mm**2)
         objective = GaussianObjective(objective, jnp.asarray(scale))

@@ -7,13 +7,16 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import jax.numpy as jnp
 import numpy as np
 
 from .._core import InputError
 from ..problem import (
     analyse_jacobian,
+    fisher_information,
     std_of_precision,
 )
+from ._likelihood import is_ml, noise_part
 from ._payloads import (
     PriorReport,
     Pull,
@@ -23,6 +26,7 @@ from ._payloads import (
 from ._programs import _error_jacobian, _report, _value
 from ._result import StageResult
 from ._stage import StageFit
+from ._warnings import PULL_FLAG
 
 
 def _prior_report(stage: StageFit) -> PriorReport | None:
@@ -41,37 +45,80 @@ def _prior_report(stage: StageFit) -> PriorReport | None:
     prior = space.prior
     if prior is None:
         return None
-    e, J = (np.asarray(a) for a in _error_jacobian(stage.data, stage.x))
     idx = list(space.prior_indices())
     P_full = np.zeros((space.d, space.d))
     P_full[np.ix_(idx, idx)] = prior.precision
-    if prior.data_sigma_mm is not None:
+    if is_ml(stage.objective):  # the noise model's information: the prior's own
+        P_post = np.asarray(fisher_information(noise_part(stage.objective),
+                                               jnp.asarray(stage.x))) + P_full  # fmt: skip
+    elif prior.data_sigma_mm is not None:
+        e, J = (np.asarray(a) for a in _error_jacobian(stage.data, stage.x))
         P_post = J.T @ J / prior.data_sigma_mm**2 + P_full
     else:
+        e, J = (np.asarray(a) for a in _error_jacobian(stage.data, stage.x))
         P_post = np.asarray(analyse_jacobian(e, J, space.free, ["1"] * space.d, None,
                                              P_full).precision)  # fmt: skip
     post = std_of_precision(P_post, space.free)
     Q = prior.covariance() - np.linalg.pinv(P_post, hermitian=True)[np.ix_(idx, idx)]
-    w, V = np.linalg.eigh(0.5 * (Q + Q.T))
-    keep = w > 1e-9 * max(float(w.max()), 1e-300)
-    Q_inv = (V[:, keep] / w[keep]) @ V[:, keep].T
+    Q_inv = _update_precision(Q, prior.precision)
     d = stage.x[idx] - prior.mean
     sig_prior = prior.sigma
+    pulls = np.array([(Q_inv[j] @ d) / math.sqrt(Q_inv[j, j]) if Q_inv[j, j] > 0 else 0.0
+                      for j in range(len(prior.names))])  # fmt: skip
+    tested = np.array([n not in prior.untested for n in prior.names])
+    follows = _followers(Q_inv, d, np.where(tested, pulls, 0.0), prior.names)
     out = []
     for j, name in enumerate(prior.names):
         sp, spost = float(sig_prior[j]), post[name]
-        pull = (Q_inv[j] @ d) / math.sqrt(Q_inv[j, j]) if Q_inv[j, j] > 0 else 0.0
         marginal = d[j] / math.sqrt(Q[j, j]) if Q[j, j] > 0 else 0.0
         out.append(Pull(
             param=name, mean=float(prior.mean[j]), sigma=sp if math.isfinite(sp) else None,
-            value=float(stage.x[idx[j]]), posterior_sigma=spost, pull=float(pull),
-            marginal_pull=float(marginal),
+            value=float(stage.x[idx[j]]), posterior_sigma=spost, pull=float(pulls[j]),
+            marginal_pull=float(marginal), follows=follows.get(name),
         ))  # fmt: skip
     return PriorReport(
         source=prior.source, names=tuple(prior.names), mean=tuple(prior.mean.tolist()),
         precision=tuple(tuple(row) for row in prior.precision.tolist()),
         data_scale_mm=prior.data_scale_mm, pulls=tuple(out), data_sigma_mm=prior.data_sigma_mm,
+        untested=tuple(prior.untested),
     )  # fmt: skip
+
+
+#: The pulls test the directions in which the new data explain at least this fraction of the
+#: prior's variance; in the others the fit stays at the prior's mean, and ``Q`` is round-off.
+INFORMED_FRACTION = 0.05
+
+
+def _update_precision(Q: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """``Q⁺`` on the directions the new data inform: with ``P`` the prior's precision, the
+    eigenvalues λ of ``P^½ Q P^½`` are the fractions of the prior's variance the data explain
+    (0 to 1); directions with λ below :data:`INFORMED_FRACTION` are left out."""
+    w, U = np.linalg.eigh(0.5 * (P + P.T))
+    root = (U * np.sqrt(np.maximum(w, 0.0))) @ U.T
+    lam, V = np.linalg.eigh(root @ (0.5 * (Q + Q.T)) @ root)
+    keep = lam > INFORMED_FRACTION
+    A = root @ V[:, keep]
+    return (A / lam[keep]) @ A.T
+
+
+def _followers(M: np.ndarray, d: np.ndarray, pulls: np.ndarray,
+               names: tuple[str, ...]) -> dict[str, str]:  # fmt: skip
+    """The flagged parameters that only follow the one pulled most: those whose w-test,
+    given that one's shift (data snooping's next step: ``d`` less its estimated shift, the
+    test of each other shift on what is left), is no longer flagged. ``M = Q⁻¹``."""
+    j = int(np.argmax(np.abs(pulls)))
+    if abs(pulls[j]) <= PULL_FLAG or M[j, j] <= 0:
+        return {}
+    shift = (M[j] @ d) / M[j, j]
+    out = {}
+    for i, name in enumerate(names):
+        if i == j or abs(pulls[i]) <= PULL_FLAG:
+            continue
+        var = M[i, i] - M[i, j] ** 2 / M[j, j]
+        rest = (M[i] @ d - M[i, j] * shift) / math.sqrt(var) if var > 1e-12 * M[i, i] else 0.0
+        if abs(rest) <= PULL_FLAG:
+            out[name] = names[j]
+    return out
 
 
 def _stage_result(stage: StageFit, prior_report: PriorReport | None = None) -> StageResult:

@@ -19,16 +19,20 @@ from ..problem import (
     ChainPoints,
     L1Loss,
     LossObjective,
+    NoiseFit,
+    NoiseModel,
     ParameterSpace,
     Stage1Objective,
     Stage2Objective,
     get_loss,
+    get_noise_model,
     height_summary,
     pad_rows,
     spread_landmarks,
 )
 from ._advice import AdviceContext, analyses_of
-from ._payloads import Recalibration
+from ._likelihood import refine_ml
+from ._payloads import NO_EVIDENCE, Recalibration
 from ._plans import Plan
 from ._programs import _points
 from ._result import CalibrationResult, StageResult
@@ -64,6 +68,18 @@ def _loss_wrapper(settings: Settings, n: int):
 
     return with_loss
 
+
+
+def likelihood(fit: StageFit, run: Run, noise: NoiseModel | None, model1, *,
+               estimate: bool) -> tuple[StageFit, NoiseFit | None]:  # fmt: skip
+    """``fit`` refined to maximum likelihood under the noise model when the settings' loss is
+    ``ml`` (starting from ``noise``, default the settings' preset), and the noise it found
+    (``model1``: stage 2's stage-1 model, ``None`` in stage 1; ``estimate``: the noise's
+    scales from the residuals)."""
+    if run.settings.loss != "ml":
+        return fit, None
+    start = noise if noise is not None else get_noise_model(run.settings.noise)
+    return refine_ml(fit, start, run.obs, model1, estimate=estimate)
 
 
 def checked(dataset: Dataset, plan: Plan, settings: Settings) -> Observations:
@@ -163,7 +179,7 @@ def assemble(
         warnings=all_warnings(n, spaces, stages, dataset.source,
                               advice=AdviceContext(plan.search, obs, analyses_of(fits))),
         recalibration=recal, fits=fits, heights=height_summary(fit1.model(), obs),
-        search=plan.search,
+        search=plan.search, deploy=NO_EVIDENCE,
     )  # fmt: skip
 
 

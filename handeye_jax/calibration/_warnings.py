@@ -116,12 +116,18 @@ def prior_warnings(stage: StageResult, label: str) -> list[FitWarning]:
         return []
     out = []
     for p in sorted(prior.pulls, key=lambda p: -abs(p.pull)):
-        if abs(p.pull) > PULL_FLAG:
+        if abs(p.pull) > PULL_FLAG and p.follows is None and p.param not in prior.untested:
             sigma = "" if p.sigma is None else f" ± {p.sigma:.3g}"
+            following = [f.param for f in sorted(prior.pulls, key=lambda f: -abs(f.pull))
+                         if f.follows == p.param]  # fmt: skip
+            tail = ""
+            if following:
+                tail = (f"; {', '.join(following)} follow{'s' if len(following) == 1 else ''} "
+                        f"it (their pulls vanish once {p.param} moves)")  # fmt: skip
             out.append(FitWarning(
                 f"{label}: the data pull {p.param} {abs(p.pull):.1f} sigma from its prior "
-                f"({prior.source}: {p.mean:.4g}{sigma}; fitted {p.value:.4g}): the prior may "
-                f"be wrong for this rig; refit {p.param} (--refit) instead", "prior", p.param,
+                f"({prior.source}: {p.mean:.4g}{sigma}; fitted {p.value:.4g}){tail}: the prior "
+                f"may be wrong for this rig; refit {p.param} (--refit) instead", "prior", p.param,
             ))  # fmt: skip
     return out
 

@@ -43,8 +43,9 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     if args.landmarks is not None:
         dataset = _landmarks_of(dataset, args.landmarks, args.dataset)
     settings = settings_from(args, model)
+    progress = not (args.quiet or args.no_progress)
     if previous is None:
-        result = calibrate(dataset, settings, progress=not args.quiet)
+        result = calibrate(dataset, settings, progress=progress)
     else:
         from ..models import get_model
         from ..problem import resolve_names
@@ -55,16 +56,15 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         except ValueError as e:
             raise InputError(None, "--refit", str(e)) from None
         result = recalibrate(dataset, previous, refit, settings, fix=args.fix,
-                             source=Path(args.prior).name, progress=not args.quiet,
+                             source=Path(args.prior).name, progress=progress,
                              accept_rig_change=args.accept_rig_change)  # fmt: skip
     if not args.no_diagnostics:
         result = diagnose(result, search=dataset.search)
-    summary = format_summary(result)
+    summary = format_summary(result, verbose=args.verbose, quiet=args.quiet,
+                             saved=None if out is None else str(out))  # fmt: skip
     if out is not None:  # before printing: a closed pipe on stdout must not lose the result
         write_output(out, result_to_json(result), "--out")
     print(summary)
-    if out is not None:
-        print(f"result written to {out}")
     return 0
 
 
@@ -109,9 +109,21 @@ def add_calibrate_command(sub: argparse._SubParsersAction) -> None:
     )  # fmt: skip
     cal.add_argument(
         "--out", metavar="RESULT.json",
-        help="write the result (JSON) here (default: print the summary only)",
+        help="write the result (JSON) here (default: nothing is saved; the summary says so)",
     )  # fmt: skip
-    cal.add_argument("--quiet", action="store_true", help="no progress bars on stderr")
+    shown = cal.add_mutually_exclusive_group()
+    shown.add_argument(
+        "--quiet", action="store_true",
+        help="print the verdict alone (the stage to deploy, the expected touching error, the "
+        "camera and pen on the flange, whether the result was saved) and errors; no progress "
+        "bars",
+    )  # fmt: skip
+    shown.add_argument(
+        "--verbose", action="store_true",
+        help="add the optimisers' detail (DE, LM, restarts), every parameter with its "
+        "standard deviation, the largest residuals and the diagnostics",
+    )  # fmt: skip
+    cal.add_argument("--no-progress", action="store_true", help="no progress bars on stderr")
     cal.set_defaults(func=_cmd_calibrate, imports=("calibration.calibrate", "data.load_dataset",
                                                     "diagnostics.diagnose"))  # fmt: skip
 
@@ -152,8 +164,10 @@ def add_settings_options(cal: argparse.ArgumentParser) -> None:
         help="run all generations instead of stopping when the population has converged",
     )  # fmt: skip
     cal.add_argument(
-        "--loss", choices=("l1", "huber", "cauchy"), default=d.loss,
-        help="l1: the paper's mean error length (default); huber / cauchy: robust to outliers",
+        "--loss", choices=("ml", "l1", "huber", "cauchy"), default=d.loss,
+        help="ml: maximum likelihood under the noise model, its scales estimated from the data "
+        "(default; the only loss whose uncertainty and expected error are validated); l1: the "
+        "paper's mean error length (reproduces its tables); huber / cauchy: robust to outliers",
     )  # fmt: skip
     cal.add_argument(
         "--loss-scale-mm", type=positive_mm, default=d.loss_scale_mm, metavar="MM",

@@ -68,7 +68,8 @@ def _run_command(argv: Sequence[str] | None) -> int:
         if getattr(args, "serves", False):  # a server: Ctrl-C is how it ends, after its saves
             interrupts.stop_recording()
         if getattr(args, "jax", True):
-            announce = getattr(args, "quiet", True) is False  # calibrate, unless --quiet
+            # calibrate, unless --quiet or --no-progress
+            announce = not (getattr(args, "quiet", True) or getattr(args, "no_progress", False))
             start_jax(*getattr(args, "imports", ()), announce=announce)
         code = args.func(args)
         interrupts.check()  # a Ctrl-C that a callback swallowed, and nothing written since

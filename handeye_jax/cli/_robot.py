@@ -54,6 +54,12 @@ def add_export_command(sub: argparse._SubParsersAction) -> None:
     )  # fmt: skip
     p.add_argument("--out", metavar="FILE", help="write here (default: standard output)")
     p.add_argument(
+        "--stage", type=whole_number, choices=(1, 2), default=None,
+        help="the stage the file carries (default: the one the calibration chose to deploy); "
+        "urdf and ros2 hold stage 1 only and refuse a calibration that deploys stage 2 unless "
+        "--stage 1 is given",
+    )  # fmt: skip
+    p.add_argument(
         "--parent-link", type=_name, default=DEFAULT_PARENT_LINK, metavar="LINK",
         help=f"the flange link (urdf, ros2; default {DEFAULT_PARENT_LINK})",
     )  # fmt: skip
@@ -96,6 +102,8 @@ def _cmd_export(args: argparse.Namespace) -> int:
         return 2
     from ..calibration import load_frames  # JAX: not imported for --help
     from ..robot import (
+        StageError,
+        carried_stage,
         check_parses,
         export_text,
         filled_translations_mm,
@@ -105,6 +113,10 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
     frames = load_frames(args.result)
     try:
+        stage = carried_stage(frames, args.fmt, args.stage)
+    except StageError as e:
+        raise InputError(args.result, "--format", str(e)) from None
+    try:
         frames = with_heights(frames, args.camera_z_mm, args.pen_z_mm)
     except ValueError as e:
         flag = "--pen-z-mm" if args.camera_z_mm is None else "--camera-z-mm"
@@ -112,6 +124,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
     text = export_text(
         frames, args.fmt, parent_link=args.parent_link, camera_frame=args.camera_frame,
         pen_frame=args.pen_frame, base_frame=args.base_frame, source=str(args.result),
+        stage=stage,
     )  # fmt: skip
     check_parses(text, args.fmt)
     zeros = zero_filled(frames, args.fmt)
@@ -123,7 +136,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
                   f"{frames.pen_minus_camera_z_mm:.3f} mm above it"
                   if filled_translations_mm(frames)[3] and args.fmt != "easy_handeye" else ""),
               file=sys.stderr)  # fmt: skip
-    return _emit(text, out, f"{args.fmt} export")
+    return _emit(text, out, f"{args.fmt} export (stage {stage})")
 
 
 def _cmd_predict(args: argparse.Namespace) -> int:
@@ -140,12 +153,15 @@ def _cmd_predict(args: argparse.Namespace) -> int:
     predictor = Predictor.from_frames(*checked)
     header, rows, values = read_points_csv(args.points)
     position, angle = read_capture_columns(args.points, header, rows)
-    hand_xy = predictor.hand_command(values[:, :2], values[:, 2], values[:, 3], stage=args.stage,
+    stage = predictor.stage if args.stage is None else args.stage
+    hand_xy = predictor.hand_command(values[:, :2], values[:, 2], values[:, 3], stage=stage,
                                      capture_position_mm=position, capture_hand_angle_deg=angle,
                                      axes=predictor.axes)  # fmt: skip
     check_reach(args.points, hand_xy, predictor.reach.including(position), args.result)
     text = points_csv_text(header, rows, hand_xy)
-    return _emit(text, out, f"{len(rows)} hand commands (stage {args.stage}, mm)")
+    chosen = "the stage the calibration deploys" if stage == predictor.stage else (
+        f"not the stage the calibration deploys, {predictor.stage}")  # fmt: skip
+    return _emit(text, out, f"{len(rows)} hand commands (stage {stage}, {chosen}; mm)")
 
 
 def add_predict_command(sub: argparse._SubParsersAction) -> None:
@@ -166,8 +182,9 @@ def add_predict_command(sub: argparse._SubParsersAction) -> None:
         "--out", metavar="OUT.csv", help="write the CSV here (default: standard output)"
     )
     pre.add_argument(
-        "--stage", type=whole_number, choices=(1, 2), default=2,
-        help="2: eq. (25) with the affine correction (default); 1: eq. (8), model only",
+        "--stage", type=whole_number, choices=(1, 2), default=None,
+        help="2: eq. (25) with the affine correction; 1: eq. (8), model only (default: the "
+        "stage the calibration chose to deploy, which its summary names)",
     )  # fmt: skip
     pre.set_defaults(func=_cmd_predict, jax=False)  # only for files it must check (see there)
 

@@ -414,6 +414,7 @@ class Dataset:
             hand_angle_deg=jnp.asarray(self.hand_angle_deg, dtype=float),
             touch_error_mm=jnp.asarray(self.touch_error_px * mm, dtype=float),
             centre_index=centre_landmark(self.tablet_px),
+            mm_per_tablet_px=jnp.asarray(mm, dtype=float),
         )
 
     def _capture_observations(self) -> Observations:
@@ -444,7 +445,7 @@ class Dataset:
             capture_position_mm=f(position), capture_hand_angle_deg=f(angle),
             hand_z_mm=f(hand_z) if np.isfinite(hand_z).any() else None,
             capture_index=jnp.asarray(caps),
-            touch_index=jnp.asarray(touches),
+            touch_index=jnp.asarray(touches), mm_per_tablet_px=jnp.asarray(mm, dtype=float),
         )  # fmt: skip
 
     # -- copies ----------------------------------------------------------------------------

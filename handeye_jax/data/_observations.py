@@ -33,6 +33,8 @@ class Observations(eqx.Module):
         hand_z_mm: the hand's height at each row's touch as the controller reports it, mm
             (NaN where not recorded), or ``None``.
         capture_index, touch_index: each row's capture and touch in the dataset, or ``None``.
+        mm_per_tablet_px: the tablet px the touch errors were converted from, mm (eq. 9), for
+            the noise of their rounding; ``None``: not known.
 
     With several captures a *row* is one view of a landmark (a capture that sees it) paired
     with one touch of it: ``f1`` compares the view with the tablet chain, ``f2`` with the
@@ -52,6 +54,7 @@ class Observations(eqx.Module):
     hand_z_mm: Float[Array, " n"] | None = None
     capture_index: Int[Array, " n"] | None = None
     touch_index: Int[Array, " n"] | None = None
+    mm_per_tablet_px: Float[Array, ""] | None = None
 
     @property
     def n_landmarks(self) -> int:

@@ -14,8 +14,12 @@ from ..calibration import (
     all_warnings,
     fitted_stages,
 )
+from ..problem import get_noise_model
+from ._ambiguity import ambiguities
 from ._diagnostics import diagnostics_of
+from ._mount import MOVES_COMMANDS_MM, mount_report, weak_parameters
 from ._scope import capture_scope
+from ._verdict import choose_stage, ml_verdict, stage_noise
 
 
 @in_float64
@@ -47,5 +51,27 @@ def diagnose(result: CalibrationResult, *, search: dict | None = None) -> Calibr
     warnings = all_warnings(obs.n_landmarks, spaces, results, None, extra, advice)
     timings = {**result.timings_s, "diagnostics": time.perf_counter() - t0}
     result = replace(result, diagnostics=diagnostics, warnings=warnings, timings_s=timings)
-    # Where the calibration holds: from the covariance the diagnostics just found.
-    return replace(result, diagnostics=replace(diagnostics, scope=capture_scope(result)))
+    # Which stage to deploy, the error to expect from it, the fits the data cannot tell apart
+    # and where the calibration holds: from what the diagnostics just found.
+    deploy = choose_stage(diagnostics.stage1.loo, diagnostics.stage2.loo)
+    noise = stage_noise(result.stage1) or get_noise_model(result.settings.noise)
+    diagnostics, expected, cov1 = ml_verdict(stages, diagnostics, deploy.stage, noise, obs)
+    found = ambiguities(stages.stage1, diagnostics.stage1, noise, obs)
+    weak = weak_parameters(diagnostics.stage1, found)
+    mount = mount_report(result.model, stages.stage1.space.free, cov1, weak,
+                         _why_not(diagnostics.stage1, found, weak))  # fmt: skip
+    diagnostics = replace(diagnostics, expected=expected, ambiguities=found, mount=mount,
+                          weak_params=tuple(sorted(weak)))  # fmt: skip
+    result = replace(result, diagnostics=diagnostics, deploy=deploy)
+    result = replace(result, diagnostics=replace(diagnostics, scope=capture_scope(result)))
+    timings = {**result.timings_s, "diagnostics": time.perf_counter() - t0}
+    return replace(result, timings_s=timings)
+
+
+def _why_not(diag, found, weak: set[str]) -> str:
+    """Why components leaning on ``weak`` parameters get no σ, in words."""
+    reasons = [f"{' and '.join(w.params)} trade off" if w.determined is None
+               else f"only {w.determined} is determined" for w in diag.weak_directions]
+    reasons += [f"a {a.kind} fits as well" for a in found
+                if max(a.here_mm, a.elsewhere_mm[1]) > MOVES_COMMANDS_MM]  # fmt: skip
+    return "not determined by these data (" + "; ".join(reasons) + ")" if reasons else ""

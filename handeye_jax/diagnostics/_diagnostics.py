@@ -36,6 +36,7 @@ from ..calibration import (
     StageDiagnostics,
     StageResult,
     bound_hits,
+    prior_information,
 )
 from ..data import Observations
 from ..optim import MAX_MODES, Box, mode_leaders
@@ -202,16 +203,6 @@ def convention_estimates(space: ParameterSpace, obs: Observations) -> np.ndarray
     return out
 
 
-def _prior_precision(space: ParameterSpace) -> np.ndarray | None:
-    """The prior's precision in the space's free coordinates (zeros elsewhere), or None."""
-    if space.prior is None:
-        return None
-    P = np.zeros((space.d, space.d))
-    idx = space.prior_indices()
-    P[np.ix_(idx, idx)] = space.prior.precision
-    return P
-
-
 def diagnostics_of(
     stages: Stages[FittedStage],
     results: Stages[StageResult],
@@ -261,7 +252,7 @@ def diagnostics_of(
     searched = out.refit_landmarks if out.refit_landmarks < n else 0
     declared = (float(obs.rig.angle_zero_deg), int(obs.rig.angle_sign))
     return Diagnostics(
-        loss=LossInfo(loss.name, float(settings.loss_scale_mm)),
+        loss=LossInfo(settings.loss, float(settings.loss_scale_mm)),
         outlier_threshold_mm=threshold,
         stage1=replace(found["stage1"], local_optima=local),
         stage2=found["stage2"],
@@ -279,7 +270,7 @@ def _stage_diagnostics(stage: FittedStage, jacobian: tuple[np.ndarray, np.ndarra
     cls = type(space.template)
     e, J = jacobian
     units = [cls.param_units[cls.param_names.index(n)] for n in space.free]
-    jac = analyse_jacobian(e, J, space.free, units, depth_mm, _prior_precision(space))
+    jac = analyse_jacobian(e, J, space.free, units, depth_mm, prior_information(space))
     flat = [w.step for w in jac.weak_directions]
     modes: tuple[Mode, ...] = ()
     pop = stage.population

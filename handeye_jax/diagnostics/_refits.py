@@ -53,10 +53,10 @@ from ..problem import (
     data_objective,
     errors_of,
     fitness,
-    landmark_subset,
     landmark_terms,
     norms,
     spread_landmarks,
+    touch_groups,
 )
 
 #: Up to this many landmarks, leave-one-out refits every stage without each landmark (O(n²));
@@ -136,12 +136,6 @@ def _stage2_at(stage1: AbstractObjective, stage2: AbstractObjective, x1) -> Abst
     return eqx.tree_at(lambda o: data_objective(o).points, stage2, points)
 
 
-def _subset1(stage1: AbstractObjective, idx) -> AbstractObjective:
-    """``stage1`` on landmarks ``idx`` (its wrappers kept)."""
-    obs = landmark_subset(data_objective(stage1).obs, idx)
-    return eqx.tree_at(lambda o: data_objective(o).obs, stage1, obs)
-
-
 def _lm(max_steps: int) -> LevenbergMarquardt:
     # The batch's rule: stop once no problem's cost fell by a fraction 1e-10 for 10 iterations.
     return LevenbergMarquardt(rtol=1e-10, atol=0.0, max_steps=max_steps)
@@ -161,7 +155,10 @@ def _two_jacobians(objective: LossObjective, x):
 
     def f(x):
         blocks = objective.blocks(x)
-        errors = StageErrors(image_vs_tablet=blocks["f1"].errors, hand=blocks["f2"].errors)
+        if "f1" in blocks:  # the paper's blocks, or a loss's: their error vectors are the data's
+            errors = StageErrors(image_vs_tablet=blocks["f1"].errors, hand=blocks["f2"].errors)
+        else:  # a noise model's whitened blocks: the paper's errors apart
+            errors = errors_of(objective, x)
         out = (jnp.concatenate([b.residuals() for b in blocks.values()]), _flat(errors))
         return out, (out, errors)
 
@@ -260,48 +257,70 @@ def one_step_loo(
     x2: np.ndarray,
     bounds1: tuple[np.ndarray, np.ndarray],
     bounds2: tuple[np.ndarray, np.ndarray],
+    groups: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Leave-one-out of both stages by one Newton step from the full fit, in O(n).
 
-    With ``t_m`` landmark m's term of a stage's objective, ``g_m``, ``H_m`` its gradient and
-    Hessian at the fit and ``H = Σ H_m``: the fit is stationary, so without landmark m the
-    gradient is ``−g_m`` and Newton's step is ``δ1 = (H − H_m)⁺ g_m``. Stage 2 without m is
-    refitted on the points of ``x1 + δ1``: ``δ2 = (H₂₂ − H₂₂,m)⁺ (g₂,m − (H₂₁ − H₂₁,m)·δ1)``
-    (blocks of its Hessian in ``(x1, x2)``). Each refit is kept in its box. The held-out
-    errors are landmark m's error vectors, linearised, there. The sums over landmarks are
-    formed once; each landmark then costs one ``d × d`` solve.
+    With ``t_m`` group m's terms of a stage's objective (a group: a touch's rows, a landmark
+    for the paper's single capture), ``g_m``, ``H_m`` their gradient and Hessian at the fit
+    and ``H = Σ H_m``: the fit is stationary, so without group m the gradient is ``−g_m`` and
+    Newton's step is ``δ1 = (H − H_m)⁺ g_m``. Stage 2 without m is refitted on the points of
+    ``x1 + δ1``: ``δ2 = (H₂₂ − H₂₂,m)⁺ (g₂,m − (H₂₁ − H₂₁,m)·δ1)`` (blocks of its Hessian in
+    ``(x1, x2)``). Each refit is kept in its box. The held-out errors are group m's rows'
+    error vectors, linearised, there (their lengths averaged over its rows). The sums over
+    rows are formed once; each group then costs one ``d × d`` solve.
 
     Args:
-        stage1: ``(g, H, e, E)``: stage 1's per-landmark gradients ``(n, d1)`` and Hessians
+        stage1: ``(g, H, e, E)``: stage 1's per-row gradients ``(n, d1)`` and Hessians
             ``(n, d1, d1)`` of its terms, its error vectors ``(4n,)`` (mm) and their Jacobian
             ``(4n, d1)``.
         stage2: the same for stage 2, in the joint parameters ``(x1, x2)`` (``d1 + d2``).
         x1, x2: the full fit.
         bounds1, bounds2: each stage's box ``(lower, upper)``.
+        groups: each row's group, ``0 … k−1`` (default: each row its own).
 
     Returns:
         The held-out error lengths (mm) of stage 1's two terms and of the pipeline's, each
-        ``(n,)``: ``(image_vs_tablet1, hand1, image_vs_tablet2, hand2)``, and how far each
-        landmark's error vectors moved from the fit's (the largest of the four, mm): a large
+        ``(k,)``: ``(image_vs_tablet1, hand1, image_vs_tablet2, hand2)``, and how far each
+        group's error vectors moved from the fit's (the largest of the four, mm): a large
         move says the quadratic model was stretched past where it holds.
     """
     g1, H1, e1, E1 = stage1
     g2, H2, e2, E2 = stage2
     n, d1 = g1.shape
+    groups = np.arange(n) if groups is None else np.asarray(groups)
+    k = int(groups.max()) + 1
+    g1, H1, g2, H2 = (_group_sum(a, groups, k) for a in (g1, H1, g2, H2))
     d1_m = _solve_each(H1.sum(axis=0)[None] - H1, g1)
     d1_m = np.clip(x1 + d1_m, *bounds1) - x1
     H22, H21 = H2[:, d1:, d1:], H2[:, d1:, :d1]
     rhs = g2[:, d1:] - np.einsum("mij,mj->mi", H21.sum(axis=0)[None] - H21, d1_m)
     d2_m = _solve_each(H22.sum(axis=0)[None] - H22, rhs)
     d2_m = np.clip(x2 + d2_m, *bounds2) - x2
-    shift1 = np.einsum("mki,mi->mk", _per_landmark(E1, n), d1_m)
-    step = np.concatenate([d1_m, d2_m], axis=1)
+    # Each row moves with its group's step.
+    shift1 = np.einsum("mki,mi->mk", _per_landmark(E1, n), d1_m[groups])
+    step = np.concatenate([d1_m, d2_m], axis=1)[groups]
     shift2 = np.einsum("mki,mi->mk", _per_landmark(E2, n), step)
     held1, held2 = _per_landmark(e1, n) + shift1, _per_landmark(e2, n) + shift2
-    lengths = tuple(np.linalg.norm(h[:, k : k + 2], axis=1) for h in (held1, held2) for k in (0, 2))
-    moved = np.max([np.linalg.norm(v[:, k : k + 2], axis=1) for v in (shift1, shift2)
-                    for k in (0, 2)], axis=0)  # fmt: skip
-    return (*lengths, moved)
+    lengths = tuple(_group_mean(np.linalg.norm(h[:, c : c + 2], axis=1), groups, k)
+                    for h in (held1, held2) for c in (0, 2))  # fmt: skip
+    moved = np.max([np.linalg.norm(v[:, c : c + 2], axis=1) for v in (shift1, shift2)
+                    for c in (0, 2)], axis=0)  # fmt: skip
+    moved_group = np.zeros(k)
+    np.maximum.at(moved_group, groups, moved)
+    return (*lengths, moved_group)
+
+
+def _group_sum(a: np.ndarray, groups: np.ndarray, k: int) -> np.ndarray:
+    """Rows of ``a`` summed per group: ``(k, …)``."""
+    out = np.zeros((k, *a.shape[1:]))
+    np.add.at(out, groups, a)
+    return out
+
+
+def _group_mean(a: np.ndarray, groups: np.ndarray, k: int) -> np.ndarray:
+    """Rows of ``a`` averaged per group: ``(k,)``."""
+    return _group_sum(a, groups, k) / np.bincount(groups, minlength=k)
 
 
 def refits(
@@ -384,7 +403,8 @@ def _refits_one_step(p: _Pair, seed, starts, max_steps, refit_landmarks) -> Refi
     bounds1 = bounds1 if p.lm_box1 is None else p.lm_box1
     searched = stage1
     if n > refit_landmarks:
-        searched = _subset1(stage1, spread_landmarks(n, refit_landmarks))
+        # Its wrappers subset too (a noise model's whiteners are per landmark).
+        searched = stage1.on_landmarks(np.asarray(spread_landmarks(n, refit_landmarks)))
     m = _obs(searched).n_landmarks
     w = np.ones((conv_of.shape[0], m))
 
@@ -401,14 +421,15 @@ def _refits_one_step(p: _Pair, seed, starts, max_steps, refit_landmarks) -> Refi
     if not F[-1] <= F_fit:
         xs[-1], F[-1] = x1, F_fit
     box1, box2 = (bounds1.lower, bounds1.upper), (bounds2.lower, bounds2.upper)
-    *loo, moved = one_step_loo(one, two, x1, x2, box1, box2)
+    groups = touch_groups(obs)
+    *loo, moved = one_step_loo(one, two, x1, x2, box1, box2, groups)
     # A shift–tilt valley can stretch Newton's step far past where its quadratic model holds
     # (tens of mm where a refit moves the held-out error by hundredths): refit those exactly.
     rms = float(np.sqrt(np.mean(np.sum(_per_landmark(one[2], n).reshape(n, 2, 2) ** 2, -1))))
     far = np.argsort(-moved, kind="stable")[:LOO_REFITS]
     far = np.sort(far[moved[far] > rms])
     if far.size:
-        exact = _exact_loo_at(p, far, max_steps)
+        exact = _exact_loo_at(p, far, groups, max_steps)
         for held, refit in zip(loo, exact, strict=True):
             held[far] = refit
     F_conv = np.where(np.isfinite(F), F, np.inf)
@@ -427,23 +448,23 @@ def _refits_one_step(p: _Pair, seed, starts, max_steps, refit_landmarks) -> Refi
         jacobian1=one[3],
         errors2=two[2],
         jacobian2=two[3][:, d1:],
-        loo_method="one Newton step from the full fit without each landmark"
+        loo_method="one Newton step from the full fit without each touch"
         + (f", exact LM refits for the {far.size} it moved most" if far.size else "")
-        + f" (exact LM refits for all up to {EXACT_LOO_LANDMARKS} landmarks)",
+        + f" (exact LM refits for all up to {EXACT_LOO_LANDMARKS} rows)",
         refit_landmarks=m,
     )
 
 
-def _exact_loo_at(p: _Pair, landmarks, max_steps) -> tuple[np.ndarray, ...]:
-    """Leave-one-out by LM refits of both stages for ``landmarks`` only (as the exact
-    path does for all), batched in :data:`LOO_REFITS` problems; O(LOO_REFITS · n) a step."""
+def _exact_loo_at(p: _Pair, which_groups, groups: np.ndarray, max_steps) -> tuple[np.ndarray, ...]:
+    """Leave-one-out by LM refits of both stages for ``which_groups`` only (as the exact
+    path does for all), batched in :data:`LOO_REFITS` problems; O(LOO_REFITS · n) a step.
+    Returns each group's held-out error lengths, averaged over its rows."""
     stage1, stage2, loss, x1, x2, bounds1, bounds2 = (p.stage1, p.stage2, p.loss, p.x1, p.x2,
                                                      p.box1, p.box2)  # fmt: skip
     obs = _obs(stage1)
-    n, k = obs.n_landmarks, len(landmarks)
-    which = np.concatenate([landmarks, np.full(LOO_REFITS - k, landmarks[-1])])
-    W = np.ones((LOO_REFITS, n))
-    W[np.arange(LOO_REFITS), which] = 0.0
+    k = len(which_groups)
+    which = np.concatenate([which_groups, np.full(LOO_REFITS - k, which_groups[-1])])
+    W = (groups[None, :] != which[:, None]).astype(float)
     zero = np.full(LOO_REFITS, float(obs.rig.angle_zero_deg))
     sign = np.full(LOO_REFITS, float(obs.rig.angle_sign))
 
@@ -457,10 +478,15 @@ def _exact_loo_at(p: _Pair, landmarks, max_steps) -> tuple[np.ndarray, ...]:
         return _stage2_batch(stage1, stage2, loss, X1, W, np.asarray(X))
 
     X2 = minimise_batch(lambda X: batch2(X)[:2], lm, bounds2, np.tile(x2, (LOO_REFITS, 1))).x
-    rows = np.arange(k)
-    n1, n2 = (np.asarray(v)[rows, landmarks] for v in batch1(X1)[4])
-    m1, m2 = (np.asarray(v)[rows, landmarks] for v in batch2(X2)[4])
-    return n1, n2, m1, m2
+    held = (*batch1(X1)[4], *batch2(X2)[4])
+    return tuple(_held_out(np.asarray(v)[:k], which_groups, groups) for v in held)
+
+
+def _held_out(lengths: np.ndarray, which_groups: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """Problem i's error lengths at the rows of group ``which_groups[i]`` it left out,
+    averaged: ``(len(which_groups),)``."""
+    mask = groups[None, :] == np.asarray(which_groups)[:, None]
+    return np.sum(np.where(mask, lengths, 0.0), axis=1) / np.sum(mask, axis=1)
 
 
 def _refits_exact(p: _Pair, seed, starts, max_steps) -> Refits:
@@ -473,14 +499,17 @@ def _refits_exact(p: _Pair, seed, starts, max_steps) -> Refits:
                                                              p.convention_starts)  # fmt: skip
     bounds1 = bounds1 if p.lm_box1 is None else p.lm_box1
 
-    # Problems: n leave-one-out, then `starts` per convention, then the declared one from x1.
-    leave_out = 1.0 - np.eye(n)
+    # Problems: k leave-one-out (a touch's rows at a time), then `starts` per convention, then
+    # the declared one from x1.
+    groups = touch_groups(obs)
+    k = int(groups.max()) + 1
+    leave_out = (groups[None, :] != np.arange(k)[:, None]).astype(float)
     # NumPy arrays throughout: the jitted batches take them as they are, while jnp.asarray
     # would compile a small program per shape.
-    all_zero = np.concatenate([np.full(n, float(obs.rig.angle_zero_deg)), zero[conv_of]])
-    all_sign = np.concatenate([np.full(n, float(obs.rig.angle_sign)), sign[conv_of]])
+    all_zero = np.concatenate([np.full(k, float(obs.rig.angle_zero_deg)), zero[conv_of]])
+    all_sign = np.concatenate([np.full(k, float(obs.rig.angle_sign)), sign[conv_of]])
     all_w = np.concatenate([leave_out, np.ones((conv_of.shape[0], n))])
-    all_x0 = np.concatenate([np.broadcast_to(x1, (n, d1)), x0])
+    all_x0 = np.concatenate([np.broadcast_to(x1, (k, d1)), x0])
 
     def batch1(X):
         return _stage1_batch(stage1, loss, all_zero, all_sign, all_w, np.asarray(X))
@@ -494,29 +523,29 @@ def _refits_exact(p: _Pair, seed, starts, max_steps) -> Refits:
     e1, J1 = e1[-1], J1[-1]
     F = F.copy()
     F[-1] = min(F[-1], float(np.asarray(batch1(xs)[5])[-1]))
-    F_conv = np.where(np.isfinite(F[n:]), F[n:], np.inf)
+    F_conv = np.where(np.isfinite(F[k:]), F[k:], np.inf)
     best = _best_per_convention(F_conv, conv_of)
 
-    X1, W = xs[:n], leave_out
+    X1, W = xs[:k], leave_out
 
     def batch2(X, X1=X1):
         return _stage2_batch(stage1, stage2, loss, X1, W, np.asarray(X))
 
-    x2s = minimise_batch(lambda X: batch2(X)[:2], lm, bounds2, np.broadcast_to(x2, (n, x2.size))).x
+    x2s = minimise_batch(lambda X: batch2(X)[:2], lm, bounds2, np.broadcast_to(x2, (k, x2.size))).x
     m1, m2 = (np.asarray(v) for v in batch2(x2s)[4])
-    # Row 0 at the full fit (x1, x2) gives stage 2's error vectors and Jacobian there.
+    # Problem 0 at the full fit (x1, x2) gives stage 2's error vectors and Jacobian there.
     x2_fit = np.concatenate([x2[None], x2s[1:]])
-    _, _, e2, J2, _ = batch2(x2_fit, np.concatenate([x1[None], xs[1:n]]))
+    _, _, e2, J2, _ = batch2(x2_fit, np.concatenate([x1[None], xs[1:k]]))
     e2, J2 = np.asarray(e2)[0], np.asarray(J2)[0]
-    mine = n + np.flatnonzero(conv_of == declared)
-    diag = np.arange(n)
+    mine = k + np.flatnonzero(conv_of == declared)
+    each = np.arange(k)
     return Refits(
-        loo1_image_vs_tablet=n1[diag, diag],
-        loo1_hand=n2[diag, diag],
-        loo2_image_vs_tablet=m1[diag, diag],
-        loo2_hand=m2[diag, diag],
+        loo1_image_vs_tablet=_held_out(n1[:k], each, groups),
+        loo1_hand=_held_out(n2[:k], each, groups),
+        loo2_image_vs_tablet=_held_out(m1, each, groups),
+        loo2_hand=_held_out(m2, each, groups),
         convention_F=F_conv[best],
-        convention_params=xs[n:][best],
+        convention_params=xs[k:][best],
         declared_params=xs[mine],
         declared_F=np.where(np.isfinite(F[mine]), F[mine], np.inf),
         errors1=e1,

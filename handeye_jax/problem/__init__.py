@@ -13,7 +13,18 @@ _EXPORTS = {
     "_estimate": ("closed_form_estimate", "ClosedFormEstimate", "RigEstimate"),
     "_linearise": (
         "analyse_jacobian", "error_jacobian", "jacobian_diagnostics", "JacobianAnalysis",
-        "std_of_precision", "WeakDirection",
+        "NULL_RATIO", "std_of_precision", "WeakDirection",
+    ),
+    "_noise": (
+        "estimate_noise", "get_noise_model", "NOISE_MODELS", "noise_objective", "NoiseFit",
+        "NoiseModel", "NoiseObjective", "row_counts", "separated_errors", "touch_groups",
+        "view_covariance", "whitened_jacobian",
+    ),
+    "_predict": (
+        "command_error", "error_statistics", "ErrorPrediction", "fisher_information",
+        "noise_to_parameters",
+        "parameter_covariance", "predict_command_error", "Targets", "uncertainty",
+        "workspace_targets",
     ),
     "_losses": ("AbstractLoss", "CauchyLoss", "get_loss", "HuberLoss", "L1Loss", "LOSS_NAMES"),
     "_objective": (

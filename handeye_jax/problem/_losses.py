@@ -3,7 +3,9 @@
 The paper's F is the mean Euclidean error length of each term. A loss ``ρ`` replaces the
 length ``r`` of each error vector by ``ρ(r)`` (mm), so one bad touch pulls the fit less:
 
-* ``l1``: ``ρ(r) = r``, the paper's F (the default);
+* ``ml``: the maximum-likelihood fit under the noise model (the default,
+  :mod:`handeye_jax.problem._noise`); its search runs on the paper's F, as ``l1``'s;
+* ``l1``: ``ρ(r) = r``, the paper's F;
 * ``huber``: ``r²/(2c)`` below the scale ``c``, ``r − c/2`` above it;
 * ``cauchy``: ``(c/2)·log(1 + (r/c)²)``, which grows only logarithmically for ``r ≫ c``.
 
@@ -20,7 +22,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-LOSS_NAMES = ("l1", "huber", "cauchy")
+LOSS_NAMES = ("ml", "l1", "huber", "cauchy")
 
 
 class AbstractLoss(eqx.Module):
@@ -65,7 +67,9 @@ class CauchyLoss(AbstractLoss):
 
 
 def get_loss(name: str, scale_mm: float = 1.0) -> AbstractLoss:
-    """The loss called ``name`` (``"l1"``, ``"huber"``, ``"cauchy"``) with scale ``scale_mm``.
+    """The loss called ``name`` (``"ml"``, ``"l1"``, ``"huber"``, ``"cauchy"``) with scale
+    ``scale_mm``. ``ml``'s is the paper's (the search for the optimum's basin); the noise
+    model then refines the optimum (:class:`~handeye_jax.NoiseObjective`).
 
     Args:
         name: one of :data:`LOSS_NAMES`.
@@ -74,7 +78,7 @@ def get_loss(name: str, scale_mm: float = 1.0) -> AbstractLoss:
     """
     if not scale_mm > 0:
         raise ValueError(f"loss scale must be > 0 mm (got {scale_mm})")
-    if name == "l1":
+    if name in ("ml", "l1"):
         return L1Loss()
     if name == "huber":
         return HuberLoss(float(scale_mm))

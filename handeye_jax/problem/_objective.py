@@ -606,8 +606,10 @@ class PriorObjective(AbstractObjective):
 
 
 def data_objective(objective: AbstractObjective) -> AbstractObjective:
-    """The paper's objective inside any wrappers (its blocks are the data's error vectors)."""
-    while isinstance(objective, LossObjective | PriorObjective | GaussianObjective):
+    """The paper's objective inside any wrappers (its blocks are the data's error vectors).
+
+    A wrapper is an objective whose ``base`` is another (a loss, a prior, a noise model)."""
+    while isinstance(getattr(objective, "base", None), AbstractObjective):
         objective = objective.base
     return objective
 

@@ -46,6 +46,9 @@ class Prior:
         data_sigma_mm: the residual standard deviation (per error component, mm) of the fit
             it came from, whose precision is ``JᵀJ/σ²``: the noise of the new data under the
             same model, for the pulls (``None``: estimated from the new fit's residuals).
+        untested: parameters the fit it came from did not determine well enough for its
+            Gaussian to be their error (in a weak direction, or moved by an alternative fit):
+            their pulls are reported but not flagged.
     """
 
     names: tuple[str, ...]
@@ -54,6 +57,7 @@ class Prior:
     source: str = "user"
     data_scale_mm: float = 0.25
     data_sigma_mm: float | None = None
+    untested: tuple[str, ...] = ()
 
     def __post_init__(self):
         names = tuple(str(n) for n in self.names)
@@ -155,7 +159,7 @@ class Prior:
             P_kd, P_dd = P[np.ix_(keep, drop)], P[np.ix_(drop, drop)]
             P_kk = P_kk - P_kd @ np.linalg.pinv(P_dd, hermitian=True) @ P_kd.T
         return Prior(tuple(self.names[i] for i in keep), self.mean[keep], P_kk, self.source,
-                     self.data_scale_mm, self.data_sigma_mm)  # fmt: skip
+                     self.data_scale_mm, self.data_sigma_mm, self._untested(keep))  # fmt: skip
 
     def conditional(self, names: Iterable[str], others: Mapping[str, float]) -> Prior:
         """The prior of ``names`` given the other parameters' values ``others``."""
@@ -168,7 +172,10 @@ class Prior:
             d_o = np.array([others[self.names[i]] for i in drop]) - self.mean[drop]
             mean = mean - np.linalg.pinv(P_kk, hermitian=True) @ P[np.ix_(keep, drop)] @ d_o
         return Prior(tuple(self.names[i] for i in keep), mean, P_kk, self.source,
-                     self.data_scale_mm, self.data_sigma_mm)  # fmt: skip
+                     self.data_scale_mm, self.data_sigma_mm, self._untested(keep))  # fmt: skip
+
+    def _untested(self, keep: list[int]) -> tuple[str, ...]:
+        return tuple(self.names[i] for i in keep if self.names[i] in self.untested)
 
 
 @dataclass(frozen=True, eq=False)

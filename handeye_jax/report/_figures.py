@@ -38,7 +38,8 @@ from .._jax import fast_compile, in_float64
 from ..calibration import CalibrationResult, load_result
 from ..data import Observations, load_dataset
 from ..optim import CHUNK_GENERATIONS
-from ..problem import chain_points, stage1_errors, stage2_errors
+from ..problem import chain_points, stage1_errors, stage2_errors, touch_groups
+from ._verdict import _mm
 
 DPI = 120
 #: Residual arrows are drawn this many times their length in both stages' figures (which say
@@ -302,14 +303,29 @@ def fig_loo(result: CalibrationResult):
             continue
         held = np.array([r.image_vs_tablet_mm + r.hand_mm for r in loo.held_out_mm])
         ins = np.array([r.image_vs_tablet_mm + r.hand_mm for r in s.residuals_mm])
+        if len(ins) != len(held) and result.data is not None:  # held out by touch: its rows'
+            group = touch_groups(result.data.observations())  # in-sample mean beside it
+            ins = np.array([ins[group == t].mean() for t in range(len(held))])
         _bars(ax, [ins, held], ["in-sample", "held out (refit without m)"], ["0.6", "C3"])
         ax.set_ylabel("|image − tablet| + |hand − target| (mm)")
         ax.set_title(f"{name}\nheld-out F = {loo.F_mm:.3f} mm, in-sample F = {s.F:.3f} mm")
         legend_from = ax
-    fig.suptitle("leave-one-out: does the fit predict a landmark it has not seen?")
+    fig.suptitle("leave-one-out: does the fit predict a landmark it has not seen?\n"
+                 + verdict_title(result))
     if legend_from is not None:
         _legend_below(fig, legend_from)
     return fig
+
+
+def verdict_title(result: CalibrationResult) -> str:
+    """The summary's verdict in one line: the stage to deploy and the touching error to
+    expect (mm), as the summary prints them."""
+    line = f"verdict: deploy stage {result.deploy_stage}"
+    expected = None if result.diagnostics is None else result.diagnostics.expected
+    if expected is not None:
+        line += (f"; expected touching error {_mm(expected.mean_mm)} mean, "
+                 f"{_mm(expected.p95_mm)} 95th percentile")  # fmt: skip
+    return line
 
 
 # -- driver ------------------------------------------------------------------------------

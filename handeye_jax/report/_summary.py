@@ -1,4 +1,6 @@
-"""The human-readable summary the CLI prints after a calibration."""
+"""The human-readable summary the CLI prints after a calibration: the verdict and the failed
+checks first (:mod:`._verdict`), the fit in brief, and behind ``verbose`` the optimisers' and
+the diagnostics' detail."""
 
 from __future__ import annotations
 
@@ -17,6 +19,17 @@ from ..calibration import (
 from ..diagnostics import scope_lines
 from ..models import AffinePair
 from ._search import bound_lines, search_lines
+from ._verdict import (
+    alternatives_lines,
+    ambiguity_line,
+    checks_lines,
+    failed_checks,
+    some,
+    verdict_lines,
+)
+
+#: Per-landmark tables list at most this many rows (the largest errors first).
+MAX_ROWS = 10
 
 
 def _unit(u: str) -> str:
@@ -47,9 +60,13 @@ def _stage_lines(
             line += (f"; the data weighed as Gaussian errors of its fit's noise, "
                      f"{s.prior.data_sigma_mm:.3g} mm per component")  # fmt: skip
         lines.append(line)
-    lines.append("  residuals per landmark, mm:")
+    rows = sorted(s.residuals_mm, key=lambda r: -max(r.image_vs_tablet_mm, r.hand_mm))
+    shown = sorted(rows[:MAX_ROWS], key=lambda r: r.m)
+    more = len(rows) - len(shown)
+    lines.append("  residuals per landmark, mm" + (f" (the {len(shown)} largest of {len(rows)})"
+                                                   if more else "") + ":")  # fmt: skip
     lines.append("    m   |image - tablet|   |hand - target|")
-    for r in s.residuals_mm:
+    for r in shown:
         lines.append(f"    {r.m:<3} {r.image_vs_tablet_mm:>16.4f} {r.hand_mm:>17.4f}")
     return lines
 
@@ -123,14 +140,39 @@ def found_by_line(polish: PolishSummary) -> str:
     return line
 
 
-def format_summary(result: CalibrationResult) -> str:
-    """A few dozen lines: parameters, f1 / f2 / F per stage, residuals, twin, warnings, time."""
-    lines = _head(result)
-    lines += search_lines(result)
-    lines += _stage1_block(result)
-    lines.append("")
-    lines += _stage2_block(result)
-    lines += [f"warning: {w}" for w in result.warnings]
+def format_summary(
+    result: CalibrationResult,
+    *,
+    verbose: bool = False,
+    quiet: bool = False,
+    saved: str | None = None,
+) -> str:
+    """The summary the command line prints, one screen whatever the number of landmarks:
+    the verdict (stage to deploy, expected touching error, camera and pen on the flange,
+    whether the result was saved), then the checks that failed with their fixes, then the fit
+    in brief. ``verbose`` adds the optimisers' and the diagnostics' detail; ``quiet`` prints
+    the verdict alone (and how many checks failed).
+
+    Args:
+        result: the calibration (with its diagnostics, for the verdict's numbers).
+        verbose: add every stage's search, parameters, residuals and diagnostics.
+        quiet: the verdict alone.
+        saved: the file the result was written to, or ``None`` (nothing saved).
+    """
+    lines = [_title(result), ""]
+    lines += verdict_lines(result, saved)
+    checks = failed_checks(result)
+    if quiet:
+        if checks:
+            lines.append(f"CHECKS FAILED  {len(checks)} (run without --quiet to see them)")
+        return "\n".join(lines)
+    lines += ["", *checks_lines(checks), *alternatives_lines(result), "", *_fit_lines(result)]
+    if verbose:
+        lines += ["", *_head(result), *search_lines(result)[1:]]
+        lines += _stage1_block(result)
+        lines.append("")
+        lines += _stage2_block(result)
+        lines += _ambiguity_lines(result)
     t = result.timings_s
     lines.append("")
     lines.append(
@@ -139,28 +181,67 @@ def format_summary(result: CalibrationResult) -> str:
         f"{t['stage2_polish']:.2f} s"
         + (f"; diagnostics {t['diagnostics']:.2f} s" if "diagnostics" in t else "")
         + "; includes JIT compilation)"
+        + ("" if verbose else "; --verbose: the optimisers, parameters, residuals and diagnostics")
     )
     return "\n".join(lines)
 
 
-def _head(result: CalibrationResult) -> list[str]:
-    """The settings' line, and where a recalibration started."""
-    settings = result.settings
-    lines = [
-        f"handeye-jax calibration of {result.dataset_name!r}: model {result.model_name}, "
-        f"seed {settings.seed}, population {settings.population}, "
-        f"at most {settings.generations} generations"
-        + ("" if settings.early_stop else " (no early stop)"),
-    ]
-    recal = result.recalibration
-    if recal is not None:
+def _title(result: CalibrationResult) -> str:
+    data = result.data
+    what = ""
+    if data is not None:
+        caps = len(data.captures)
+        what = (f", {data.n_touches} touches, {caps} capture{'s' if caps > 1 else ''}"
+                + (", hand heights" if result.heights is not None else ""))  # fmt: skip
+    loss = result.settings.loss
+    how = (f"maximum likelihood under the {result.settings.noise!r} noise model, its scales "
+           "estimated from the data" if loss == "ml" else f"loss {loss}")  # fmt: skip
+    return (f"handeye-jax calibration of {result.dataset_name!r}: {result.model_name.upper()} "
+            f"model{what}; {how}")  # fmt: skip
+
+
+def _fit_lines(result: CalibrationResult) -> list[str]:
+    """The fit in brief: each stage's F (the paper's measure) and the noise it found."""
+    lines = ["FIT"]
+    for key, title in (("stage1", "stage 1"), ("stage2", "stage 2")):
+        s: StageResult = getattr(result, key)
+        line = (f"  {title}: F = {s.F:.4f} mm (f1 = {s.f1:.4f}, f2 = {s.f2:.4f} mm; the paper's "
+                "mean error lengths)")  # fmt: skip
+        if s.noise is not None and result.data is not None:
+            e = s.noise.noise.effective(result.data.mm_per_tablet_px)
+            line += (f"; noise found: image {e['image_px']:.2g} px, depth {e['depth_mm']:.2g} "
+                     f"mm, touch {e['touch_mm']:.2g} mm per axis ({s.noise.dof:.0f} dof)")
+        lines.append(line)
+    if result.recalibration is not None:
+        recal = result.recalibration
         others = ("held at its values" if recal.others == "fixed"
                   else "given its posterior as their prior")  # fmt: skip
-        lines.append(f"recalibrated from {recal.previous}: refitted "
+        lines.append(f"  recalibrated from {recal.previous}: refitted "
                      f"{', '.join(recal.refit)}; the other parameters {others}")  # fmt: skip
         if recal.rig_changes:
             lines.append(change_line(recal.rig_changes))
-    return [*lines, ""]
+    lines += [f"  {line.strip()}" for line in search_lines(result)[:1]]
+    return lines
+
+
+def _ambiguity_lines(result: CalibrationResult) -> list[str]:
+    d = result.diagnostics
+    if d is None or not d.ambiguities:
+        return []
+    lines = ["", "fits the data cannot tell from this one:"]
+    for a in d.ambiguities:
+        lines.append(f"  {ambiguity_line(a)}; separated by {a.separate_by}")
+    return lines
+
+
+def _head(result: CalibrationResult) -> list[str]:
+    """The settings' line."""
+    settings = result.settings
+    return [
+        f"settings: model {result.model_name}, seed {settings.seed}, population "
+        f"{settings.population}, at most {settings.generations} generations"
+        + ("" if settings.early_stop else " (no early stop)") + f", loss {settings.loss}",
+    ]
 
 
 def _stage1_block(result: CalibrationResult) -> list[str]:
@@ -255,7 +336,7 @@ def diagnostic_lines(
     loo = d.loo
     if loo is not None:
         what = "stage 1 refitted" if stage == "stage1" else "stages 1 and 2 refitted"
-        unit = "row m (one view and its touch)" if rows else "landmark m"
+        unit = "touch m (each of its views)" if rows else "landmark m"
         lines.append(
             f"  leave-one-out ({what} without {unit}, m predicted): held-out F = "
             f"{loo.F_mm:.4f} mm (f1 = {loo.f1_mm:.4f}, f2 = {loo.f2_mm:.4f} mm); in-sample "
@@ -264,16 +345,18 @@ def diagnostic_lines(
         method = d.loo_method or ""
         if method and not method.startswith("exact"):
             lines.append(f"    refits approximated: {method}")
-        per = "  ".join(
-            f"{r.m}: {r.image_vs_tablet_mm:.2f}/{r.hand_mm:.2f}" for r in loo.held_out_mm
-        )
-        lines.append(f"    held out |image - tablet|/|hand - target| mm, m: {per}")
+        held = sorted(loo.held_out_mm, key=lambda r: -r.hand_mm)[:MAX_ROWS]
+        per = "  ".join(f"{r.m}: {r.image_vs_tablet_mm:.2f}/{r.hand_mm:.2f}"
+                        for r in sorted(held, key=lambda r: r.m))  # fmt: skip
+        more = (f" (the {len(held)} largest of {len(loo.held_out_mm)})"
+                if len(held) < len(loo.held_out_mm) else "")  # fmt: skip
+        lines.append(f"    held out |image - tablet|/|hand - target| mm{more}, m: {per}")
     out = d.outliers
     threshold = diag.outlier_threshold_mm
     threshold = float("nan") if threshold is None else threshold
     lines.append(
         f"  outlier landmarks (an error > {threshold:g} mm): "
-        + (", ".join(f"m = {m}" for m in out) if out else "none")
+        + (f"m = {some(out)}" if out else "none")
     )
     return lines
 

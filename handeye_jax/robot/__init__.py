@@ -11,8 +11,8 @@ from .._core import lazy_exports
 # fmt: off
 _EXPORTS = {
     "_export": (
-        "check_parses", "EASY_HANDEYE_PARAMETERS", "export_text", "quaternion_xyzw",
-        "zero_filled",
+        "carried_stage", "check_parses", "EASY_HANDEYE_PARAMETERS", "export_text",
+        "quaternion_xyzw", "RIGID_ONLY_FORMATS", "StageError", "zero_filled",
     ),
     "_frames": ("Affine", "Frames", "TRANSLATIONS"),
     "_names": (

@@ -57,6 +57,11 @@ STAGE2_RULE = (
     "pen tip in the base frame relative to the hand, R_base_hand(θh)·t_hand_pen_mm"
 )
 HAND_ANGLE_RULE = "φ = zero_deg + sign·θh; R_base_hand(θh) = Ry(180)·Rz(φ)"
+DEPLOY_NOTE = (
+    "the stage the calibration chose to deploy by its evidence (leave-one-out): 1, eq. (8), "
+    "the frames alone; 2, eq. (25), the frames with stage2's A1 and A2. Hand commands use it "
+    "unless told otherwise"
+)
 CAPTURE_NOTE = (
     "the hand pose when the (first) picture was taken: position in the base frame, and the "
     "hand angle θc; R_base_hand = Ry(180)·Rz(zero_deg + sign·θc) there, and the camera turns "
@@ -134,11 +139,15 @@ class Frames:
         pen_minus_camera_z_mm: ``z_p − z_c``, the pen tip's minus the camera's offset along
             the hand's z, mm: what commanding a height needs (:data:`HEIGHT_RULE`); ``None``
             when the touches recorded no hand height.
+        deploy_stage: the stage the calibration chose to deploy (1: eq. 8; 2: eq. 25 with
+            A1, A2), which hand commands use by default; 2 in files that do not say (written
+            before the choice was recorded, when stage 2 was the default).
         distortion: the lens's Brown–Conrady (``plumb_bob``) ``(k1, k2, p1, p2, k3)``, or
             ``None``; image points are undistorted with it before the chain.
         given: components the data leaves undetermined whose values were given by the user
             (a measured camera height, :func:`~handeye_jax.robot.with_heights`), or follow from
             one given and ``z_p − z_c``.
+
     """
 
     R_hand_camera: np.ndarray
@@ -160,8 +169,10 @@ class Frames:
     undetermined: tuple[str, ...] = ()
     model: str = ""
     pen_minus_camera_z_mm: float | None = None
+    deploy_stage: int = 2
     distortion: tuple[float, float, float, float, float] | None = None
     given: tuple[str, ...] = ()
+
 
     def __post_init__(self):
         shapes = {"R_hand_camera": (3, 3), "R_base_tablet": (3, 3), "capture_position_mm": (3,),
@@ -170,6 +181,9 @@ class Frames:
             object.__setattr__(self, name, _array(getattr(self, name), shape))
         if self.hand_angle_sign not in (1, -1):
             raise ValueError(f"hand_angle_sign must be 1 or -1, got {self.hand_angle_sign}")
+        if self.deploy_stage not in (1, 2):
+            raise ValueError(f"deploy_stage must be 1 or 2, got {self.deploy_stage}")
+        object.__setattr__(self, "deploy_stage", int(self.deploy_stage))
         object.__setattr__(self, "hand_angle_sign", int(self.hand_angle_sign))
         object.__setattr__(self, "undetermined", tuple(self.undetermined))
         object.__setattr__(self, "given", tuple(self.given))
@@ -276,6 +290,8 @@ class Frames:
                 {"component": c, "reason": REASONS.get(c, "not determined by the data")}
                 for c in self.undetermined
             ],
+            "deploy_stage": self.deploy_stage,
+            "deploy_note": DEPLOY_NOTE,
         }
         if self.has_height:
             doc["heights"] = {"pen_minus_camera_mm": self.pen_minus_camera_z_mm,
@@ -300,8 +316,9 @@ class Frames:
         r = _Check(path)
         d = r.table(doc, where, ("format", "model", "units", "T_hand_camera", "T_base_tablet",
                                  "pen_tip", "camera_px", "hand_angle", "capture", "stage2",
-                                 "undetermined"), ("axes", "convention", "heights",
-                                                   "distortion", "given"))  # fmt: skip
+                                 "undetermined"),
+                     ("axes", "convention", "heights", "deploy_stage", "deploy_note", "stage",
+                      "stage_note", "distortion", "given"))  # fmt: skip
         at = lambda key: f"{where}.{key}" if where else key  # noqa: E731
         if d["format"] != FORMAT:
             r.fail(at("format"), f"expected {FORMAT!r} (got {d['format']!r:.60})")
@@ -323,6 +340,13 @@ class Frames:
                       ("note",))  # fmt: skip
         s2 = r.table(d["stage2"], at("stage2"), ("A1", "A2", "centres_mm"), ("rule",))
         affines = [_read_affine(r, s2[k], at(f"stage2.{k}")) for k in ("A1", "A2")]
+        deploy = 2
+        # An export's "stage" (the stage it carries) is its default; else the calibration's.
+        for key in ("deploy_stage", "stage"):
+            if key in d:
+                deploy = r.number(d[key], at(key))
+                if deploy not in (1.0, 2.0):
+                    r.fail(at(key), f"must be 1 or 2 (got {d[key]!r:.40})")
         height = None
         if "heights" in d:
             hd = r.table(d["heights"], at("heights"), ("pen_minus_camera_mm",), ("rule",))
@@ -361,9 +385,11 @@ class Frames:
             undetermined=tuple(undetermined),
             model=d["model"],
             pen_minus_camera_z_mm=height,
+            deploy_stage=int(deploy),
             distortion=distortion,
             given=tuple(r.table(g, at(f"given[{i}]"), ("component",), ("note",))["component"]
                         for i, g in enumerate(r.table_list(d.get("given", []), at("given")))),
+
         )  # fmt: skip
 
 

@@ -151,6 +151,11 @@ class Predictor:
         return self._frames
 
     @property
+    def stage(self) -> int:
+        """The stage hand commands use by default: the one the calibration chose to deploy."""
+        return self._frames.deploy_stage
+
+    @property
     def reach(self) -> Reach:
         """Where the calibration's commands may go: around the hand positions it recorded
         (:class:`~handeye_jax.robot.Reach`); :meth:`Reach.excess_mm` says how far a command
@@ -168,7 +173,7 @@ class Predictor:
         image_px: Any,
         depth_mm: Any,
         hand_angle_deg: Any,
-        stage: int = 2,
+        stage: int | None = None,
         capture_position_mm: Any = None,
         capture_hand_angle_deg: Any = None,
         axes: str = "xy",
@@ -181,7 +186,8 @@ class Predictor:
             image_px: ``(u, v)`` of each target in the captured picture, px, shape (n, 2).
             depth_mm: depth at each target, mm, shape (n,).
             hand_angle_deg: the hand angle θh the robot will touch with, deg, (n,) or scalar.
-            stage: 2 for eq. (25) with the affine correction, 1 for eq. (8).
+            stage: 2 for eq. (25) with the affine correction, 1 for eq. (8); default: the
+                stage the calibration chose to deploy (:attr:`Frames.deploy_stage`).
             capture_position_mm: the hand position when the picture was taken, mm, (3,) or
                 (n, 3); default: the calibration's capture.
             capture_hand_angle_deg: the hand angle θh when the picture was taken, deg, scalar
@@ -189,6 +195,7 @@ class Predictor:
             axes: ``"xy"``, or ``"xyz"`` to add the hand's height (a calibration whose
                 touches recorded the hand's heights; else refused, see :attr:`axes`).
         """
+        stage = self._frames.deploy_stage if stage is None else stage
         if stage not in (1, 2):
             raise ValueError(f"stage must be 1 or 2 (got {stage!r})")
         if axes not in ("xy", "xyz"):

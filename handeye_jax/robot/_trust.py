@@ -149,6 +149,8 @@ def check_result_document(
     if stored is not None and computed is not None:
         _compare_frames(c, stored, computed)
     frames = computed if computed is not None else stored
+    if stored is not None and computed is not None:  # the stage to deploy: the file's choice
+        frames = replace(frames, deploy_stage=stored.deploy_stage)
     if frames is None:
         c.fail("model", f"{doc.get('model')!r:.40} has no NumPy twin and the file no frames")
     data = doc.get("data")

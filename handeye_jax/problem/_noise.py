@@ -1,0 +1,425 @@
+"""The noise model of the data, and the fit's likelihood under it.
+
+What a calibration measures, and how each measurement strays (:class:`NoiseModel`):
+
+* each **picture** (a capture) gives every landmark it shows an image point ``(u, v)`` and a
+  depth; their errors (``image_sigma_px`` per axis, ``depth_sigma_mm``) move that view's
+  back-projected point ``x_bi`` in the base frame by a 3-D error whose covariance follows from
+  the chain's Jacobian in ``(u, v, depth)``;
+* each **touch** gives a hand position, rounded by the controller (``hand_resolution_mm``, a
+  uniform error of σ = r/√12 per axis), and a touch error reported by the tablet in whole
+  tablet px (``tablet_resolution_px``) plus what the tablet cannot see (``touch_sigma_mm``:
+  the pen's contact against its tip).
+
+A row of the objective pairs a view with a touch (:class:`~handeye_jax.Observations`). The
+paper's two error vectors of a row share the view's noise (``f1 = x_bi − x_bt``, ``f2 = x_bi −
+x' − x_r'``), and with several captures one touch is paired with each view of its landmark.
+Counted as independent, a touch seen from three captures enters three times. Here the
+residuals are separated so that each noise source enters once: the **view** residual ``x_bi −
+x_bt`` carries the picture's noise, the **touch** residual ``x_bt − x' − x_r'`` (stage 2:
+``A2(x_bt − x') − x_r'``, which is ``f2 − L2·f1``) the touch's; each is whitened by its own
+covariance and divided by the number of rows that repeat it. The sum of their squares is −2
+log-likelihood (up to a constant): :class:`NoiseObjective` is the maximum-likelihood
+objective, and ``(JᵀJ)⁻¹`` of its whitened Jacobian the fit's covariance.
+
+The picture's and the touch's scales are estimated from the data (:func:`estimate_noise`,
+restricted maximum likelihood: each group's sum of squares over its redundancy), starting
+from a preset (:data:`NOISE_MODELS`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._jax import fast_compile
+from ..data import Observations
+from ..models import AbstractModel
+from ._objective import (
+    AbstractObjective,
+    GaussianBlock,
+    Stage1Objective,
+    Stage2Objective,
+    chain_points,
+    stage2_errors,
+)
+
+#: A group's variance scale is estimated only when its redundancy is at least this.
+MIN_REDUNDANCY = 2.0
+#: Scales never fall below this (noise-free data would otherwise give infinite weights).
+MIN_SCALE = 1e-12
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """How far each measurement strays (independent, Gaussian; per axis).
+
+    Attributes:
+        image_sigma_px: a landmark's image point ``(u, v)``, each axis, px.
+        depth_sigma_mm: the depth read at it, mm.
+        hand_resolution_mm: the controller reports hand positions rounded to this, mm (a
+            uniform error, σ = r/√12 per axis, x, y and z); 0: exact.
+        touch_sigma_mm: the part of a touch's error the tablet does not report (the pen's
+            contact against its tip), each axis, mm.
+        tablet_resolution_px: the tablet reports the touch error rounded to this, tablet px.
+        target_sigma_px: a target's image point as the user measures it, each axis, px
+            (``None``: ``image_sigma_px``); for predicted hand-command errors.
+        view_scale, touch_scale: variance multipliers of the pictures' and the touches'
+            noise, estimated from a fit's residuals (:func:`estimate_noise`); 1: as stated.
+        name: the preset's name, or ``"custom"``.
+    """
+
+    image_sigma_px: float = 0.1
+    depth_sigma_mm: float = 0.3
+    hand_resolution_mm: float = 1.0
+    touch_sigma_mm: float = 0.0
+    tablet_resolution_px: float = 1.0
+    target_sigma_px: float | None = None
+    view_scale: float = 1.0
+    touch_scale: float = 1.0
+    name: str = "custom"
+
+    def __post_init__(self):
+        for f in ("image_sigma_px", "depth_sigma_mm", "hand_resolution_mm", "touch_sigma_mm",
+                  "tablet_resolution_px", "view_scale", "touch_scale"):  # fmt: skip
+            v = getattr(self, f)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"{f} must be finite and >= 0 (got {v})")
+        if self.image_sigma_px + self.depth_sigma_mm <= 0:
+            raise ValueError("a picture's noise (image_sigma_px, depth_sigma_mm) must not be 0")
+        if self.hand_resolution_mm + self.touch_sigma_mm + self.tablet_resolution_px <= 0:
+            raise ValueError("a touch's noise (hand_resolution_mm, touch_sigma_mm, "
+                             "tablet_resolution_px) must not be 0")  # fmt: skip
+
+    def touch_variance_mm2(self, mm_per_tablet_px: float) -> float:
+        """A touch's error variance per axis (x, y), mm²: the hand's rounding, the tablet's
+        rounding of the touch error and what it does not see, times ``touch_scale``."""
+        v = (self.hand_resolution_mm**2 / 12.0 + self.touch_sigma_mm**2
+             + (self.tablet_resolution_px * mm_per_tablet_px) ** 2 / 12.0)  # fmt: skip
+        return self.touch_scale * v
+
+    def hand_z_variance_mm2(self) -> float:
+        """A recorded hand height's error variance, mm² (its rounding, times
+        ``touch_scale``; at least a tenth of the x-y variance's floor)."""
+        return self.touch_scale * max(self.hand_resolution_mm**2 / 12.0, 1e-6)
+
+    def picture_variances(self) -> tuple[float, float]:
+        """``(image px², depth mm²)``: a view's variances, times ``view_scale``."""
+        return (self.view_scale * self.image_sigma_px**2,
+                self.view_scale * self.depth_sigma_mm**2)  # fmt: skip
+
+    def target_variances(self) -> tuple[float, float]:
+        """``(image px², depth mm²)`` of a target measured by the user."""
+        s = self.image_sigma_px if self.target_sigma_px is None else self.target_sigma_px
+        return self.view_scale * s**2, self.view_scale * self.depth_sigma_mm**2
+
+    def scaled(self, view: float = 1.0, touch: float = 1.0) -> NoiseModel:
+        """The model with its pictures' and touches' variances multiplied by these."""
+        return replace(self, view_scale=max(self.view_scale * view, MIN_SCALE),
+                       touch_scale=max(self.touch_scale * touch, MIN_SCALE))  # fmt: skip
+
+    def effective(self, mm_per_tablet_px: float) -> dict[str, float]:
+        """The σs the scales give, per axis: image px, depth mm and a touch's x-y mm."""
+        image, depth = self.picture_variances()
+        return {"image_px": math.sqrt(image), "depth_mm": math.sqrt(depth),
+                "touch_mm": math.sqrt(self.touch_variance_mm2(mm_per_tablet_px))}  # fmt: skip
+
+
+#: The presets. ``paper``: the `paper` twin's measured noise (benchmarks/RESULTS.md, "The
+#: noise model"): detected landmark centroids 0.10 px per axis (one-pixel dots), depths read
+#: from a 1-mm-step depth image 0.30 mm, hand positions in whole mm, touch errors in whole
+#: tablet px; targets measured to 0.15 px.
+NOISE_MODELS: dict[str, NoiseModel] = {
+    "paper": NoiseModel(image_sigma_px=0.1, depth_sigma_mm=0.3, hand_resolution_mm=1.0,
+                        touch_sigma_mm=0.0, tablet_resolution_px=1.0, target_sigma_px=0.15,
+                        name="paper"),  # fmt: skip
+}
+
+
+def get_noise_model(name: str) -> NoiseModel:
+    """The preset called ``name`` (one of :data:`NOISE_MODELS`)."""
+    try:
+        return NOISE_MODELS[name]
+    except KeyError:
+        known = ", ".join(NOISE_MODELS)
+        raise ValueError(f"unknown noise model {name!r}; known: {known}") from None
+
+
+# -- the rows as views and touches ---------------------------------------------------------
+
+
+def _counts(keys: np.ndarray) -> np.ndarray:
+    """How many rows share each row's key (rows of ``keys``)."""
+    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    return counts[inverse.reshape(-1)].astype(float)
+
+
+def row_counts(obs: Observations) -> tuple[np.ndarray, np.ndarray]:
+    """For each row, how many rows repeat its view (the same capture's picture of the same
+    landmark) and its touch: ``(view_count, touch_count)``, ``(n,)`` each. The paper's single
+    capture gives ones."""
+    n = obs.n_landmarks
+    if obs.capture_index is None or obs.touch_index is None:
+        return np.ones(n), np.ones(n)
+    capture = np.asarray(obs.capture_index, dtype=float)[:, None]
+    landmark = np.round(np.asarray(obs.tablet_mm, dtype=float), 9)
+    view = _counts(np.concatenate([capture, landmark], axis=1))
+    touch = _counts(np.asarray(obs.touch_index)[:, None])
+    return view, touch
+
+
+def touch_groups(obs: Observations) -> np.ndarray:
+    """Each row's touch, numbered 0, 1, … in touch order: the rows a leave-one-out leaves out
+    together (a touch seen from three captures is three rows). The paper's single capture
+    gives ``0 … n−1``."""
+    if obs.touch_index is None:
+        return np.arange(obs.n_landmarks)
+    return np.unique(np.asarray(obs.touch_index), return_inverse=True)[1].reshape(-1)
+
+
+def view_covariance(
+    model: AbstractModel, obs: Observations, noise: NoiseModel, dims: int = 2
+) -> Float[Array, "n k k"]:
+    """Each row's view error covariance in the base frame, mm², ``(n, dims, dims)``: the
+    image point's and the depth's noise through the back-projection of eq. (5), x and y (and
+    z with ``dims = 3``)."""
+    image_var, depth_var = noise.picture_variances()
+    return fast_compile(_view_covariance)(model, obs, np.array([image_var, image_var, depth_var]),
+                                          dims)  # fmt: skip
+
+
+def _view_covariance(model, obs: Observations, variances, dims: int):
+    D = jnp.diag(variances)
+    pos = obs.capture_position_mm
+    phi = obs.capture_phi_deg()
+
+    def one(uv, d, p, f):
+        def x_bi(a):
+            if p is None:
+                return model.image_to_base(a[None, :2], a[2:], obs.rig)[0]
+            return model.image_to_base(a[None, :2], a[2:], obs.rig, p[None], f[None])[0]
+
+        return jax.jacfwd(x_bi)(jnp.concatenate([uv, d[None]]))[:dims]
+
+    if pos is None:
+        J = jax.vmap(lambda uv, d: one(uv, d, None, None))(obs.image_px, obs.depth_mm)
+    else:
+        J = jax.vmap(one)(obs.image_px, obs.depth_mm, pos, phi)
+    return jnp.einsum("nij,jk,nlk->nil", J, D, J)
+
+
+@fast_compile
+def _view_whitener(model, obs: Observations, variances, view_count, dims: int):
+    """Each row's view whitener ``W`` (``WᵀW = S⁻¹/count``): one compiled program."""
+    S = _view_covariance(model, obs, variances, dims)
+    L = jnp.linalg.cholesky(jnp.linalg.inv(S))
+    return jnp.swapaxes(L, -1, -2) / jnp.sqrt(view_count)[:, None, None]
+
+
+# -- the objective ---------------------------------------------------------------------------
+
+
+class NoiseObjective(AbstractObjective):
+    """A stage's objective under a noise model: blocks ``views`` and ``touches``, each row's
+    separated residual whitened (see the module); their value is ``χ²/n``, ``χ²`` the sum of
+    squares of :meth:`whitened`: −2 log-likelihood up to a constant.
+
+    Build it with :func:`noise_objective`.
+
+    Attributes:
+        base: the paper's stage objective (:class:`~handeye_jax.Stage1Objective` or
+            :class:`~handeye_jax.Stage2Objective`), whose errors are separated.
+        view_whitener: per row, ``(k, k)``, k = 2 (x-y) or 3 (with the hand's heights).
+        touch_whitener: per row and axis, ``(k,)`` (0 for a height not recorded).
+    """
+
+    base: AbstractObjective
+    view_whitener: Float[Array, "n k k"]
+    touch_whitener: Float[Array, "n k"]
+
+    def separated(self, theta) -> tuple[Float[Array, "n k"], Float[Array, "n k"]]:
+        """The rows' view and touch residuals at ``theta``, mm (not whitened)."""
+        return separated_errors(self.base, theta)
+
+    def whitened(self, theta) -> Float[Array, " r"]:
+        """Every row's whitened view residual, then every row's whitened touch residual."""
+        v, t = self._whitened(theta)
+        return jnp.concatenate([v.reshape(-1), t.reshape(-1)])
+
+    def _whitened(self, theta):
+        v, t = self.separated(theta)
+        return jnp.einsum("nij,nj->ni", self.view_whitener, v), t * self.touch_whitener
+
+    def blocks(self, theta):
+        v, t = self._whitened(theta)
+        one = jnp.ones(v.shape[0])
+        return {"views": GaussianBlock(v, jnp.asarray(1.0), one),
+                "touches": GaussianBlock(t, jnp.asarray(1.0), one)}  # fmt: skip
+
+    def on_landmarks(self, idx):
+        idx = np.asarray(idx)
+        return NoiseObjective(self.base.on_landmarks(idx), self.view_whitener[idx],
+                              self.touch_whitener[idx])  # fmt: skip
+
+
+def separated_errors(
+    base: AbstractObjective, theta
+) -> tuple[Float[Array, "n k"], Float[Array, "n k"]]:
+    """A stage's rows split by noise source, mm: the view residual (``x_bi − x_bt``, stage
+    2: ``A1(x_bi) − x_bt``) and the touch residual (``x_bt − x' − x_r'``, stage 2:
+    ``A2(x_bt − x') − x_r'``); with the hand's heights, each with its z (less the profiled
+    offset; 0 where a touch recorded none)."""
+    if isinstance(base, Stage2Objective):
+        model = base.model(theta)
+        errors, _ = stage2_errors(model, base.points, base.centre_index)
+        zero = jnp.zeros(2)
+        L2 = jax.jacfwd(lambda p: model.second(p[None], zero)[0])(zero)
+        e1 = errors.image_vs_tablet
+        return e1, errors.hand - e1 @ L2.T
+    if not isinstance(base, Stage1Objective):
+        raise TypeError(f"expected a stage objective, got {type(base).__name__}")
+    p = chain_points(base.model(theta), base.obs)
+    view = p.image_xy - p.tablet_xy
+    touch = p.tablet_xy - p.pen_offset_xy - p.hand_target_xy
+    if p.hand_z is None:
+        return view, touch
+    z1 = p.image_z - p.tablet_z
+    z2 = p.hand_z - p.tablet_z - p.touched_z
+    ok = jnp.isfinite(z2)
+    z2 = jnp.where(ok, z2, 0.0)
+    z2 = jnp.where(ok, z2 - jnp.sum(z2) / jnp.sum(ok), 0.0)
+    return (jnp.concatenate([view, (z1 - jnp.mean(z1))[:, None]], axis=1),
+            jnp.concatenate([touch, z2[:, None]], axis=1))  # fmt: skip
+
+
+def _stage_obs(base: AbstractObjective, obs: Observations | None) -> Observations:
+    if isinstance(base, Stage1Objective):
+        return base.obs
+    if obs is None:
+        raise ValueError("stage 2's noise objective needs the observations of its stage 1")
+    return obs
+
+
+def noise_objective(
+    base: AbstractObjective,
+    noise: NoiseModel,
+    model: AbstractModel | None = None,
+    obs: Observations | None = None,
+) -> NoiseObjective:
+    """``base`` (the paper's stage objective) under ``noise``.
+
+    Args:
+        base: a :class:`~handeye_jax.Stage1Objective` or :class:`~handeye_jax.Stage2Objective`.
+        noise: the noise model.
+        model: the stage-1 model the views' covariances are taken at (default: stage 1's
+            template; the covariances depend on it only through the camera's orientation).
+        obs: the observations (stage 2's; stage 1's are its own).
+    """
+    obs = _stage_obs(base, obs)
+    if model is None:
+        if not isinstance(base, Stage1Objective):
+            raise ValueError("stage 2's noise objective needs the stage-1 model")
+        model = base.template
+    heights = isinstance(base, Stage1Objective) and obs.hand_z_mm is not None
+    dims = 3 if heights else 2
+    view_count, touch_count = row_counts(obs)
+    image_var, depth_var = noise.picture_variances()
+    W = _view_whitener(model, obs, np.array([image_var, image_var, depth_var]), view_count, dims)
+    var_xy = noise.touch_variance_mm2(_mm_per_tablet_px(obs))
+    w = np.tile(1.0 / np.sqrt(var_xy * touch_count)[:, None], (1, dims))
+    if heights:
+        recorded = np.isfinite(np.asarray(obs.hand_z_mm))
+        w[:, 2] = np.where(recorded, 1.0 / np.sqrt(noise.hand_z_variance_mm2() * touch_count), 0.0)
+    return NoiseObjective(base, W, jnp.asarray(w))
+
+
+#: The tablet px size of observations that do not carry theirs: the paper's tablet, mm.
+PAPER_MM_PER_TABLET_PX = 25.4 / 267.0 * 2.0
+
+
+def _mm_per_tablet_px(obs: Observations) -> float:
+    """The tablet px size the observations' touch errors were converted with, mm."""
+    mm = obs.mm_per_tablet_px
+    return PAPER_MM_PER_TABLET_PX if mm is None else float(mm)
+
+
+# -- estimating the scales -------------------------------------------------------------------
+
+
+@fast_compile
+def whitened_jacobian(objective: NoiseObjective, theta) -> tuple[Array, Array]:
+    """The whitened residuals at ``theta`` and their Jacobian (one compiled program)."""
+    return objective.whitened(theta), jax.jacfwd(objective.whitened)(theta)
+
+
+@dataclass(frozen=True)
+class NoiseFit:
+    """The noise model a fit estimated from its residuals.
+
+    Attributes:
+        noise: the model with its scales (``view_scale``, ``touch_scale``) estimated.
+        view_redundancy, touch_redundancy: the degrees of freedom behind each scale (the
+            group's residuals less its share of the fitted parameters); a scale with fewer
+            than :data:`MIN_REDUNDANCY` keeps its previous value.
+        chi2: the sum of squares of the whitened residuals under ``noise``.
+    """
+
+    noise: NoiseModel
+    view_redundancy: float
+    touch_redundancy: float
+    chi2: float
+
+    @property
+    def dof(self) -> float:
+        """The fit's degrees of freedom: the two groups' redundancies."""
+        return self.view_redundancy + self.touch_redundancy
+
+
+def _hat_diagonal(J: np.ndarray, prior_precision: np.ndarray | None) -> np.ndarray:
+    """The diagonal of ``J (JᵀJ + P)⁺ Jᵀ``."""
+    A = J.T @ J
+    if prior_precision is not None:
+        A = A + prior_precision
+    return np.einsum("ij,jk,ik->i", J, np.linalg.pinv(A, hermitian=True), J)
+
+
+def estimate_noise(
+    objective: NoiseObjective,
+    theta: Float[Array, " d"],
+    noise: NoiseModel,
+    prior_precision: np.ndarray | None = None,
+    counts: tuple[np.ndarray, np.ndarray] | None = None,
+) -> NoiseFit:
+    """The scales of ``noise`` that the residuals of ``objective`` at its optimum ``theta``
+    give: for each group (pictures, touches), its whitened sum of squares over its redundancy
+    (the group's independent residuals less the trace of its part of the hat matrix):
+    restricted maximum likelihood, one step from the scales ``objective`` was built with.
+
+    Args:
+        objective: the stage's :class:`NoiseObjective`, built with ``noise``.
+        theta: its optimum.
+        noise: the model it was built with.
+        prior_precision: a prior's information on the free parameters (its directions are
+            not the data's to fit), or ``None``.
+        counts: the rows' ``(view_count, touch_count)`` (:func:`row_counts`; default: ones).
+    """
+    r, J = (np.asarray(a) for a in whitened_jacobian(objective, jnp.asarray(theta)))
+    n, k = np.asarray(objective.touch_whitener).shape
+    view_count, touch_count = counts if counts is not None else (np.ones(n), np.ones(n))
+    active_t = np.asarray(objective.touch_whitener) != 0
+    size_v = float(np.sum(k / view_count))
+    size_t = float(np.sum(active_t / touch_count[:, None]))
+    h = _hat_diagonal(J, prior_precision)
+    nv = n * k
+    red_v, red_t = size_v - float(h[:nv].sum()), size_t - float(h[nv:].sum())
+    ss_v, ss_t = float(np.sum(r[:nv] ** 2)), float(np.sum(r[nv:] ** 2))
+    fv = ss_v / red_v if red_v >= MIN_REDUNDANCY else 1.0
+    ft = ss_t / red_t if red_t >= MIN_REDUNDANCY else 1.0
+    new = noise.scaled(fv, ft)
+    chi2 = ss_v / max(fv, MIN_SCALE) + ss_t / max(ft, MIN_SCALE)
+    return NoiseFit(new, max(red_v, 0.0), max(red_t, 0.0), chi2)

@@ -1,0 +1,105 @@
+"""The summary a robot engineer reads (issue 26): the verdict first, the failed checks with
+their fixes, digits the σ supports, detail behind ``verbose``, the verdict alone with
+``quiet``, and one screen whatever the number of landmarks."""
+
+import re
+from dataclasses import replace
+
+import pytest
+
+from handeye_jax import format_summary
+from handeye_jax.cli import main
+from handeye_jax.report._verdict import MAX_CHECKS, with_sigma
+from tests.common import FAST, PAPER
+
+#: A screen: the default summary, and the verbose one, fit in this many lines.
+SCREEN = 60
+VERBOSE_SCREEN = 160
+
+
+@pytest.mark.parametrize(("value", "sigma", "want"), [
+    (12.34567, 0.054, "12.346 ± 0.054 mm"),
+    (-0.4623, 0.29, "-0.46 ± 0.29 mm"),
+    (193.3349, 2.7, "193.3 ± 2.7 mm"),
+    (1234.5, 37.0, "1234 ± 37 mm"),
+    (0.1234567, None, "0.123 mm"),
+])  # fmt: skip
+def test_each_number_shows_the_digits_its_sigma_supports(value, sigma, want):
+    assert with_sigma(value, sigma, "mm") == want
+
+
+def test_the_verdict_comes_first_with_what_a_robot_engineer_needs(paper_result):
+    text = format_summary(paper_result)
+    lines = text.splitlines()
+    verdict = lines.index(next(ln for ln in lines if ln.startswith("VERDICT")))
+    assert verdict <= 2
+    stage = paper_result.deploy_stage
+    assert lines[verdict].startswith(f"VERDICT  deploy stage {stage}")
+    head = "\n".join(lines[verdict:])
+    e = paper_result.diagnostics.expected
+    m = re.search(r"expected touching error: ([\d.]+) mm mean, ([\d.]+) mm 95th percentile", head)
+    assert m and float(m.group(1)) == pytest.approx(e.mean_mm, rel=0.05)
+    assert float(m.group(2)) == pytest.approx(e.p95_mm, rel=0.05) and e.p95_mm > e.mean_mm
+    for phrase in ("T_tool0_camera", "xyz  x ", "rpy  roll ", "quaternion (x, y, z, w)",
+                   "pen tip in the flange", "saved: nothing (no --out)"):  # fmt: skip
+        assert phrase in head, phrase
+    # The verdict, then the checks, then the fit in brief: no optimiser detail.
+    order = [text.index(w) for w in ("VERDICT", "CHECKS", "FIT", "time:")]
+    assert order == sorted(order)
+    for detail in ("LM polish", "DE:", "singular values", "residuals per landmark"):
+        assert detail not in text, detail
+    assert "saved: r.json" in format_summary(paper_result, saved="r.json")
+
+
+def test_each_failed_check_says_what_fixes_it(paper_result):
+    text = format_summary(paper_result)
+    checks = [ln for ln in text.splitlines() if re.match(r"  \d+\. ", ln)]
+    assert checks  # one capture, no hand heights: at least that check fails
+    assert any("one capture" in c and "handeye-jax plan" in c for c in checks)
+    for c in checks:
+        assert "→" in c or "instead" in c or "check" in c.lower(), c
+
+
+def test_verbose_adds_the_optimisers_and_quiet_prints_the_verdict_alone(paper_result):
+    text = format_summary(paper_result)
+    verbose = format_summary(paper_result, verbose=True)
+    quiet = format_summary(paper_result, quiet=True)
+    assert verbose.startswith(text.split("\ntime:")[0].rstrip())
+    for detail in ("LM polish", "DE", "singular values", "leave-one-out", "sign twin"):
+        assert detail in verbose, detail
+    assert quiet.splitlines()[: len(quiet.splitlines()) - 1] == text.splitlines()[
+        : len(quiet.splitlines()) - 1]  # the same verdict
+    assert "FIT" not in quiet and "time:" not in quiet and "1. " not in quiet
+    assert re.search(r"CHECKS FAILED  \d+ \(run without --quiet to see them\)", quiet)
+
+
+def test_the_summary_fits_on_a_screen_whatever_the_number_of_landmarks(paper_result):
+    """10,000 landmarks' residuals, held-out errors and outliers: the same few lines."""
+    n = 10_000
+    s1, s2, d = paper_result.stage1, paper_result.stage2, paper_result.diagnostics
+    many = lambda rows: tuple(replace(rows[i % len(rows)], m=i) for i in range(n))  # noqa: E731
+    loo = replace(d.stage1.loo, held_out_mm=many(d.stage1.loo.held_out_mm))
+    big = replace(
+        paper_result,
+        stage1=replace(s1, residuals_mm=many(s1.residuals_mm)),
+        stage2=replace(s2, residuals_mm=many(s2.residuals_mm)),
+        diagnostics=replace(d, stage1=replace(d.stage1, loo=loo, outliers=tuple(range(n)))),
+        warnings=paper_result.warnings * 40,
+    )  # fmt: skip
+    text, verbose = format_summary(big), format_summary(big, verbose=True)
+    assert len(text.splitlines()) <= SCREEN
+    assert len(verbose.splitlines()) <= VERBOSE_SCREEN
+    assert max(map(len, verbose.splitlines())) < 2_000  # no line lists every landmark
+    if len(paper_result.warnings) * 40 > MAX_CHECKS:
+        assert "more (the result file's warnings list them)" in text
+
+
+def test_calibrate_quiet_prints_the_verdict_and_says_nothing_was_saved(capsys):
+    args = ["calibrate", str(PAPER), *FAST]
+    assert main([*args, "--quiet"]) == 0
+    io = capsys.readouterr()
+    lines = io.out.splitlines()
+    assert lines[2].startswith("VERDICT  deploy stage ")
+    assert any(ln.startswith("  saved: nothing (no --out)") for ln in lines)
+    assert "FIT" not in io.out and "time:" not in io.out
+    assert len(lines) < 25 and io.err == ""
