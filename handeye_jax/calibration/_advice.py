@@ -206,7 +206,7 @@ def bound_warning(hit: BoundHit) -> str:
 def analyses_of(fits) -> Callable[[str], JacobianAnalysis | None]:
     """``stage -> JacobianAnalysis`` at a just-computed fit's optimum (its data objective)."""
     from ..problem import analyse_jacobian
-    from ._programs import _error_jacobian
+    from ._programs import stage_error_jacobian
 
     def analysis(stage: str) -> JacobianAnalysis | None:
         fit = getattr(fits, stage)
@@ -214,7 +214,7 @@ def analyses_of(fits) -> Callable[[str], JacobianAnalysis | None]:
             return None
         cls = type(fit.space.template)
         units = [cls.param_units[cls.param_names.index(n)] for n in fit.space.free]
-        e, J = (np.asarray(a) for a in _error_jacobian(fit.data, np.asarray(fit.x)))
+        e, J = (np.asarray(a) for a in stage_error_jacobian(fit.data, np.asarray(fit.x)))
         return analyse_jacobian(e, J, fit.space.free, units)
 
     return analysis

@@ -30,13 +30,13 @@ from .._jax import in_float64, padded_size, problem_mesh
 from ..data import Dataset
 from ..models import get_model
 from ._plans import Plan, full_plan
-from ._programs import _centres, _stage_keys
+from ._programs import rotation_centres, stage_keys
 from ._result import CalibrationResult
 from ._result_io import result_from_json, result_to_json
 from ._search import fit_stages
 from ._settings import Settings
 from ._stage import with_prior
-from ._stage_result import _finished
+from ._stage_result import finished_stage
 from ._tasks import (
     Run,
     assemble,
@@ -186,7 +186,7 @@ def _wave(problems: list[_Problem], mesh: Mesh) -> list[CalibrationResult | Inpu
     filled = problems + [problems[0]] * (padded_size(real, mesh) - real)
     live = np.arange(len(filled)) < real
     settings, progress = filled[0].run.settings, filled[0].run.progress
-    keys = [_stage_keys(np.int64(p.run.settings.seed)) for p in filled]
+    keys = [stage_keys(np.int64(p.run.settings.seed)) for p in filled]
     pads = [padded_obs(p.run) for p in filled]
     mask = None if pads[0] is None else np.stack([m for _, m, _ in pads])
     tasks1 = [stage1_task(p.run, p.plan) for p in filled]
@@ -222,7 +222,7 @@ def _wave(problems: list[_Problem], mesh: Mesh) -> list[CalibrationResult | Inpu
         if isinstance(stages1[j], InputError) or isinstance(stage2, InputError):
             out.append(stages1[j] if isinstance(stages1[j], InputError) else stage2)
             continue
-        centres = np.asarray(_centres(fit2.model(), points[j], p.run.obs.centre_index))
+        centres = np.asarray(rotation_centres(fit2.model(), points[j], p.run.obs.centre_index))
         out.append(assemble(p.dataset, p.plan, p.run, Stages(fits1[j], fit2),
                             Stages(stages1[j], stage2), centres, share))  # fmt: skip
     return out
@@ -230,7 +230,7 @@ def _wave(problems: list[_Problem], mesh: Mesh) -> list[CalibrationResult | Inpu
 
 def _finish(fit, name: str, problem: _Problem, noise):
     try:
-        return replace(_finished(fit, name, problem.dataset.source), noise=noise)
+        return replace(finished_stage(fit, name, problem.dataset.source), noise=noise)
     except InputError as e:
         return e
 

@@ -19,8 +19,8 @@ from ..problem import (
     put,
 )
 from ._likelihood import ml_objective
-from ._plans import _spaces_of
-from ._programs import _points
+from ._plans import spaces_of
+from ._programs import points_of
 from ._result import CalibrationResult
 from ._stage import Population, with_prior
 
@@ -58,7 +58,7 @@ def fitted_stages(result: CalibrationResult, search: dict | None = None) -> Stag
         xs = Stages(result.fits.stage1.x, result.fits.stage2.x)
         populations = Stages(result.fits.stage1.population, result.fits.stage2.population)
     else:
-        spaces = _spaces_of(result, search or {})
+        spaces = spaces_of(result, search or {})
         xs = Stages(*(np.array([s.params[nm] for nm in sp.free])
                       for sp, s in ((spaces.stage1, result.stage1),
                                     (spaces.stage2, result.stage2))))  # fmt: skip
@@ -69,7 +69,7 @@ def fitted_stages(result: CalibrationResult, search: dict | None = None) -> Stag
     sp1, sp2 = spaces.stage1, spaces.stage2
     model1 = put(sp1.template, sp1.free, jnp.asarray(xs.stage1))
     data1 = Stage1Objective(sp1.template, obs, sp1.free)
-    points = _points(model1, obs)
+    points = points_of(model1, obs)
     data2 = Stage2Objective(sp2.template, points, obs.centre_index, sp2.free)
     if result.stage1.noise is not None and result.stage2.noise is not None:
         # The maximum-likelihood fit's objectives, with the noise each stage ended with.

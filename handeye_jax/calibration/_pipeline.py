@@ -20,16 +20,16 @@ import numpy as np
 from .._jax import in_float64, problem_mesh
 from ..data import Dataset
 from ..models import AbstractCorrection, AbstractModel, AffinePair, get_model
-from ..problem import ParameterSpace
+from ..problem import NoiseModel, ParameterSpace
 from ._batch import fit_batch
 from ._plans import Plan, full_plan, recalibration_plan
-from ._programs import _centres, _stage_keys
+from ._programs import rotation_centres, stage_keys
 from ._result import CalibrationResult, StageResult
 from ._rig_change import check_rig
 from ._search import fit_stages
 from ._settings import Settings
 from ._stage import StageFit
-from ._stage_result import _finished
+from ._stage_result import finished_stage
 from ._tasks import Run, likelihood, padded_obs, stage2_task
 
 
@@ -75,8 +75,8 @@ def fit_correction_stage(
                       mask=None if pad is None else pad[1][None],
                       mesh=problem_mesh(jax.devices()[:1]), progress=run.progress)[0]  # fmt: skip
     fit2, noise2 = likelihood(fit2, run, noise, model, estimate=estimate)
-    stage2 = replace(_finished(fit2, "stage 2", run.source), noise=noise2)
-    return fit2, stage2, np.asarray(_centres(fit2.model(), points, run.obs.centre_index))
+    stage2 = replace(finished_stage(fit2, "stage 2", run.source), noise=noise2)
+    return fit2, stage2, np.asarray(rotation_centres(fit2.model(), points, run.obs.centre_index))
 
 
 def calibrate(
@@ -160,7 +160,7 @@ def fit_correction(
     Returns:
         The fitted correction and its centres of rotation (rows: A1, A2), mm.
     """
-    _, keys2 = _stage_keys(np.int64(settings.seed))
+    _, keys2 = stage_keys(np.int64(settings.seed))
     space2 = ParameterSpace.all_free(AffinePair.nominal(), dataset.search)
     run = Run(dataset.observations(), settings, source=dataset.source)
     fit2, _, centres = fit_correction_stage(run, model, space2, space2.free, keys2)

@@ -215,7 +215,7 @@ def _prior_of(report: PriorReport | None) -> Prior | None:
                  report.data_sigma_mm, report.untested)  # fmt: skip
 
 
-def _spaces_of(result: CalibrationResult, search: dict) -> Stages[ParameterSpace]:
+def spaces_of(result: CalibrationResult, search: dict) -> Stages[ParameterSpace]:
     """The stages' parameter spaces of a result read from a file (its boxes: the ranges it
     searched, or for an older result the preset's with ``search``, widened to hold the fit
     and its priors)."""

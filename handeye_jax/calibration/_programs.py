@@ -20,20 +20,20 @@ from ..problem import (
 
 
 @fast_compile
-def _report(objective: AbstractObjective, x):
+def stage_report(objective: AbstractObjective, x):
     # Every evaluation of a stage's objective outside the optimisers goes through this one
     # program, so each stage compiles one (not one for F and one for the residuals).
     errors = errors_of(objective, x)
     return errors, fitness(errors), norms(errors), objective(x), objective.terms(x)
 
 
-def _value(objective: AbstractObjective, x) -> float:
+def stage_value(objective: AbstractObjective, x) -> float:
     """The value the optimisers minimise at ``x`` (the paper's F without loss or prior)."""
-    return float(_report(objective, np.asarray(x))[3])
+    return float(stage_report(objective, np.asarray(x))[3])
 
 
 @fast_compile
-def _stage_keys(seed):
+def stage_keys(seed):
     # One small program, where PRNGKey, split and unpacking would compile several. Each stage
     # gets the DE's key and, folded from it, the key of its LM restarts.
     key1, key2 = jax.random.split(jax.random.PRNGKey(seed))
@@ -44,17 +44,17 @@ _lhs = fast_compile(latin_hypercube)
 
 
 @fast_compile
-def _points(model, obs):
+def points_of(model, obs):
     return chain_points(model, obs)
 
 
 @fast_compile
-def _centres(correction, points, centre_index: int):
+def rotation_centres(correction, points, centre_index: int):
     return stage2_errors(correction, points, centre_index)[1]
 
 
 @fast_compile
-def _error_jacobian(objective, x):
+def stage_error_jacobian(objective, x):
     return error_jacobian(objective, x)
 
 
@@ -66,18 +66,18 @@ def _error_jacobian(objective, x):
 @fast_compile
 def _reports(block):
     objectives, x = block
-    return jax.lax.map(lambda a: _report.__wrapped__(*a), (objectives, x))
+    return jax.lax.map(lambda a: stage_report.__wrapped__(*a), (objectives, x))
 
 
 @fast_compile
 def _reports_each(block):
     objectives, x = block  # x: (b, s, d), each point evaluated as a single run evaluates it
-    return jax.lax.map(lambda a: jax.lax.map(lambda x: _report.__wrapped__(a[0], x), a[1]),
+    return jax.lax.map(lambda a: jax.lax.map(lambda x: stage_report.__wrapped__(a[0], x), a[1]),
                        (objectives, x))  # fmt: skip
 
 
-def _values_many(objectives: AbstractObjective, x: np.ndarray, mesh) -> np.ndarray:
-    """:func:`_value` of each problem (stacked ``objectives``) at its point ``(b, d)`` or at
+def stage_values_many(objectives: AbstractObjective, x: np.ndarray, mesh) -> np.ndarray:
+    """:func:`stage_value` of each problem (stacked ``objectives``) at its point ``(b, d)`` or at
     each of its points ``(b, s, d)``."""
     mesh = problem_mesh() if mesh is None else mesh
     x = np.asarray(x, float)
@@ -91,7 +91,7 @@ def _lhs_block(block, n):
     return jax.lax.map(lambda a: latin_hypercube(a[0], n, a[1], a[2]), (keys, lower, upper))
 
 
-def _lhs_many(keys, n: int, lower: np.ndarray, upper: np.ndarray, mesh) -> np.ndarray:
+def lhs_many(keys, n: int, lower: np.ndarray, upper: np.ndarray, mesh) -> np.ndarray:
     """:func:`_lhs` of each problem: ``n`` points of its box ``(b, n, d)``."""
     mesh = problem_mesh() if mesh is None else mesh
     block = Blocks.of((np.asarray(keys), lower, upper), mesh, LOOPED)

@@ -34,7 +34,7 @@ from ..problem import (
     analyse_jacobian,
     closed_form_estimate,
 )
-from ._programs import _error_jacobian, _report
+from ._programs import stage_error_jacobian, stage_report
 
 #: Each range holds the estimates plus this many standard deviations on each side.
 BOX_SIGMAS = 4.0
@@ -181,11 +181,11 @@ def estimate_box(
     best = int(order[0])
     keep = [i for i in order if values[i] <= KEEP_F_FACTOR * values[best] + 1e-9]
     hull = np.vstack([X[keep], np.array([ends[i].x for i in keep])])
-    e, J = (np.asarray(a) for a in _error_jacobian(objective, np.asarray(ends[best].x)))
+    e, J = (np.asarray(a) for a in stage_error_jacobian(objective, np.asarray(ends[best].x)))
     sigma = analyse_jacobian(e, J, names, units).std
     half = _half_widths(model_cls, sigma)
     lower, upper = hull.min(axis=0) - half, hull.max(axis=0) + half
-    F = float(_report(objective, np.asarray(ends[best].x))[1][0])  # the paper's F, x-y
+    F = float(stage_report(objective, np.asarray(ends[best].x))[1][0])  # the paper's F, x-y
     info = dict(estimate=dict(zip(names, (float(v) for v in X[0]), strict=True)),
                 estimate_F_mm=F, sigma=dict(sigma), candidates=len(keep),
                 frames_F_mm=_frames_F(model_cls, obs, estimate))  # fmt: skip
@@ -199,7 +199,7 @@ def _frames_F(model_cls, obs: Observations, estimate: ClosedFormEstimate) -> flo
     if model_cls is HTMModel:
         return None
     general = Stage1Objective(HTMModel.nominal(), obs)
-    values = [float(_report(general, np.array([c.params(HTMModel)[n] for n in
+    values = [float(stage_report(general, np.array([c.params(HTMModel)[n] for n in
                                                 HTMModel.param_names]))[1][0])
               for c in estimate.candidates]  # fmt: skip
     return min(values)

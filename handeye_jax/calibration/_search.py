@@ -31,18 +31,18 @@ from ..optim import (
 )
 from ..problem import AbstractObjective, MaskedObjective
 from ._payloads import PolishSummary, RestartSummary
-from ._programs import _lhs_many, _values_many
+from ._programs import lhs_many, stage_values_many
 from ._settings import Settings
 from ._stage import (
     BETTER_BY_MM,
     MODE_PARAM_FRACTION,
     POLISH,
     RESTART_STEPS,
+    DESearch,
     Population,
     StageFit,
     StageTask,
-    _de_summary,
-    _Search,
+    de_summary,
     with_prior,
 )
 from ._starts import REFIT_STARTS
@@ -159,8 +159,8 @@ def fit_stages(
         x = np.array([t.space.embed(search, f.de.x, b) for t, f, b in zip(tasks, found, bases,
                                                                             strict=True)])
         label = "DE"
-    best = _Best(x, _values_many(stack(objective), x, mesh), [label] * len(tasks))
-    summaries = [_de_summary(search, None if found is None else found[i], float(best.value[i]))
+    best = _Best(x, stage_values_many(stack(objective), x, mesh), [label] * len(tasks))
+    summaries = [de_summary(search, None if found is None else found[i], float(best.value[i]))
                  for i in range(len(tasks))]  # fmt: skip
     t1 = time.perf_counter()
     polish = [PolishSummary(ran=settings.polish, accepted=False, F_before_mm=float(v))
@@ -185,7 +185,7 @@ def fit_stages(
 
 
 def _de_searches(batch: _Batch, builds, search, settings: Settings, keys,
-                 progress: bool) -> list[_Search] | None:  # fmt: skip
+                 progress: bool) -> list[DESearch] | None:  # fmt: skip
     """:func:`~._stage._de_search` of every problem, as one DE run."""
     if not search:
         return None
@@ -203,7 +203,7 @@ def _de_searches(batch: _Batch, builds, search, settings: Settings, keys,
         np.array([s.upper for s in subs]), keys=np.stack([np.asarray(k) for k in keys]),
         mesh=batch.mesh, progress=progress, desc=batch.tasks[0].label,
     )  # fmt: skip
-    return [_Search(s, o, b, take(de, i)) for i, (s, o, b) in
+    return [DESearch(s, o, b, take(de, i)) for i, (s, o, b) in
             enumerate(zip(subs, objectives, bases, strict=True))]  # fmt: skip
 
 
@@ -237,13 +237,13 @@ def _polish(batch: _Batch, objectives, x0: np.ndarray, run: np.ndarray):
                          mesh=batch.mesh)  # fmt: skip
 
 
-def _restarts(batch: _Batch, found: list[_Search], keys, settings: Settings,
+def _restarts(batch: _Batch, found: list[DESearch], keys, settings: Settings,
               best: _Best) -> tuple[_Best, list[RestartSummary]]:  # fmt: skip
     """:func:`~._stage._restarts` of every problem."""
     restarts = settings.restarts
     subs = [f.space for f in found]
     lower, upper = np.array([s.lower for s in subs]), np.array([s.upper for s in subs])
-    points = _lhs_many(np.stack([np.asarray(k) for k in keys]), restarts, lower, upper,
+    points = lhs_many(np.stack([np.asarray(k) for k in keys]), restarts, lower, upper,
                        batch.mesh)  # fmt: skip
     labels, ks = [], []
     for i, f in enumerate(found):
@@ -319,7 +319,7 @@ def _best_end(batch: _Batch, ends: np.ndarray, labels: list[list[str]], best: _B
               narrowed: bool) -> tuple[_Best, np.ndarray, np.ndarray]:  # fmt: skip
     """:func:`~._stage._best_end` of every problem: the new bests, every end point's value and
     the lowest one's value after its polish."""
-    values = _values_many(stack(batch.objective), ends, batch.mesh)
+    values = stage_values_many(stack(batch.objective), ends, batch.mesh)
     values = np.where(np.isfinite(values), values, np.inf)
     i = np.argmin(values, axis=1)
     rows = np.arange(len(i))

@@ -152,7 +152,7 @@ class StageTask:
 
 
 @dataclass(frozen=True)
-class _Search:
+class DESearch:
     """What DE searched: the subspace (all free parameters, or the task's ``search``), its
     objective (prior conditioned on the others) and the start of the others."""
 
@@ -162,7 +162,7 @@ class _Search:
     de: DESolution
 
 
-def _de_summary(search, found: _Search | None, value: float) -> tuple[DESummary, Convergence]:
+def de_summary(search, found: DESearch | None, value: float) -> tuple[DESummary, Convergence]:
     """The result's ``de`` summary and ``convergence`` history of a stage's DE."""
     if found is None:
         return DESummary(searched=tuple(search)), Convergence()

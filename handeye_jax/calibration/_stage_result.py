@@ -23,7 +23,7 @@ from ._payloads import (
     Residual,
     SignTwin,
 )
-from ._programs import _error_jacobian, _report, _value
+from ._programs import stage_error_jacobian, stage_report, stage_value
 from ._result import StageResult
 from ._stage import StageFit
 from ._warnings import PULL_FLAG
@@ -52,10 +52,10 @@ def _prior_report(stage: StageFit) -> PriorReport | None:
         P_post = np.asarray(fisher_information(noise_part(stage.objective),
                                                jnp.asarray(stage.x))) + P_full  # fmt: skip
     elif prior.data_sigma_mm is not None:
-        e, J = (np.asarray(a) for a in _error_jacobian(stage.data, stage.x))
+        e, J = (np.asarray(a) for a in stage_error_jacobian(stage.data, stage.x))
         P_post = J.T @ J / prior.data_sigma_mm**2 + P_full
     else:
-        e, J = (np.asarray(a) for a in _error_jacobian(stage.data, stage.x))
+        e, J = (np.asarray(a) for a in stage_error_jacobian(stage.data, stage.x))
         P_post = np.asarray(analyse_jacobian(e, J, space.free, ["1"] * space.d, None,
                                              P_full).precision)  # fmt: skip
     post = std_of_precision(P_post, space.free)
@@ -122,7 +122,7 @@ def _followers(M: np.ndarray, d: np.ndarray, pulls: np.ndarray,
 
 
 def _stage_result(stage: StageFit, prior_report: PriorReport | None = None) -> StageResult:
-    errors, (F, f1, f2), (n1, n2), value, terms = _report(stage.objective, stage.x)
+    errors, (F, f1, f2), (n1, n2), value, terms = stage_report(stage.objective, stage.x)
     F, f1, f2 = float(F), float(f1), float(f2)
     n1, n2 = np.asarray(n1), np.asarray(n2)
     e1, e2 = np.asarray(errors.image_vs_tablet), np.asarray(errors.hand)
@@ -153,7 +153,7 @@ def _check_finite(stage: StageResult, name: str, source) -> None:
         )
 
 
-def _sign_twin(stage: StageFit) -> SignTwin | None:
+def sign_twin_of(stage: StageFit) -> SignTwin | None:
     """The sign twin of a stage's fit, if its model has one and all its parameters are free."""
     cls = type(stage.space.template)
     names = [n for n in cls.sign_twin if n in stage.space.free]
@@ -164,13 +164,13 @@ def _sign_twin(stage: StageFit) -> SignTwin | None:
     flipped[idx] = -flipped[idx]
     return SignTwin(
         params=tuple(names), found={n: float(stage.x[i]) for n, i in zip(names, idx, strict=True)},
-        F_found_mm=_value(stage.data, stage.x), F_flipped_mm=_value(stage.data, flipped),
+        F_found_mm=stage_value(stage.data, stage.x), F_flipped_mm=stage_value(stage.data, flipped),
         note="flipping the signs of " + " and ".join(names) + " together mirrors the tablet "
         "through its own plane and gives the same F",
     )  # fmt: skip
 
 
-def _finished(stage: StageFit, name: str, source: str | Path | None) -> StageResult:
+def finished_stage(stage: StageFit, name: str, source: str | Path | None) -> StageResult:
     """A stage's fit as numbers, once it is finite (``source`` names the data if not)."""
     out = _stage_result(stage, _prior_report(stage))
     _check_finite(out, name, source)

@@ -34,11 +34,11 @@ from ._advice import AdviceContext, analyses_of
 from ._likelihood import refine_ml
 from ._payloads import NO_EVIDENCE, Recalibration
 from ._plans import Plan
-from ._programs import _points
+from ._programs import points_of
 from ._result import CalibrationResult, StageResult
 from ._settings import Settings
 from ._stage import StageFit, StageTask
-from ._stage_result import _sign_twin
+from ._stage_result import sign_twin_of
 from ._starts import refit_starts
 from ._warnings import all_warnings, check_determined
 
@@ -175,7 +175,7 @@ def assemble(
         model=fit1.model(), correction=fit2.model(), rig=obs.rig, centres_mm=np.asarray(centres),
         centre_index=obs.centre_index, stage1=stages.stage1, stage2=stages.stage2,
         settings=run.settings, data=dataset, dataset_name=dataset.name, timings_s=timings,
-        sign_twin=_sign_twin(fit1),
+        sign_twin=sign_twin_of(fit1),
         warnings=all_warnings(n, spaces, stages, dataset.source,
                               advice=AdviceContext(plan.search, obs, analyses_of(fits))),
         recalibration=recal, fits=fits, heights=height_summary(fit1.model(), obs),
@@ -191,7 +191,7 @@ def stage2_task(
     ``rows``, the task's objective is on the points of those rows: a batch pads them)."""
     obs, settings = run.obs, run.settings
     n = obs.n_landmarks
-    points = _points(model, obs)
+    points = points_of(model, obs)
     on = points if rows is None else jax.tree.map(lambda a: np.asarray(a)[rows], points)
     with_loss = _loss_wrapper(settings, n if rows is None else len(rows))
     subset = None

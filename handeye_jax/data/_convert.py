@@ -13,7 +13,7 @@ from .._core import (
     read_text,
 )
 from ._dataset import Dataset
-from ._read import _parse_text, dataset_from_document
+from ._read import dataset_from_document, parse_dataset_text
 from ._write import backup_path, dataset_to_toml
 
 
@@ -49,7 +49,7 @@ def convert_to_v2(
     """
     path = Path(path)
     out = convert_path(path) if out is None else Path(out)
-    ds = _parse_text(read_text(path, MAX_DATASET_BYTES)[1], path)
+    ds = parse_dataset_text(read_text(path, MAX_DATASET_BYTES)[1], path)
     text = dataset_to_toml(ds, version=2)
     if dataset_from_document(tomllib.loads(text), out) != ds:  # never a lossy conversion
         raise InputError(path, "", "the version-2 text does not read back equal; nothing written")

@@ -18,7 +18,7 @@ from .._core import (
     read_text,
 )
 from ._dataset import Dataset
-from ._read import _parse_text
+from ._read import parse_dataset_text
 from ._write import backup_path, dataset_to_document
 
 _BOM = b"\xef\xbb\xbf"
@@ -128,7 +128,7 @@ def update_dataset(
     """
     path = Path(path)
     raw, text = read_text(path, MAX_DATASET_BYTES)
-    current = _parse_text(text, path)
+    current = parse_dataset_text(text, path)
     ds = new(current) if callable(new) else new
     if ds == current:
         return None
@@ -137,7 +137,7 @@ def update_dataset(
     except (tomlkit.exceptions.TOMLKitError, KeyError, TypeError, ValueError) as e:
         why = f"cannot edit the file in place ({e}); nothing written"
         raise InputError(path, "", why) from None
-    check = _parse_text(edited, path, " after editing in place; nothing written")
+    check = parse_dataset_text(edited, path, " after editing in place; nothing written")
     if check != ds:
         raise InputError(path, "", "editing in place does not read back equal; nothing written")
     data = (_BOM if raw.startswith(_BOM) else b"") + edited.encode("utf-8")

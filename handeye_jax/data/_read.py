@@ -280,9 +280,9 @@ def load_dataset(path: str | Path) -> Dataset:
     (:data:`~handeye_jax._core.MAX_DATASET_BYTES`) with at most 10,000 landmarks.
     """
     path = Path(path)
-    return _parse_text(read_text(path, MAX_DATASET_BYTES)[1], path)
+    return parse_dataset_text(read_text(path, MAX_DATASET_BYTES)[1], path)
 
 
-def _parse_text(text: str, path: Path, context: str = "") -> Dataset:
+def parse_dataset_text(text: str, path: Path, context: str = "") -> Dataset:
     """Validate a dataset's TOML text; ``context`` is added to a TOML syntax error."""
     return dataset_from_document(parse_toml(text, path, context), path)

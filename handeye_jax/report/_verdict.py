@@ -46,7 +46,7 @@ def some(indices: Sequence[int], most: int = 10) -> str:
     return shown + (f" and {len(indices) - most} more" if len(indices) > most else "")
 
 
-def _mm(value: float) -> str:
+def mm_text(value: float) -> str:
     """An error length, mm, to two significant digits."""
     return f"{_sig(value, 2)} mm"
 
@@ -62,8 +62,8 @@ def verdict_lines(result: CalibrationResult, saved: str | None) -> list[str]:
         lines.append(f"  why: {result.deploy.reason}")
     expected = None if d is None else d.expected
     if expected is not None:
-        lines.append(f"  expected touching error: {_mm(expected.mean_mm)} mean, "
-                     f"{_mm(expected.p95_mm)} 95th percentile (hand-command x-y error for "
+        lines.append(f"  expected touching error: {mm_text(expected.mean_mm)} mean, "
+                     f"{mm_text(expected.p95_mm)} 95th percentile (hand-command x-y error for "
                      f"{expected.where}; from the fit's covariance and noise model)")  # fmt: skip
     else:
         lines.append("  expected touching error: not computed (" + _no_expected(result) + ")")
