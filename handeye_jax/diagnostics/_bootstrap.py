@@ -101,9 +101,8 @@ def resamples_of(dataset: Dataset, count: int, seed: int) -> list[Dataset]:
 def _resampled_words(dataset: Dataset) -> str:
     t, caps = dataset.n_touches, len(dataset.captures)
     if caps == 1:
-        return f"the {t} touches, with replacement (each with its view)"
-    return (f"the {t} touches and each of the {caps} pictures' views, with replacement "
-            "(capture poses kept)")  # fmt: skip
+        return f"the {t} touches, each with its view"
+    return f"the {t} touches and each of the {caps} pictures' views, capture poses kept"
 
 
 @in_float64

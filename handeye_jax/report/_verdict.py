@@ -94,14 +94,16 @@ def bootstrap_lines(boot: Bootstrap) -> list[str]:
     """The bootstrap in two lines: how far commands move between refits on resamples of the
     data (mm), beside the covariance's prediction; and whether that is small against the
     expected touching error (:data:`SMALL_SPREAD`)."""
+    fitted = (f"{boot.fitted}" if boot.fitted == boot.resamples
+              else f"{boot.fitted} of {boot.resamples}")  # fmt: skip
     line = (f"  repeatability: commands move {mm_text(boot.spread_mean_mm)} mean, "
-            f"{mm_text(boot.spread_p95_mm)} 95th percentile between refits (bootstrap: "
-            f"{boot.fitted} of {boot.resamples} resamples of {boot.resampled} refitted, stage "
-            f"{boot.stage}, over the calibration's views")  # fmt: skip
+            f"{mm_text(boot.spread_p95_mm)} 95th percentile between refits on {fitted} "
+            f"resamples of the data (bootstrap of {boot.resampled}; stage {boot.stage}, "
+            "the calibration's views)")  # fmt: skip
     if boot.predicted_mean_mm is not None:
         line += (f"; the covariance predicts {mm_text(boot.predicted_mean_mm)} mean, "
                  f"{mm_text(boot.predicted_p95_mm)} 95th percentile")  # fmt: skip
-    lines = [line + ")"]
+    lines = [line]
     touch = boot.touching_mean_mm
     if touch is None or touch <= 0:
         lines.append("    → no expected touching error to compare it with (a loss other "
