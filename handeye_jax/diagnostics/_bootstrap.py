@@ -52,7 +52,7 @@ from ..calibration import (
     noise_part,
     prior_information,
 )
-from ..data import Capture, Dataset
+from ..data import Capture, Dataset, centre_landmark
 from ..models import hand_command
 from ..problem import Targets, error_statistics, get_noise_model, uncertainty, workspace_targets
 from ._verdict import VERDICT_ANGLES, stage_noise
@@ -72,6 +72,13 @@ def resample(dataset: Dataset, rng: np.random.Generator) -> Dataset:
     replacement, and with several captures each capture's views too; a valid dataset of the
     same landmarks, camera and capture poses (version 2)."""
     draw = np.sort(rng.integers(0, dataset.n_touches, dataset.n_touches))
+    # The touches nearest the centre landmark first: the centre of rotation's row (the first
+    # row of the landmark drawn nearest it) is then the first, in every resample, so they
+    # share the batch's compiled programs (the row is part of a program's structure).
+    tablet = dataset.tablet_px
+    near = np.linalg.norm(tablet[dataset.touch_landmark[draw]]
+                          - tablet[centre_landmark(tablet)], axis=1)  # fmt: skip
+    draw = draw[np.lexsort((draw, near))]
     captures = list(dataset.captures)
     if len(captures) > 1:
         captures = []
