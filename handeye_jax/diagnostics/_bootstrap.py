@@ -176,7 +176,7 @@ def bootstrap(
     error_map = None
     if grid is not None:
         per_point = pieces[1].mean(axis=0).reshape(MAP_POINTS, MAP_POINTS, len(angles))
-        rise_pieces = pieces[2:]
+        rise_pieces = pieces[-len(rises):]
         mm = data.mm_per_tablet_px
         error_map = ErrorMap(
             grid_x_mm=tuple(grid[1].tolist()), grid_y_mm=tuple(grid[2].tolist()),
