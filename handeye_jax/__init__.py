@@ -167,6 +167,9 @@ _EXPORTS = {
     "with_heights": "robot",
     "tool_poses": "twin",
     "REALSENSE_LIKE": "twin",
+    "bootstrap": "diagnostics",
+    "Bootstrap": "calibration",
+    "ErrorMap": "calibration",
 }
 # What a robot PC may lack; Predictor and Frames need none of it.
 _JAX_STACK = ("jax", "jaxlib", "equinox", "optimistix", "jaxtyping", "lineax", "jaxlie")
@@ -201,10 +204,12 @@ if TYPE_CHECKING:
     from ._jax._xla import store_programs, vectorise_small_loops
     from .calibration._batch import calibrate_batch
     from .calibration._payloads import (
+        Bootstrap,
         ConventionCheck,
         Convergence,
         DESummary,
         Diagnostics,
+        ErrorMap,
         FitWarning,
         LeaveOneOut,
         Mode,
@@ -238,6 +243,7 @@ if TYPE_CHECKING:
     from .data._poses import ToolPose, read_poses_csv, tool_pose_of_hand
     from .data._read import load_dataset
     from .data._write import dataset_to_toml, save_dataset
+    from .diagnostics._bootstrap import bootstrap
     from .diagnostics._diagnose import diagnose
     from .diagnostics._scope import capture_scope
     from .models import (
@@ -455,4 +461,7 @@ __all__ = [
     "with_heights",
     "tool_poses",
     "REALSENSE_LIKE",
+    "bootstrap",
+    "Bootstrap",
+    "ErrorMap",
 ]

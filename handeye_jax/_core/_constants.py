@@ -7,6 +7,10 @@ importing JAX, OpenCV or matplotlib (the modules that use them do).
 #: The figures ``report`` draws, each in every one of the formats.
 REPORT_FIGURES = ("fig3_landmarks", "chains_stage1", "chains_stage2", "residuals", "convergence",
                   "loo")  # fmt: skip
+#: The figure ``report`` draws only for a result with a bootstrap (``calibrate --bootstrap``).
+BOOTSTRAP_FIGURE = "workspace_error_map"
+#: The most resamples ``calibrate --bootstrap`` refits (each a whole calibration).
+MAX_BOOTSTRAP = 10_000
 REPORT_FORMATS = ("png", "svg")
 #: The files :func:`~handeye_jax.write_twin` writes.
 TWIN_FILES = ("dataset.toml", "truth.json", "heldout.csv", "capture.png", "depth.png")

@@ -16,10 +16,11 @@ _EXPORTS = {
     "_batch": ("calibrate_batch", "fit_batch", "WAVE"),
     "_fitted": ("fitted_stages", "FittedStage"),
     "_payloads": (
-        "Ambiguity", "BoundHit", "Convention", "ConventionCheck", "ConventionFit", "Convergence",
-        "Deployment", "DESummary", "Diagnostics", "ExpectedError", "FitWarning", "HeldOut",
-        "LeaveOneOut", "LossInfo", "Mode", "Mount", "NO_EVIDENCE", "PolishSummary", "Pose",
-        "PriorReport", "Pull", "Recalibration", "Residual", "Scope", "SignTwin", "StageDiagnostics",
+        "Ambiguity", "Bootstrap", "BoundHit", "Convention", "ConventionCheck", "ConventionFit",
+        "Convergence", "Deployment", "DESummary", "Diagnostics", "ErrorMap", "ExpectedError",
+        "FitWarning", "HeldOut", "LeaveOneOut", "LossInfo", "Mode", "Mount", "NO_EVIDENCE",
+        "PolishSummary", "Pose", "PriorReport", "Pull", "Recalibration", "Residual", "Scope",
+        "SignTwin", "StageDiagnostics",
     ),
     "_likelihood": (
         "is_ml", "ml_objective", "noise_part", "polish", "prior_information", "refine_ml",

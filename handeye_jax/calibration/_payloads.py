@@ -386,6 +386,74 @@ class ExpectedError:
 
 
 @dataclass(frozen=True)
+class ErrorMap:
+    """The bootstrap's command spread over the workspace, for the stage to deploy, mm.
+
+    Attributes:
+        grid_x_mm, grid_y_mm: the map's axes, tablet frame (on the display), mm.
+        spread_mm: the mean spread at each grid point, ``(len(grid_y_mm), len(grid_x_mm))``
+            rows by y: the mean distance of a resample's command from the resamples' mean,
+            over the resamples and the hand angles, mm.
+        landmarks_mm: the landmarks drawn, tablet frame, mm ``(n, 2)``.
+        capture_z_mm: the hand's height at the first capture (the map's pictures), mm.
+        rises_mm: capture heights above the first capture's, mm.
+        height_mean_mm, height_p95_mm: the spread's mean and 95th percentile over the
+            landmarks seen from each of those heights, mm.
+        height_predicted_mm: the covariance's prediction of the mean there, mm, or ``None``.
+    """
+
+    grid_x_mm: tuple[float, ...]
+    grid_y_mm: tuple[float, ...]
+    spread_mm: tuple[tuple[float, ...], ...]
+    landmarks_mm: tuple[tuple[float, float], ...]
+    capture_z_mm: float
+    rises_mm: tuple[float, ...]
+    height_mean_mm: tuple[float, ...]
+    height_p95_mm: tuple[float, ...]
+    height_predicted_mm: tuple[float, ...] | None = spec(omit="none", default=None)
+
+
+@dataclass(frozen=True)
+class Bootstrap:
+    """Repeatability: the result refitted on resamples of its own data (``calibrate
+    --bootstrap B``), and how far the hand commands of the stage to deploy move between them.
+
+    Attributes:
+        resamples: the resamples drawn (B).
+        fitted: how many of them were fitted (the others could not be, e.g. too few distinct
+            landmarks left to determine the parameters).
+        seed: the seed of the resampling (each refit uses the result's settings and seed).
+        stage: the stage whose commands are compared (the result's stage to deploy).
+        resampled: what a resample draws, in words.
+        spread_mean_mm, spread_p95_mm: the mean and 95th percentile, over the resamples and
+            the targets, of the distance of a resample's hand command from the resamples'
+            mean command, mm.
+        targets: how many targets (views of the landmarks, each at several hand angles).
+        predicted_mean_mm, predicted_p95_mm: the same statistics of the command error the
+            fit's covariance predicts (the fit's part alone, targets measured exactly), mm;
+            ``None`` without a noise model (a loss other than ``ml``).
+        touching_mean_mm: the expected touching error for the same targets (the fit's part and
+            each target's own measurement), mm; ``None`` likewise.
+        seconds: the wall time of the refits and the statistics, s.
+        map: the spread over the tablet area and over capture heights, or ``None``.
+    """
+
+    resamples: int = spec(check=count)
+    fitted: int = spec(check=count)
+    seed: int = spec()
+    stage: Literal[1, 2] = spec()
+    resampled: str = spec()
+    spread_mean_mm: float = spec(check=length)
+    spread_p95_mm: float = spec(check=length)
+    targets: int = spec(check=count)
+    predicted_mean_mm: float | None = spec(check=length, omit="none", default=None)
+    predicted_p95_mm: float | None = spec(check=length, omit="none", default=None)
+    touching_mean_mm: float | None = spec(check=length, omit="none", default=None)
+    seconds: float = spec(check=length, default=0.0)
+    map: ErrorMap | None = spec(omit="none", default=None)
+
+
+@dataclass(frozen=True)
 class Ambiguity:
     """A fit the data cannot tell from the result's: what it is, how it differs, how far its
     hand commands are from the result's elsewhere, and what would tell them apart.
@@ -457,7 +525,8 @@ class Diagnostics:
     touching error to expect from the stage to deploy, the fits the data cannot tell from
     the result's, the camera and pen on the flange, and the stage-1 parameters whose σ is not
     their error (``weak_params``: in a weak direction or an alternative fit; no σ is given
-    for them)."""
+    for them); and the repeatability over resamples of the data (``bootstrap``, when asked
+    for: :func:`handeye_jax.bootstrap`)."""
 
     loss: LossInfo | None = spec(omit="none", default=None)
     outlier_threshold_mm: float | None = spec(omit="none", default=None)
@@ -469,3 +538,4 @@ class Diagnostics:
     ambiguities: tuple[Ambiguity, ...] = ()
     mount: Mount | None = spec(omit="none", default=None)
     weak_params: tuple[str, ...] = ()
+    bootstrap: Bootstrap | None = spec(omit="none", default=None)

@@ -15,6 +15,7 @@ from ._types import (
     output_path,
     population,
     positive_mm,
+    resamples,
     restarts,
     seed,
 )
@@ -34,6 +35,9 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         raise InputError(None, "--refit", "name what changed: camera, tablet, pen or parameters")
     if args.accept_rig_change and not args.prior:
         raise InputError(None, "--accept-rig-change", "needs --prior OLD.result.json")
+    if args.bootstrap and args.prior:
+        raise InputError(None, "--bootstrap", "not with --prior: a recalibration's prior is not "
+                         "resampled; bootstrap the calibration it came from")  # fmt: skip
     previous = load_result(args.prior) if args.prior else None
     model = args.model or (previous.model_name if previous else Settings().model)
     if previous is not None and model != previous.model_name:
@@ -60,6 +64,10 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
                              accept_rig_change=args.accept_rig_change)  # fmt: skip
     if not args.no_diagnostics:
         result = diagnose(result, search=dataset.search)
+    if args.bootstrap:
+        from ..diagnostics import bootstrap, with_bootstrap
+
+        result = with_bootstrap(result, bootstrap(result, args.bootstrap, progress=progress))
     summary = format_summary(result, verbose=args.verbose, quiet=args.quiet,
                              saved=None if out is None else str(out))  # fmt: skip
     if out is not None:  # before printing: a closed pipe on stdout must not lose the result
@@ -106,6 +114,14 @@ def add_calibrate_command(sub: argparse._SubParsersAction) -> None:
     cal.add_argument(
         "--no-diagnostics", action="store_true",
         help="skip uncertainty, leave-one-out and convention check (about a second faster)",
+    )  # fmt: skip
+    cal.add_argument(
+        "--bootstrap", type=resamples, metavar="B", default=None,
+        help="after the fit, refit B resamples of the touches (and of each picture's views, "
+        "with several captures) in one batch and report how far the hand commands of the "
+        "stage to deploy move between them (mean and 95th percentile, mm) against the "
+        "covariance's prediction and the expected touching error; stored in the result, "
+        "drawn by 'report' (e.g. 200; each resample is a whole calibration; default: none)",
     )  # fmt: skip
     cal.add_argument(
         "--out", metavar="RESULT.json",

@@ -12,6 +12,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from .._core import (
+    MAX_BOOTSTRAP,
     MAX_GENERATIONS,
     MAX_LANDMARKS,
     MAX_POPULATION,
@@ -97,6 +98,11 @@ def generations(text: str) -> int:
 
 def restarts(text: str) -> int:
     return whole_number(text, 0, MAX_RESTARTS)
+
+
+def resamples(text: str) -> int:
+    """``--bootstrap``'s B: how many resamples to refit, 1 to :data:`MAX_BOOTSTRAP`."""
+    return whole_number(text, 1, MAX_BOOTSTRAP)
 
 
 def seed(text: str) -> int:

@@ -17,7 +17,7 @@ _EXPORTS = {
     "_layouts": ("snake_grid_px",),
     "_moved": ("moved_base",),
     "_lens": ("distort_px", "DISTORTION_COEFFICIENTS", "DISTORTION_MODEL", "undistort_px"),
-    "_observations": ("Observations",),
+    "_observations": ("centre_landmark", "Observations"),
     "_poses": (
         "hand_angle_from_phi", "hand_phi_deg", "MAX_TILT_DEG", "poses_csv_text",
         "quaternion_from_rotation", "read_poses_csv", "rotation_from_quaternion",

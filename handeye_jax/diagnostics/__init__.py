@@ -9,6 +9,7 @@ from .._core import lazy_exports
 # What the layers above may use, by module; each loads on first use (PEP 562).
 # fmt: off
 _EXPORTS = {
+    "_bootstrap": ("bootstrap", "resample", "resamples_of", "with_bootstrap"),
     "_diagnose": ("diagnose",),
     "_scope": ("capture_scope", "scope_lines"),
 }

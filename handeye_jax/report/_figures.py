@@ -9,7 +9,10 @@ Each figure is saved as PNG and SVG, all put in place together once all are draw
   paper's Figs. 6 and 7;
 * ``residuals``: per-landmark error lengths of both terms, for each stage;
 * ``convergence``: DE's best and median F against generation, for each stage;
-* ``loo``: leave-one-out (held-out) errors against the in-sample ones, for each stage.
+* ``loo``: leave-one-out (held-out) errors against the in-sample ones, for each stage;
+* ``workspace_error_map`` (a result with a bootstrap, ``calibrate --bootstrap B``): how far
+  the hand commands of the stage to deploy move between the bootstrap's refits, over the
+  tablet area and over capture heights.
 
 The figures need the landmark data: results carry it (``data``); for a result
 without it, pass the dataset it was fitted on.
@@ -28,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from .._core import (
+    BOOTSTRAP_FIGURE,
     REPORT_FIGURES,
     REPORT_FORMATS,
     InputError,
@@ -317,6 +321,67 @@ def fig_loo(result: CalibrationResult):
     return fig
 
 
+def fig_workspace_error_map(result: CalibrationResult):
+    """The workspace error map of the stage to deploy: the bootstrap's command spread (mm)
+    over the tablet area, from the first capture, and against the capture's height."""
+    boot = result.diagnostics.bootstrap
+    m = boot.map
+    fig = _figure(figsize=(12, 5.2))
+    ax1, ax2 = fig.subplots(1, 2, width_ratios=(1.15, 1))
+    xs, ys, spread = np.asarray(m.grid_x_mm), np.asarray(m.grid_y_mm), np.asarray(m.spread_mm)
+    mesh = ax1.pcolormesh(xs, ys, spread, shading="gouraud", cmap="viridis", vmin=0.0)
+    bar = fig.colorbar(mesh, ax=ax1, shrink=0.9)
+    bar.set_label("command spread, mean over refits (mm)")
+    marks = np.asarray(m.landmarks_mm)
+    ax1.plot(marks[:, 0], marks[:, 1], "o", mfc="white", mec="k", ms=8,
+             label="landmark (drawn on the tablet)")  # fmt: skip
+    import matplotlib.patheffects as pe
+
+    _label_points(ax1, marks, color="black", fontweight="bold",
+                  path_effects=[pe.withStroke(linewidth=2.5, foreground="white")])  # fmt: skip
+    ax1.set_xlim(xs[0], xs[-1])
+    ax1.set_ylim(ys[-1], ys[0])  # the display's y grows down, as on the screen
+    ax1.set_aspect("equal")
+    ax1.set_xlabel("tablet x (mm)")
+    ax1.set_ylabel("tablet y, down the screen (mm)")
+    ax1.set_title(f"over the tablet, seen from the first capture (hand z {m.capture_z_mm:.0f} mm)",
+                  fontsize=10)  # fmt: skip
+    ax1.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), fontsize=9)
+    z = m.capture_z_mm + np.asarray(m.rises_mm)
+    ax2.plot(z, m.height_mean_mm, "o-", color="C0", label="bootstrap: mean")
+    ax2.plot(z, m.height_p95_mm, "s--", color="C0", mfc="none",
+             label="bootstrap: 95th percentile")  # fmt: skip
+    if m.height_predicted_mm is not None:
+        ax2.plot(z, m.height_predicted_mm, "^:", color="C1",
+                 label="covariance's prediction: mean")  # fmt: skip
+    heights = sorted({float(c.hand_position_mm[2]) for c in result.data.captures})
+    for i, h in enumerate(heights):
+        ax2.axvline(h, color="0.4", lw=1, ls="-.",
+                    label="capture height of the calibration" if i == 0 else None)  # fmt: skip
+    from matplotlib.ticker import FixedLocator, FormatStrFormatter, NullFormatter
+
+    # Log scale: the spread at the calibration's own height and far from it both read; ticks
+    # at 1, 2, 5 × 10^k as plain numbers.
+    ax2.set_yscale("log")
+    ax2.yaxis.set_major_locator(FixedLocator([f * 10.0**k for k in range(-4, 5)
+                                              for f in (1, 2, 5)]))  # fmt: skip
+    ax2.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+    ax2.yaxis.set_minor_formatter(NullFormatter())
+    ax2.set_xlabel("hand height at the capture (mm)")
+    ax2.set_ylabel("command spread (mm, log scale)")
+    ax2.set_title("the same landmarks seen from higher or lower captures", fontsize=10)
+    ax2.grid(alpha=0.3, which="both")
+    ax2.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), ncols=2, fontsize=9)
+    fig.suptitle(
+        f"workspace error map, stage {boot.stage}: how far hand commands move between "
+        f"{boot.fitted} bootstrap refits\nover the landmarks: {mm_text(boot.spread_mean_mm)} "
+        f"mean, {mm_text(boot.spread_p95_mm)} 95th percentile"
+        + ("" if boot.touching_mean_mm is None else
+           f"; expected touching error {mm_text(boot.touching_mean_mm)} mean")
+    )  # fmt: skip
+    return fig
+
+
 def verdict_title(result: CalibrationResult) -> str:
     """The summary's verdict in one line: the stage to deploy and the touching error to
     expect (mm), as the summary prints them."""
@@ -335,7 +400,7 @@ def render(result: CalibrationResult) -> dict[str, Any]:
     """All figures of a result (matplotlib Figures) by name; needs ``result.data``."""
     s1, s2 = chain_data(result)
     with _drawing():
-        return {
+        figures = {
             "fig3_landmarks": fig_landmarks(result),
             "chains_stage1": fig_chains(result, s1, 1),
             "chains_stage2": fig_chains(result, s2, 2),
@@ -343,6 +408,15 @@ def render(result: CalibrationResult) -> dict[str, Any]:
             "convergence": fig_convergence(result),
             "loo": fig_loo(result),
         }
+        if has_error_map(result):
+            figures[BOOTSTRAP_FIGURE] = fig_workspace_error_map(result)
+        return figures
+
+
+def has_error_map(result: CalibrationResult) -> bool:
+    """The result carries a bootstrap with its workspace error map."""
+    d = result.diagnostics
+    return d is not None and d.bootstrap is not None and d.bootstrap.map is not None
 
 
 def write_report(
@@ -381,7 +455,8 @@ def write_report(
     out = Path(out_dir) if out_dir is not None else result_path.with_name(
         f"{result_path.stem}_report"
     )  # fmt: skip
-    names = [f"{name}.{ext}" for name in REPORT_FIGURES for ext in REPORT_FORMATS]
+    drawn = (*REPORT_FIGURES, *((BOOTSTRAP_FIGURE,) if has_error_map(result) else ()))
+    names = [f"{name}.{ext}" for name in drawn for ext in REPORT_FORMATS]
     check_folder_output(out, names, field, [result_path, dataset])
     rendered = {}
     figures = render(result)

@@ -180,6 +180,7 @@ def format_summary(
         f"{t['stage1_polish']:.2f} s; stage 2: DE {t['stage2_de']:.2f} s, LM "
         f"{t['stage2_polish']:.2f} s"
         + (f"; diagnostics {t['diagnostics']:.2f} s" if "diagnostics" in t else "")
+        + (f"; bootstrap {t['bootstrap']:.2f} s" if "bootstrap" in t else "")
         + "; includes JIT compilation)"
         + ("" if verbose else "; --verbose: the optimisers, parameters, residuals and diagnostics")
     )

@@ -11,10 +11,13 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from ..calibration import CalibrationResult, Pose
+from ..calibration import Bootstrap, CalibrationResult, Pose
 
 #: Checks a summary lists at most; more are counted.
 MAX_CHECKS = 12
+#: The run-to-run spread is small when its mean is at most this fraction of the expected
+#: touching error's mean: refits then differ by less than half of what a touch misses by.
+SMALL_SPREAD = 0.5
 #: An alternative fit is worth a check when it moves commands elsewhere by more than this, mm.
 AMBIGUITY_MM = 0.1
 
@@ -67,6 +70,8 @@ def verdict_lines(result: CalibrationResult, saved: str | None) -> list[str]:
                      f"{expected.where}; from the fit's covariance and noise model)")  # fmt: skip
     else:
         lines.append("  expected touching error: not computed (" + _no_expected(result) + ")")
+    if d is not None and d.bootstrap is not None:
+        lines += bootstrap_lines(d.bootstrap)
     mount = None if d is None else d.mount
     if mount is not None:
         lines += _pose_lines("T_tool0_camera (camera optical frame in the flange)", mount.camera)
@@ -85,8 +90,40 @@ def verdict_lines(result: CalibrationResult, saved: str | None) -> list[str]:
     return lines
 
 
+def bootstrap_lines(boot: Bootstrap) -> list[str]:
+    """The bootstrap in two lines: how far commands move between refits on resamples of the
+    data (mm), beside the covariance's prediction; and whether that is small against the
+    expected touching error (:data:`SMALL_SPREAD`)."""
+    fitted = (f"{boot.fitted}" if boot.fitted == boot.resamples
+              else f"{boot.fitted} of {boot.resamples}")  # fmt: skip
+    line = (f"  repeatability: commands move {mm_text(boot.spread_mean_mm)} mean, "
+            f"{mm_text(boot.spread_p95_mm)} 95th percentile between refits on {fitted} "
+            f"resamples of the data (bootstrap of {boot.resampled}; stage {boot.stage}, "
+            "the calibration's views)")  # fmt: skip
+    if boot.predicted_mean_mm is not None:
+        line += (f"; the covariance predicts {mm_text(boot.predicted_mean_mm)} mean, "
+                 f"{mm_text(boot.predicted_p95_mm)} 95th percentile")  # fmt: skip
+    lines = [line]
+    touch = boot.touching_mean_mm
+    if touch is None or touch <= 0:
+        lines.append("    → no expected touching error to compare it with (a loss other "
+                     "than ml has no noise model)")  # fmt: skip
+        return lines
+    ratio = boot.spread_mean_mm / touch
+    if ratio <= SMALL_SPREAD:
+        lines.append(f"    → small against the expected touching error ({mm_text(touch)} "
+                     f"mean; the spread is {ratio:.2g} of it): repeated calibrations agree "
+                     "within what a touch misses by")  # fmt: skip
+    else:
+        lines.append(f"    → NOT small against the expected touching error ({mm_text(touch)} "
+                     f"mean; the spread is {ratio:.2g} of it): the calibration changes from "
+                     "run to run; more touches or captures would steady it (handeye-jax "
+                     "plan)")  # fmt: skip
+    return lines
+
+
 def _no_expected(result: CalibrationResult) -> str:
-    if result.diagnostics is None:
+    if result.diagnostics is None or result.diagnostics.stage1 is None:
         return "diagnostics skipped"
     if result.settings.loss != "ml":
         return (f"loss {result.settings.loss}: the error and σ are validated for the "

@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 
 from .._core import (
+    BOOTSTRAP_FIGURE,
     CAPTURE_RISE_MM,
     DERIVED_FILES,
     DERIVED_FOLDER,
@@ -508,7 +509,8 @@ def check_twin_folder(out_dir: str | Path, force: bool = False, field: str = "")
     stale = [p for pattern in (*DERIVED_FILES, *MORE_CAPTURE_FILES)
              for p in sorted(folder.glob(pattern))]  # fmt: skip
     figures = folder / DERIVED_FOLDER
-    stale += [figures / f"{name}.{ext}" for name in REPORT_FIGURES for ext in REPORT_FORMATS]
+    stale += [figures / f"{name}.{ext}" for name in (*REPORT_FIGURES, BOOTSTRAP_FIGURE)
+              for ext in REPORT_FORMATS]  # fmt: skip
     return [p for p in stale if p.is_file() or p.is_symlink()]
 
 
