@@ -13,6 +13,12 @@ _EXPORTS = {
         "evaluate", "evaluate_points", "evaluate_twin", "format_evaluation", "Heldout",
         "load_heldout", "PointErrors", "TouchingError",
     ),
+    "_plan": (
+        "Acquisition", "AcquisitionError", "default_workspace", "exact_dataset",
+        "grid_acquisition", "layout_acquisition", "monte_carlo_acquisition", "noisy_dataset",
+        "optimise_layout", "OptimisedLayout", "planning_truth", "predict_acquisition",
+        "recommend", "StageError", "Workspace", "workspace_as_targets",
+    ),
     "_render": ("render_capture", "render_depth"),
     "_simulate": (
         "check_twin_folder", "encode_png", "heldout_targets", "NoisePreset", "PRESETS", "simulate",
