@@ -45,6 +45,7 @@ from ..problem import (
     get_noise_model,
     noise_objective,
     predict_command_error,
+    traced_command_error,
 )
 from ._evaluate import Heldout, evaluate_points
 from ._simulate import draw_capture_poses
@@ -507,20 +508,21 @@ def optimise_layout(
         obs = exact_dataset(truth, acq).observations()
         return noise_objective(Stage1Objective(model, obs, free), noise, model), obs
 
-    def loss(design: _Design, acq: Acquisition, nobj):
-        obs = _traced_observations(truth, acq, nobj.base.obs, design)
-        o = eqx.tree_at(lambda t: t.base.obs, nobj, obs)
-        return command_error(o, x1, targets, noise).mean_mm
+    nobj, obs0 = objective_at(acquisition)
+    rows = _row_map(obs0)
 
-    grad = jax.value_and_grad(loss)
+    def loss(design: _Design, nobj):
+        obs = _traced_observations(truth, acquisition, rows, nobj.base.obs, design)
+        o = eqx.tree_at(lambda t: t.base.obs, nobj, obs)
+        return traced_command_error(o, x1, targets, noise).mean_mm
+
+    grad = eqx.filter_jit(jax.value_and_grad(loss))
     design = _Design(jnp.asarray(acquisition.tablet_px), jnp.asarray(acquisition.hand_angle_deg))
     acq = acquisition
-    nobj, _ = objective_at(acq)
-    best, _ = grad(design, acq, nobj)
-    history = [float(best)]
+    history = [float(grad(design, nobj)[0])]
     sx, sa = step_px, step_deg
     for _ in range(steps):
-        value, g = grad(design, acq, nobj)
+        _, g = grad(design, nobj)
         gx, ga = np.asarray(g.tablet_px), np.asarray(g.hand_angle_deg)
         nx, na = np.abs(gx).max() or 1.0, np.abs(ga).max() or 1.0
         tab = np.asarray(design.tablet_px) - sx * gx / nx
@@ -552,29 +554,28 @@ def _project(truth: TwinTruth, acq: Acquisition, tab: np.ndarray, old: np.ndarra
     return tab
 
 
-def _traced_observations(truth: TwinTruth, acq: Acquisition, obs, design: _Design):
-    """``obs`` (the noise-free observations of ``acq``) with its rows' image points, depths,
-    tablet points and hand angles recomputed from ``design`` in JAX, so that gradients flow."""
+def _row_map(obs) -> tuple[np.ndarray, np.ndarray]:
+    """Each observation row's capture and landmark (one touch per landmark, in order)."""
+    if obs.capture_index is None:
+        n = obs.n_landmarks
+        return np.zeros(n, dtype=int), np.arange(n)
+    return np.asarray(obs.capture_index), np.asarray(obs.touch_index)
+
+
+def _traced_observations(truth: TwinTruth, acq: Acquisition, rows, obs, design: _Design):
+    """``obs`` (the noise-free observations of ``acq``; ``rows``: :func:`_row_map`'s) with its
+    rows' image points, depths, tablet points, hand positions and angles recomputed from
+    ``design`` in JAX, so that gradients flow."""
     from .. import geometry as geo
     from ._synthetic import tablet_to_camera
 
     mm = truth.mm_per_tablet_px
     model, rig = truth.htm(), truth.rig()
-    if obs.capture_index is None:
-        rows, poses = jnp.arange(acq.touches), [(np.asarray(truth.capture_position_mm),
-                                                  truth.capture_angle_deg)]  # fmt: skip
-        cap_of_row = np.zeros(acq.touches, dtype=int)
-        landmark = np.arange(acq.touches)
-    else:
-        cap_of_row = np.asarray(obs.capture_index)
-        landmark = np.asarray(obs.touch_index)  # one touch per landmark, in order
-        poses = list(acq.capture_poses)
-        rows = None
-    del rows
+    cap_of_row, landmark = rows
     uv = jnp.zeros((len(cap_of_row), 2))
     depth = jnp.zeros(len(cap_of_row))
     tablet_mm = design.tablet_px * mm
-    for c, (p, a) in enumerate(poses):
+    for c, (p, a) in enumerate(acq.capture_poses):
         sel = np.flatnonzero(cap_of_row == c)
         rig_c = rig if obs.capture_index is None else capture_rig(rig, p, a)
         pc = tablet_to_camera(model, rig_c, tablet_mm[landmark[sel]],
