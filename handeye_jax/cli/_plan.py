@@ -17,15 +17,15 @@ MAX_PICTURES = 8
 MAX_TWINS = 1000
 
 
-def _counts(hi: int):
+def _counts(lo: int, hi: int):
     def parse(text: str) -> tuple[int, ...]:
         try:
             values = parse_numbers(text, hi, "")
         except ValueError:
             values = None
-        if not values or any(v != int(v) or not 1 <= v <= hi for v in values):
+        if not values or any(v != int(v) or not lo <= v <= hi for v in values):
             raise argparse.ArgumentTypeError(
-                f"expected whole numbers 1 to {hi} separated by commas (got {text!r})")
+                f"expected whole numbers {lo} to {hi} separated by commas (got {text!r})")
         return tuple(sorted({int(v) for v in values}))
 
     return parse
@@ -137,9 +137,9 @@ def add_plan_acquisition_command(sub: argparse._SubParsersAction) -> None:
         "model and, with --monte-carlo, from K noisy twins calibrated in one batch.",
     )
     p.add_argument("source", help="dataset (.toml), result (.json) or twin truth (truth.json)")
-    p.add_argument("--grid", type=_counts(MAX_GRID), default=(3, 5, 7),
+    p.add_argument("--grid", type=_counts(2, MAX_GRID), default=(3, 5, 7),
                    help="landmarks per side of each candidate grid, e.g. 3,5,7")  # fmt: skip
-    p.add_argument("--captures", type=_counts(MAX_PICTURES), default=(1, 3),
+    p.add_argument("--captures", type=_counts(1, MAX_PICTURES), default=(1, 3),
                    help="pictures of each candidate, e.g. 1,3")  # fmt: skip
     p.add_argument("--target-mm", type=positive_mm, default=None, metavar="MM",
                    help="recommend the candidate with the fewest touches, then pictures, whose "
