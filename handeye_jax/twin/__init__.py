@@ -14,10 +14,12 @@ _EXPORTS = {
         "load_heldout", "PointErrors", "TouchingError",
     ),
     "_plan": (
-        "Acquisition", "AcquisitionError", "default_workspace", "exact_dataset",
+        "Acquisition", "AcquisitionError", "default_workspace", "errors_on_workspace",
+        "exact_dataset",
         "grid_acquisition", "layout_acquisition", "monte_carlo_acquisition", "noisy_dataset",
         "optimise_layout", "OptimisedLayout", "planning_truth", "predict_acquisition",
-        "recommend", "StageError", "Workspace", "workspace_as_targets",
+        "recommend", "StageError", "summarise", "Workspace", "workspace_as_targets",
+        "workspace_heldout",
     ),
     "_render": ("render_capture", "render_depth"),
     "_simulate": (

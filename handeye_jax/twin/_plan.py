@@ -57,6 +57,8 @@ ANGLE_SPAN_DEG = 180.0
 #: The operator's touch error in the Monte Carlo twins, σ per axis, mm (the ``paper`` twin's);
 #: the tablet reports it (rounded), so only its rounding enters the fit.
 OPERATOR_SIGMA_MM = 0.45
+#: How far inside every picture :func:`optimise_layout` keeps the landmarks, image px.
+LAYOUT_MARGIN_PX = 64.0
 #: The quantile reported beside the mean.
 QUANTILE = 0.95
 
@@ -372,7 +374,7 @@ def noisy_dataset(truth: TwinTruth, acq: Acquisition, noise: NoiseModel,
     return ds.replace(captures=caps, hand_xy_mm=hand, touch_error_px=reported)
 
 
-def _heldout(truth: TwinTruth, workspace: Workspace, noise: NoiseModel,
+def workspace_heldout(truth: TwinTruth, workspace: Workspace, noise: NoiseModel,
              rng: np.random.Generator) -> Heldout:  # fmt: skip
     """The workspace's targets as the user measures them (``noise``'s target σ px and depth
     σ mm), with their true positions, for :func:`evaluate_points`."""
@@ -438,7 +440,7 @@ def monte_carlo_acquisition(
     rngs = np.random.default_rng(seed).spawn(twins)
     data = [noisy_dataset(truth, acquisition, noise, r, name=f"plan-{i}")
             for i, r in enumerate(rngs)]  # fmt: skip
-    held = [_heldout(truth, workspace, noise, r) for r in rngs]
+    held = [workspace_heldout(truth, workspace, noise, r) for r in rngs]
     each = [replace(settings, seed=int(seed) + i) for i in range(twins)]
     results = calibrate_batch(data, each, progress=progress)
     e1, e2 = errors_on_workspace(results, truth, held)
@@ -484,18 +486,20 @@ def optimise_layout(
     steps: int = 40,
     step_px: float = 40.0,
     step_deg: float = 10.0,
+    margin_px: float = LAYOUT_MARGIN_PX,
 ) -> OptimisedLayout:
     """Landmark positions (tablet px) and hand angles (deg) that lower the linearised stage-1
     mean error of ``acquisition`` (its capture poses kept), by projected gradient descent:
     each step moves the landmarks by at most ``step_px`` and the angles by at most
     ``step_deg`` along the normalised gradient (halving both when a step does not lower the
     error), then projects the landmarks back into the display and, for every picture, the
-    image (:data:`~handeye_jax.twin._truth.MARGIN_PX` inside), and the angles into [0, 180].
+    image (``margin_px`` inside) on the display's whole px, and the angles into [0, 180].
 
     The gradient flows through the views' image points, depths, the tablet points and the
     hand angles of the noise-free acquisition; the noise model's weights (which depend on
     where the views fall only through the camera's orientation) are those of each step's
-    start.
+    start. ``margin_px``: how far inside every picture the landmarks stay, image px (the
+    detector loses one-pixel dots in a vignetted corner).
     """
     noise = noise or get_noise_model("paper")
     workspace = workspace or default_workspace(truth)
@@ -527,7 +531,7 @@ def optimise_layout(
         nx, na = np.abs(gx).max() or 1.0, np.abs(ga).max() or 1.0
         tab = np.asarray(design.tablet_px) - sx * gx / nx
         ang = np.clip(np.asarray(design.hand_angle_deg) - sa * ga / na, 0.0, ANGLE_SPAN_DEG)
-        tab = _project(truth, acq, tab, np.asarray(design.tablet_px))
+        tab = _project(truth, acq, tab, np.asarray(design.tablet_px), margin_px)
         trial = replace(acq, tablet_px=tab, hand_angle_deg=ang)
         tobj, _ = objective_at(trial)
         tv = float(command_error(tobj, x1, targets, noise).mean_mm)
@@ -541,17 +545,19 @@ def optimise_layout(
     return OptimisedLayout(replace(acq, name=f"{acquisition.name}, optimised"), tuple(history))
 
 
-def _project(truth: TwinTruth, acq: Acquisition, tab: np.ndarray, old: np.ndarray) -> np.ndarray:
-    """``tab`` (tablet px) inside the display and seen by every picture; a landmark that
-    would leave a picture stays where it was (``old``)."""
+def _project(truth: TwinTruth, acq: Acquisition, tab: np.ndarray, old: np.ndarray,
+             margin_px: float) -> np.ndarray:  # fmt: skip
+    """``tab`` (tablet px) inside the display and ``margin_px`` inside every picture; a
+    landmark that would leave a picture stays where it was (``old``)."""
     w, h = truth.display_px
-    tab = np.clip(tab, [0.0, 0.0], [w - 1.0, h - 1.0])
-    for i in range(len(tab)):
-        for p, a in acq.capture_poses:
-            if not truth.at_capture(p, a).sees(tab[i : i + 1]):
-                tab[i] = old[i]
-                break
-    return tab
+    tab = np.clip(np.round(tab), [0.0, 0.0], [w - 1.0, h - 1.0])  # the display's whole px
+    iw, ih = truth.image_size_px
+    inside = np.ones(len(tab), dtype=bool)
+    for p, a in acq.capture_poses:
+        uv, z = truth.at_capture(p, a).project(tab)
+        inside &= ((uv >= margin_px).all(axis=1) & (uv[:, 0] <= iw - 1 - margin_px)
+                   & (uv[:, 1] <= ih - 1 - margin_px) & (z > 0))  # fmt: skip
+    return np.where(inside[:, None], tab, old)
 
 
 def _row_map(obs) -> tuple[np.ndarray, np.ndarray]:

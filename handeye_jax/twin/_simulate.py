@@ -444,7 +444,8 @@ def _seen_targets(seen: TwinTruth, lo, hi, n: int, rng: np.random.Generator) -> 
     tab = np.empty((0, 2))
     for _ in range(1000):
         cand = rng.uniform(lo, hi, (n, 2))
-        tab = np.vstack([tab, [p for p in cand if seen.sees(p[None])]])[:n]
+        seen_now = np.array([p for p in cand if seen.sees(p[None])]).reshape(-1, 2)
+        tab = np.vstack([tab, seen_now])[:n]  # none seen this round: (0, 2), not (0,)
         if len(tab) == n:
             return tab
     return None
