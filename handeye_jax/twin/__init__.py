@@ -1,6 +1,8 @@
 """A synthetic twin of the rig with known truth: draw or change a truth (near the paper's
 rig, or a random wide rig anywhere in the workspace), synthesize the observations, render the
-pictures, simulate a twin folder, and evaluate a calibration on its held-out targets."""
+pictures, simulate a twin folder, evaluate a calibration on its held-out targets, and plan an
+acquisition: its expected error before it is taken (linearised or Monte Carlo) and its layout
+optimised by gradient."""
 
 from __future__ import annotations
 
