@@ -11,9 +11,9 @@ On one `paper`-like rig (``draw_truth(--truth-seed)``), for the paper's 3×3 gri
 * **linearised**: :func:`~handeye_jax.twin.predict_acquisition` (the `paper` noise model);
 * **Monte Carlo**: :func:`~handeye_jax.twin.monte_carlo_acquisition`, ``--twins`` noisy copies
   drawn from the same noise model, calibrated in one batch (default settings);
-* **measured**: ``--fresh`` twins of the same rig with the acquisition's landmarks and hand
-  angles, made by :func:`~handeye_jax.simulate` (rendered pictures, detected landmarks, the
-  `paper` preset's touches and rounding; its own capture poses for each seed), calibrated
+* **measured**: ``--fresh`` twins of the same rig with the acquisition's landmarks, hand
+  angles and capture poses, made by :func:`~handeye_jax.simulate` (rendered pictures,
+  detected landmarks, the `paper` preset's touches and rounding), calibrated
   (default settings, in one batch) and sent to the same workspace's targets
   (:func:`~handeye_jax.evaluate_points`).
 
@@ -33,7 +33,14 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from handeye_jax import PRESETS, Settings, calibrate_batch, simulate, vectorise_small_loops
+from handeye_jax import (
+    PRESETS,
+    Settings,
+    calibrate_batch,
+    simulate,
+    simulate_captures,
+    vectorise_small_loops,
+)
 from handeye_jax.problem import get_noise_model
 from handeye_jax.twin import (
     default_workspace,
@@ -59,16 +66,21 @@ LIN_TOL, MC_TOL = 0.20, 0.15
 
 def measured(truth, acq, fresh: int, workspace, noise, settings, seed0: int):
     """The acquisition on ``fresh`` rendered twins: simulate → calibrate_batch → evaluate.
-    One-pixel dots vanish from the higher captures: several pictures get 2-px dots (as in
-    benchmarks/multicapture.py); a twin whose detector misses a dot is replaced by the next
-    seed's. Returns the errors and how many twins were replaced."""
+    Several pictures are taken from the acquisition's capture poses
+    (``simulate_captures(poses=...)``) with 2-px dots (one-pixel dots vanish from the higher
+    captures, as in benchmarks/multicapture.py); a twin whose detector misses a dot is
+    replaced by the next seed's. Returns the errors and how many twins were replaced."""
     rig = replace(truth, landmarks_tablet_px=acq.tablet_px,
                   landmarks_hand_angle_deg=acq.hand_angle_deg,
                   dot_px=1.0 if acq.pictures == 1 else 2.0)  # fmt: skip
     seeds, twins, missed = [], [], 0
     for s in range(seed0, seed0 + 4 * fresh):
         try:
-            twins.append(simulate(rig, PRESETS["paper"], s, captures=acq.pictures, n_heldout=1))
+            if acq.pictures == 1:
+                twins.append(simulate(rig, PRESETS["paper"], s, n_heldout=1))
+            else:
+                twins.append(simulate_captures(rig, PRESETS["paper"], s, n_heldout=1,
+                                               poses=list(acq.capture_poses)))  # fmt: skip
         except BlobCountError:
             missed += 1
             continue
@@ -159,13 +171,14 @@ def main() -> None:
         "noisy copies of the acquisition from the noise model, calibrated in one batch "
         f"(calibrate_batch, {'population 200, generations 400' if args.quick else 'defaults'}). "
         f"Measured: {args.fresh} fresh twins of the same rig and layout by `simulate` (rendered "
-        "pictures, detected landmarks, the `paper` preset; its own capture poses per seed; "
+        "pictures, detected landmarks, the `paper` preset; the acquisition's capture poses; "
         "1-px dots with one picture, 2-px with three, as one-pixel dots vanish from the "
         "higher captures), "
         "calibrated the same way, evaluated on the same targets (`evaluate_points`). se: "
         "the standard error of the mean over twins. The optimised layout: the 3-picture grid's "
-        f"landmarks and hand angles after {len(h) - 1} accepted projected-gradient steps "
-        f"({t_opt:.0f} s), linearised stage-1 mean {h[0]:.3f} → {h[-1]:.3f} mm.\n\n"
+        f"landmarks, hand angles and pictures 2 and 3 after {len(h) - 1} accepted "
+        f"projected-gradient steps ({t_opt:.0f} s), linearised stage-1 mean {h[0]:.3f} → "
+        f"{h[-1]:.3f} mm.\n\n"
         + "\n".join(lines)
     )
     print(text)

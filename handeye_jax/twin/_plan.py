@@ -35,7 +35,7 @@ from jaxtyping import Array, Float
 from .._jax import in_float64
 from ..calibration import CalibrationResult, Settings, calibrate_batch
 from ..data import Capture, Dataset, snake_grid_px
-from ..models import HTMModel
+from ..models import HTMModel, Rig
 from ..problem import (
     NoiseModel,
     Stage1Objective,
@@ -59,6 +59,11 @@ ANGLE_SPAN_DEG = 180.0
 OPERATOR_SIGMA_MM = 0.45
 #: How far inside every picture :func:`optimise_layout` keeps the landmarks, image px.
 LAYOUT_MARGIN_PX = 64.0
+#: How far :func:`optimise_layout` may move a picture from the first: sideways (x and y) and
+#: up, mm (the twin's pictures rise to 90 mm; a robot reaches this much about the tablet).
+CAPTURE_REACH_MM = (50.0, 150.0)
+#: How far :func:`optimise_layout` may turn a picture's hand angle from the first's, deg.
+CAPTURE_TURN_DEG = 45.0
 #: The quantile reported beside the mean.
 QUANTILE = 0.95
 
@@ -461,6 +466,14 @@ def recommend(errors: Sequence[AcquisitionError], target_mm: float,
 class _Design(eqx.Module):
     tablet_px: Float[Array, "n 2"]
     hand_angle_deg: Float[Array, " n"]
+    capture_position_mm: Float[Array, "c 3"]
+    capture_angle_deg: Float[Array, " c"]
+
+
+def _design(acq: Acquisition) -> _Design:
+    return _Design(jnp.asarray(acq.tablet_px), jnp.asarray(acq.hand_angle_deg),
+                   jnp.asarray(np.stack([p for p, _ in acq.capture_poses])),
+                   jnp.asarray([a for _, a in acq.capture_poses]))  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -468,7 +481,8 @@ class OptimisedLayout:
     """What :func:`optimise_layout` found.
 
     Attributes:
-        acquisition: the optimised acquisition (same touches and capture poses).
+        acquisition: the optimised acquisition (as many touches and pictures; the first
+            picture where it was).
         history_mm: the linearised stage-1 mean error at each step, mm.
     """
 
@@ -486,14 +500,22 @@ def optimise_layout(
     steps: int = 40,
     step_px: float = 40.0,
     step_deg: float = 10.0,
+    step_mm: float = 10.0,
     margin_px: float = LAYOUT_MARGIN_PX,
+    reach_mm: tuple[float, float] = CAPTURE_REACH_MM,
+    turn_deg: float = CAPTURE_TURN_DEG,
 ) -> OptimisedLayout:
-    """Landmark positions (tablet px) and hand angles (deg) that lower the linearised stage-1
-    mean error of ``acquisition`` (its capture poses kept), by projected gradient descent:
-    each step moves the landmarks by at most ``step_px`` and the angles by at most
-    ``step_deg`` along the normalised gradient (halving both when a step does not lower the
-    error), then projects the landmarks back into the display and, for every picture, the
-    image (``margin_px`` inside) on the display's whole px, and the angles into [0, 180].
+    """Landmark positions (tablet px), hand angles (deg) and the pictures after the first
+    (hand position mm, hand angle deg) that lower the linearised stage-1 mean error of
+    ``acquisition``, by projected gradient descent.
+
+    Each step moves the landmarks by at most ``step_px``, the angles (touches' and
+    pictures') by at most ``step_deg`` and the pictures' positions by at most ``step_mm``
+    along the normalised gradient (halving all when a step does not lower the error), then
+    projects: the landmarks onto the display's whole px and ``margin_px`` inside every
+    picture (a landmark that would leave one stays), the touches' angles into [0, 180]; a
+    picture stays within ``reach_mm`` (sideways, up) of the first (never below it) and
+    ``turn_deg`` of its hand angle, and where it was if it would lose a landmark.
 
     The gradient flows through the views' image points, depths, the tablet points and the
     hand angles of the noise-free acquisition; the noise model's weights (which depend on
@@ -516,31 +538,41 @@ def optimise_layout(
     rows = _row_map(obs0)
 
     def loss(design: _Design, nobj):
-        obs = _traced_observations(truth, acquisition, rows, nobj.base.obs, design)
+        obs = _traced_observations(truth, rows, nobj.base.obs, design)
         o = eqx.tree_at(lambda t: t.base.obs, nobj, obs)
         return traced_command_error(o, x1, targets, noise).mean_mm
 
     grad = eqx.filter_jit(jax.value_and_grad(loss))
-    design = _Design(jnp.asarray(acquisition.tablet_px), jnp.asarray(acquisition.hand_angle_deg))
     acq = acquisition
+    design = _design(acq)
     history = [float(grad(design, nobj)[0])]
-    sx, sa = step_px, step_deg
+    scale = 1.0
+    first = acq.capture_poses[0]
     for _ in range(steps):
         _, g = grad(design, nobj)
-        gx, ga = np.asarray(g.tablet_px), np.asarray(g.hand_angle_deg)
-        nx, na = np.abs(gx).max() or 1.0, np.abs(ga).max() or 1.0
-        tab = np.asarray(design.tablet_px) - sx * gx / nx
-        ang = np.clip(np.asarray(design.hand_angle_deg) - sa * ga / na, 0.0, ANGLE_SPAN_DEG)
-        tab = _project(truth, acq, tab, np.asarray(design.tablet_px), margin_px)
-        trial = replace(acq, tablet_px=tab, hand_angle_deg=ang)
+
+        def moved(x, gx, step, scale=scale):
+            x, gx = np.asarray(x), np.asarray(gx)
+            return x - scale * step * gx / (np.abs(gx).max() or 1.0)
+
+        tab = moved(design.tablet_px, g.tablet_px, step_px)
+        ang = np.clip(moved(design.hand_angle_deg, g.hand_angle_deg, step_deg), 0.0,
+                      ANGLE_SPAN_DEG)  # fmt: skip
+        poses = acq.capture_poses
+        if acq.pictures > 1:  # the first picture stays: the rig's capture
+            pos = moved(design.capture_position_mm[1:], g.capture_position_mm[1:], step_mm)
+            turn = moved(design.capture_angle_deg[1:], g.capture_angle_deg[1:], step_deg)
+            poses = _reachable(truth, acq, first, pos, turn, reach_mm, turn_deg, margin_px)
+        tab = _project(truth, replace(acq, capture_poses=poses), tab, acq.tablet_px, margin_px)
+        trial = replace(acq, tablet_px=tab, hand_angle_deg=ang, capture_poses=poses)
         tobj, _ = objective_at(trial)
         tv = float(command_error(tobj, x1, targets, noise).mean_mm)
         if tv < history[-1]:
-            acq, nobj, design = trial, tobj, _Design(jnp.asarray(tab), jnp.asarray(ang))
+            acq, nobj, design = trial, tobj, _design(trial)
             history.append(tv)
         else:
-            sx, sa = sx / 2, sa / 2
-            if sx < 0.5:
+            scale /= 2
+            if scale * step_px < 0.5:
                 break
     return OptimisedLayout(replace(acq, name=f"{acquisition.name}, optimised"), tuple(history))
 
@@ -568,10 +600,29 @@ def _row_map(obs) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(obs.capture_index), np.asarray(obs.touch_index)
 
 
-def _traced_observations(truth: TwinTruth, acq: Acquisition, rows, obs, design: _Design):
-    """``obs`` (the noise-free observations of ``acq``; ``rows``: :func:`_row_map`'s) with its
-    rows' image points, depths, tablet points, hand positions and angles recomputed from
-    ``design`` in JAX, so that gradients flow."""
+def _reachable(truth: TwinTruth, acq: Acquisition, first, pos, turn, reach_mm, turn_deg,
+               margin_px) -> tuple:  # fmt: skip
+    """The pictures after the first moved to ``pos`` (mm) and ``turn`` (deg), within reach of
+    the first and seeing every landmark ``margin_px`` inside; one that would not stays."""
+    p0, a0 = np.asarray(first[0]), float(first[1])
+    side, up = reach_mm
+    poses = [first]
+    for (old_p, old_a), p, a in zip(acq.capture_poses[1:], pos, turn, strict=True):
+        p = np.concatenate([np.clip(p[:2], p0[:2] - side, p0[:2] + side),
+                            np.clip(p[2:], p0[2], p0[2] + up)])  # fmt: skip
+        a = float(np.clip(a, a0 - turn_deg, a0 + turn_deg))
+        uv, z = truth.at_capture(p, a).project(acq.tablet_px)
+        iw, ih = truth.image_size_px
+        sees = ((uv >= margin_px).all() and (uv[:, 0] <= iw - 1 - margin_px).all()
+                and (uv[:, 1] <= ih - 1 - margin_px).all() and (z > 0).all())  # fmt: skip
+        poses.append((p, a) if sees else (old_p, old_a))
+    return tuple(poses)
+
+
+def _traced_observations(truth: TwinTruth, rows, obs, design: _Design):
+    """``obs`` (the noise-free observations of an acquisition; ``rows``: :func:`_row_map`'s)
+    with its rows' image points, depths, tablet points, hand positions and angles and capture
+    poses recomputed from ``design`` in JAX, so that gradients flow."""
     from .. import geometry as geo
     from ._synthetic import tablet_to_camera
 
@@ -581,9 +632,11 @@ def _traced_observations(truth: TwinTruth, acq: Acquisition, rows, obs, design: 
     uv = jnp.zeros((len(cap_of_row), 2))
     depth = jnp.zeros(len(cap_of_row))
     tablet_mm = design.tablet_px * mm
-    for c, (p, a) in enumerate(acq.capture_poses):
+    for c in range(design.capture_angle_deg.shape[0]):
         sel = np.flatnonzero(cap_of_row == c)
-        rig_c = rig if obs.capture_index is None else capture_rig(rig, p, a)
+        rig_c = rig if obs.capture_index is None else Rig(
+            rig.fx_px, rig.fy_px, rig.cx_px, rig.cy_px, design.capture_position_mm[c],
+            rig.angle_zero_deg, rig.angle_sign, design.capture_angle_deg[c])  # fmt: skip
         pc = tablet_to_camera(model, rig_c, tablet_mm[landmark[sel]],
                               tablet_height_mm=truth.tablet_height_mm,
                               camera_z_mm=truth.camera_z_mm)  # fmt: skip
@@ -592,7 +645,12 @@ def _traced_observations(truth: TwinTruth, acq: Acquisition, rows, obs, design: 
     touched = model.tablet_to_base(tablet_mm[landmark])[:, :2]
     angle = design.hand_angle_deg[landmark]
     hand = touched - model.pen_offset(rig.phi_deg(angle))[:, :2]
-    return eqx.tree_at(
+    obs = eqx.tree_at(
         lambda o: (o.image_px, o.depth_mm, o.tablet_mm, o.hand_xy_mm, o.hand_angle_deg),
         obs, (uv, depth, tablet_mm[landmark], hand, angle),
     )  # fmt: skip
+    if obs.capture_index is None:
+        return obs
+    return eqx.tree_at(lambda o: (o.capture_position_mm, o.capture_hand_angle_deg), obs,
+                       (design.capture_position_mm[cap_of_row],
+                        design.capture_angle_deg[cap_of_row]))  # fmt: skip
