@@ -71,6 +71,14 @@ _EXPORTS = {
     "DHModel": "models",
     "diagnose": "diagnostics",
     "draw_truth": "twin",
+    "Acquisition": "twin",
+    "AcquisitionError": "twin",
+    "grid_acquisition": "twin",
+    "monte_carlo_acquisition": "twin",
+    "optimise_layout": "twin",
+    "planning_truth": "twin",
+    "predict_acquisition": "twin",
+    "recommend": "twin",
     "errors_of": "problem",
     "evaluate": "twin",
     "evaluate_points": "twin",
@@ -301,6 +309,16 @@ if TYPE_CHECKING:
         format_evaluation,
         load_heldout,
     )
+    from .twin._plan import (
+        Acquisition,
+        AcquisitionError,
+        grid_acquisition,
+        monte_carlo_acquisition,
+        optimise_layout,
+        planning_truth,
+        predict_acquisition,
+        recommend,
+    )
     from .twin._poses import tool_poses
     from .twin._simulate import PRESETS, NoisePreset, Twin, simulate, simulate_captures, write_twin
     from .twin._synthetic import synthesize_captures, synthesize_dataset
@@ -391,6 +409,14 @@ __all__ = [
     "detect_landmarks",
     "diagnose",
     "draw_truth",
+    "Acquisition",
+    "AcquisitionError",
+    "grid_acquisition",
+    "monte_carlo_acquisition",
+    "optimise_layout",
+    "planning_truth",
+    "predict_acquisition",
+    "recommend",
     "errors_of",
     "evaluate",
     "evaluate_twin",

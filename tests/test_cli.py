@@ -457,7 +457,7 @@ def _subcommands():
 
 
 SUBCOMMANDS = ["calibrate", "calibrate-batch", "predict", "report", "tablet", "simulate",
-               "detect", "evaluate", "export", "convert", "plan", "poses",
+               "detect", "evaluate", "export", "convert", "plan", "plan-acquisition", "poses",
                "intrinsics"]  # fmt: skip
 
 

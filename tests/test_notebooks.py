@@ -13,9 +13,10 @@ ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
 
 
-def test_the_three_notebooks_exist():
+def test_the_four_notebooks_exist():
     assert [p.name for p in NOTEBOOKS] == [
         "01_quickstart.ipynb", "02_loss_landscape.ipynb", "03_de_vs_gradient.ipynb",
+        "04_plan_an_acquisition.ipynb",
     ]  # fmt: skip
 
 
@@ -49,5 +50,6 @@ def test_notebook_runs(path, monkeypatch):
         "01_quickstart": "convention check passed: True",
         "02_loss_landscape": "theta_c1 + gamma_c",
         "03_de_vs_gradient": "of starts reach the target",
+        "04_plan_an_acquisition": "linearised and Monte Carlo agree within 50 %: True",
     }[path.stem]
     assert want in text

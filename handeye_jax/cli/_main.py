@@ -6,8 +6,8 @@ are written ends the run with status 130 and every file as it was (``interrupts.
 
 This module imports no JAX at its top, so that the Ctrl-C handling is in place before the
 second or more that importing JAX takes. Each command group has its module (``_calibrate``,
-``_batch``, ``_twin``, ``_vision``, ``_robot``, ``_dataset``, ``_tablet``, ``_report``); the
-argument types they share are in ``_types``.
+``_batch``, ``_twin``, ``_plan``, ``_vision``, ``_robot``, ``_dataset``, ``_tablet``,
+``_report``); the argument types they share are in ``_types``.
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     from ._batch import add_calibrate_batch_command
     from ._calibrate import add_calibrate_command
     from ._dataset import add_dataset_commands
+    from ._plan import add_plan_acquisition_command
     from ._report import add_report_command
     from ._robot import add_export_command, add_predict_command
     from ._robot_input import add_robot_input_commands
@@ -45,7 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
     for add in (add_calibrate_command, add_calibrate_batch_command, add_simulate_command,
                 add_detect_command, add_evaluate_command, add_export_command,
                 add_dataset_commands, add_robot_input_commands, add_predict_command,
-                add_tablet_command, add_report_command):  # fmt: skip
+                add_plan_acquisition_command, add_tablet_command, add_report_command):  # fmt: skip
         add(sub)  # in this order in --help
     return parser
 

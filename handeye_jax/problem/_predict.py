@@ -287,6 +287,22 @@ def uncertainty(
     return _uncertainty(objective1, x1, targets, variances, prior1, objective2, x2, prior2, stage)
 
 
+def traced_command_error(
+    objective1: NoiseObjective,
+    x1: Float[Array, " d1"],
+    targets: Targets,
+    noise: NoiseModel,
+) -> ErrorPrediction:
+    """Stage 1's :func:`command_error` as a plain JAX function, not compiled on its own: for
+    use inside the caller's ``jax.grad`` or ``jax.jit`` (a compiled program with its own
+    compiler options cannot be nested), e.g. to differentiate the error with respect to the
+    observations' layout."""
+    var_px, var_depth = noise.target_variances()
+    variances = np.array([var_px, var_px, var_depth])
+    return _uncertainty.__wrapped__(objective1, x1, targets, variances, None, None, None, None,
+                                    1)[2]  # fmt: skip
+
+
 @fast_compile
 def _uncertainty(objective1, x1, targets, variances, prior1, objective2, x2, prior2, stage: int):
     G1, G2, A1, A2 = _gains(objective1, x1, prior1, objective2, x2, prior2)

@@ -1,6 +1,8 @@
 """A synthetic twin of the rig with known truth: draw or change a truth (near the paper's
 rig, or a random wide rig anywhere in the workspace), synthesize the observations, render the
-pictures, simulate a twin folder, and evaluate a calibration on its held-out targets."""
+pictures, simulate a twin folder, evaluate a calibration on its held-out targets, and plan an
+acquisition: its expected error before it is taken (linearised or Monte Carlo) and its layout
+optimised by gradient."""
 
 from __future__ import annotations
 
@@ -12,6 +14,14 @@ _EXPORTS = {
     "_evaluate": (
         "evaluate", "evaluate_points", "evaluate_twin", "format_evaluation", "Heldout",
         "load_heldout", "PointErrors", "TouchingError",
+    ),
+    "_plan": (
+        "Acquisition", "AcquisitionError", "default_workspace", "errors_on_workspace",
+        "exact_dataset",
+        "grid_acquisition", "layout_acquisition", "monte_carlo_acquisition", "noisy_dataset",
+        "optimise_layout", "OptimisedLayout", "planning_truth", "predict_acquisition",
+        "recommend", "StageError", "summarise", "Workspace", "workspace_as_targets",
+        "workspace_heldout",
     ),
     "_render": ("render_capture", "render_depth"),
     "_simulate": (

@@ -326,9 +326,11 @@ def simulate_captures(
     n_heldout: int = 20,
     detect_settings: DetectSettings | None = None,
     aim: bool = False,
+    poses: list[tuple[np.ndarray, float]] | None = None,
 ) -> Twin:
     """A multi-capture twin (see :func:`simulate`): ``captures`` pictures from the poses of
-    :func:`draw_capture_poses` (aimed at the landmarks with ``aim``), the touches with the
+    :func:`draw_capture_poses` (aimed at the landmarks with ``aim``), or from ``poses`` (hand
+    position mm, hand angle deg; ``captures`` is then their number), the touches with the
     hand's height (rounded as the hand's x-y), and ``n_heldout`` held-out targets for each
     capture rise of :data:`HELDOUT_RISES_MM` and each height of :data:`HELDOUT_ABOVE_MM`
     above the display.
@@ -339,7 +341,10 @@ def simulate_captures(
     """
     settings = detect_settings or DetectSettings()
     rng_pose, rng_image, rng_touch, rng_held = np.random.default_rng(seed).spawn(4)
-    poses = draw_capture_poses(truth, captures, rng_pose, aim=aim)
+    if poses is None:
+        poses = draw_capture_poses(truth, captures, rng_pose, aim=aim)
+    else:
+        poses, captures = [(np.asarray(p, float), float(a)) for p, a in poses], len(poses)
     shots = [_pictures(truth.at_capture(p, a), preset, rng_image, exact, settings)
              for p, a in poses]  # fmt: skip
     mm = truth.mm_per_tablet_px
@@ -445,7 +450,8 @@ def _seen_targets(seen: TwinTruth, lo, hi, n: int, rng: np.random.Generator) -> 
     tab = np.empty((0, 2))
     for _ in range(1000):
         cand = rng.uniform(lo, hi, (n, 2))
-        tab = np.vstack([tab, [p for p in cand if seen.sees(p[None])]])[:n]
+        seen_now = np.array([p for p in cand if seen.sees(p[None])]).reshape(-1, 2)
+        tab = np.vstack([tab, seen_now])[:n]  # none seen this round: (0, 2), not (0,)
         if len(tab) == n:
             return tab
     return None
