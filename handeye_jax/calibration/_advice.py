@@ -131,7 +131,7 @@ def _weak_advice(analysis: JacobianAnalysis | None, name: str, units: dict) -> s
 
 
 def _estimate_advice(
-    values: tuple[float, ...], box: tuple[float, float], name: str, unit: str,
+    values: tuple[float, ...], box: tuple[float, float], name: str, unit: str, *,
     bounds: tuple[float, float], side: str, estimated_box: bool,
 ) -> tuple[str, tuple | None, str]:
     """Advice from the closed-form estimate (polished): search around it or widen to hold
@@ -184,8 +184,9 @@ def bound_hits(stage: StageResult, space: ParameterSpace, key: str = "stage1",
             advice, reason = weak, "weak"
         elif key == "stage1" and (estimate := context.estimate(cls, name))[0]:
             estimated = context.report is not None and context.report.preset == "estimate"
-            advice, wider, reason = _estimate_advice(*estimate, name, unit, (lo, hi), side,
-                                                     estimated)  # fmt: skip
+            advice, wider, reason = _estimate_advice(
+                *estimate, name, unit, bounds=(lo, hi), side=side, estimated_box=estimated
+            )
         else:
             width = hi - lo
             wider = (lo - width, hi) if side == "lower" else (lo, hi + width)

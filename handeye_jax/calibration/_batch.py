@@ -223,8 +223,8 @@ def _wave(problems: list[_Problem], mesh: Mesh) -> list[CalibrationResult | Inpu
             out.append(stages1[j] if isinstance(stages1[j], InputError) else stage2)
             continue
         centres = np.asarray(rotation_centres(fit2.model(), points[j], p.run.obs.centre_index))
-        out.append(assemble(p.dataset, p.plan, p.run, Stages(fits1[j], fit2),
-                            Stages(stages1[j], stage2), centres, share))  # fmt: skip
+        fits, stages = Stages(fits1[j], fit2), Stages(stages1[j], stage2)
+        out.append(assemble(p.dataset, p.plan, p.run, fits, stages, centres=centres, total_s=share))
     return out
 
 

@@ -156,6 +156,7 @@ def assemble(
     run: Run,
     fits: Stages[StageFit],
     stages: Stages[StageResult],
+    *,
     centres: np.ndarray,
     total_s: float,
 ) -> CalibrationResult:

@@ -106,6 +106,25 @@ class Capture:
     __hash__ = None  # arrays inside
 
 
+
+def _checked_preset(preset: str | None) -> str | None:
+    if preset is not None and preset not in SEARCH_PRESETS:
+        raise ValueError(f"search_preset must be one of {', '.join(SEARCH_PRESETS)} or None "
+                         f"(got {preset!r})")  # fmt: skip
+    return preset
+
+
+def _checked_captures(captures: Sequence[Capture], n: int) -> tuple[Capture, ...]:
+    """``captures`` as a tuple, each seeing landmark indices ``0 … n − 1`` only."""
+    captures = tuple(captures)
+    if not captures:
+        raise ValueError("a dataset needs at least one capture")
+    for c, cap in enumerate(captures):
+        if cap.landmarks.size and not (0 <= cap.landmarks.min() and cap.landmarks.max() < n):
+            raise ValueError(f"captures[{c}].landmarks must be landmark indices 0 to {n - 1}")
+    return captures
+
+
 def _single_capture(
     n: int, position_mm: Any, hand_angle_deg: float, image_px: Any, depth_mm: Any
 ) -> Capture:
@@ -237,16 +256,12 @@ class Dataset:
             sign = int(sign)
         put("hand_angle_sign", sign)
         put("search", {str(k): (float(v[0]), float(v[1])) for k, v in search.items()})
-        if search_preset is not None and search_preset not in SEARCH_PRESETS:
-            raise ValueError(f"search_preset must be one of {', '.join(SEARCH_PRESETS)} or None "
-                             f"(got {search_preset!r})")  # fmt: skip
-        put("search_preset", search_preset)
+        put("search_preset", _checked_preset(search_preset))
         tablet = np.array(tablet_px, dtype=np.float64)
         if tablet.ndim != 2 or tablet.shape[1] != 2:
             raise ValueError(f"tablet_px must have shape (n, 2), got {tablet.shape}")
         n = tablet.shape[0]
         put("tablet_px", tablet)
-        simple_given = any(a is not None for a in (capture_position_mm, image_px, depth_mm))
         if captures is None:
             if any(a is None for a in (capture_position_mm, image_px, depth_mm)):
                 raise ValueError("give captures, or capture_position_mm, image_px and depth_mm")
@@ -254,15 +269,9 @@ class Dataset:
             if capture_hand_angle_deg is not None:
                 angle = float(capture_hand_angle_deg)
             captures = (_single_capture(n, capture_position_mm, angle, image_px, depth_mm),)
-        elif simple_given:
+        elif any(a is not None for a in (capture_position_mm, image_px, depth_mm)):
             raise ValueError("give captures or the single-capture arrays, not both")
-        captures = tuple(captures)
-        if not captures:
-            raise ValueError("a dataset needs at least one capture")
-        for c, cap in enumerate(captures):
-            if cap.landmarks.size and not (0 <= cap.landmarks.min() and cap.landmarks.max() < n):
-                raise ValueError(f"captures[{c}].landmarks must be landmark indices 0 to {n - 1}")
-        put("captures", captures)
+        put("captures", _checked_captures(captures, n))
         touches = _touch_arrays(n, hand_xy_mm, hand_angle_deg, touch_error_px, hand_z_mm,
                                 touch_landmark)  # fmt: skip
         for key, a in touches.items():

@@ -255,6 +255,7 @@ def one_step_loo(
     stage2: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     x1: np.ndarray,
     x2: np.ndarray,
+    *,
     bounds1: tuple[np.ndarray, np.ndarray],
     bounds2: tuple[np.ndarray, np.ndarray],
     groups: np.ndarray | None = None,
@@ -422,7 +423,7 @@ def _refits_one_step(p: _Pair, seed, starts, max_steps, refit_landmarks) -> Refi
         xs[-1], F[-1] = x1, F_fit
     box1, box2 = (bounds1.lower, bounds1.upper), (bounds2.lower, bounds2.upper)
     groups = touch_groups(obs)
-    *loo, moved = one_step_loo(one, two, x1, x2, box1, box2, groups)
+    *loo, moved = one_step_loo(one, two, x1, x2, bounds1=box1, bounds2=box2, groups=groups)
     # A shift–tilt valley can stretch Newton's step far past where its quadratic model holds
     # (tens of mm where a refit moves the held-out error by hundredths): refit those exactly.
     rms = float(np.sqrt(np.mean(np.sum(_per_landmark(one[2], n).reshape(n, 2, 2) ** 2, -1))))

@@ -69,7 +69,7 @@ def _de_chunk(block, stop):
     return jax.vmap(_de._chunk_scan, in_axes=(0, 0, 0, None))(fns, state, step, stop)
 
 
-def _de_many(fns, de: DifferentialEvolution, lower, upper, keys, mesh, progress, desc):
+def _de_many(fns, de: DifferentialEvolution, lower, upper, keys, *, mesh, progress, desc):
     b = lower.shape[0]
     init = per_device(_de_init, Blocks.of((fns, keys, lower, upper), mesh), de.population)
     step = _de._Step(lower, upper, np.full(b, de.crossover), np.full(b, de.mutation))
@@ -158,7 +158,7 @@ def _polish(block, lm):
     return jax.lax.map(one, block)
 
 
-def _lm_many(fns, lm: LevenbergMarquardt, lower, upper, x0, run, mesh) -> LMSolution:
+def _lm_many(fns, lm: LevenbergMarquardt, lower, upper, x0, *, run, mesh) -> LMSolution:
     x0 = np.clip(np.asarray(x0, float), lower, upper)
     block = Blocks.of((fns, x0, lower, upper, _padded_run(run, mesh)), mesh, LOOPED)
     x, steps, ok = per_device(_polish, block, lm).gather()
@@ -181,6 +181,7 @@ def minimise_starts_many(
     lower: Float[ArrayLike, "b d"],
     upper: Float[ArrayLike, "b d"],
     starts: Float[ArrayLike, "b s d"],
+    *,
     run: Bool[ArrayLike, " b"] | None = None,
     mesh: Mesh | None = None,
 ) -> BatchSolution:
@@ -248,10 +249,10 @@ def minimise_many(
     if isinstance(solver, DifferentialEvolution):
         if keys is None:
             raise ValueError("differential evolution needs a PRNG key per problem")
-        return _de_many(fns, solver, lower, upper, keys, mesh, progress, desc)
+        return _de_many(fns, solver, lower, upper, keys, mesh=mesh, progress=progress, desc=desc)
     if isinstance(solver, LevenbergMarquardt):
         if x0 is None:
             raise ValueError("Levenberg-Marquardt needs a start point per problem")
         run = np.ones(lower.shape[0], bool) if run is None else np.asarray(run, bool)
-        return _lm_many(fns, solver, lower, upper, x0, run, mesh)
+        return _lm_many(fns, solver, lower, upper, x0, run=run, mesh=mesh)
     raise TypeError(f"no batched run for {type(solver).__name__}")

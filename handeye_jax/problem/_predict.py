@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -112,10 +113,24 @@ def noise_to_parameters(
     """``(G₁, G₂)``: how each stage's parameters move with stage 1's whitened noise ``ε``
     (unit normal), ``δθ = G ε``; ``cov(θ₁, θ₂) = [G₁; G₂][G₁; G₂]ᵀ``. ``prior1``, ``prior2``:
     the information a prior adds on each stage's free parameters, or ``None``."""
-    return _gains(objective1, x1, prior1, objective2, x2, prior2)[:2]
+    return _gains(_fit(objective1, x1, prior1), _fit(objective2, x2, prior2))[:2]
 
 
-def _gains(objective1, x1, prior1, objective2, x2, prior2):
+class _StageFit(NamedTuple):
+    """One stage's objective, its optimum and its prior's information (or ``None``)."""
+
+    objective: NoiseObjective
+    x: Array
+    prior: Array | None
+
+
+def _fit(objective, x, prior) -> _StageFit | None:
+    return None if objective is None else _StageFit(objective, x, prior)
+
+
+def _gains(one: _StageFit, two: _StageFit | None):
+    objective1, x1, prior1 = one
+    objective2, x2, prior2 = (None, None, None) if two is None else two
     """``(G₁, G₂, A₁, A₂)``: :func:`noise_to_parameters`' gains and each stage's information
     (its prior's included; ``None`` for a stage not given)."""
     J1 = jax.jacfwd(objective1.whitened)(x1)
@@ -146,7 +161,8 @@ def parameter_covariance(
 ) -> Float[Array, "d d"]:
     """The fit's covariance: stage 1's free parameters, then stage 2's when given (their
     units², as ordered in each objective's ``free``)."""
-    return _uncertainty(objective1, x1, None, None, prior1, objective2, x2, prior2, 1)[0]
+    fits = _fit(objective1, x1, prior1), _fit(objective2, x2, prior2)
+    return _uncertainty(*fits, None, None, 1)[0]
 
 
 def workspace_targets(obs: Observations, angles: int = 8, views: int = 64) -> Targets:
@@ -284,7 +300,8 @@ def uncertainty(
         raise ValueError("stage 2's error needs stage 2's objective and optimum")
     var_px, var_depth = noise.target_variances()
     variances = np.array([var_px, var_px, var_depth])
-    return _uncertainty(objective1, x1, targets, variances, prior1, objective2, x2, prior2, stage)
+    fits = _fit(objective1, x1, prior1), _fit(objective2, x2, prior2)
+    return _uncertainty(*fits, targets, variances, stage)
 
 
 def traced_command_error(
@@ -299,13 +316,13 @@ def traced_command_error(
     observations' layout."""
     var_px, var_depth = noise.target_variances()
     variances = np.array([var_px, var_px, var_depth])
-    return _uncertainty.__wrapped__(objective1, x1, targets, variances, None, None, None, None,
-                                    1)[2]  # fmt: skip
+    return _uncertainty.__wrapped__(_fit(objective1, x1, None), None, targets, variances, 1)[2]
 
 
 @fast_compile
-def _uncertainty(objective1, x1, targets, variances, prior1, objective2, x2, prior2, stage: int):
-    G1, G2, A1, A2 = _gains(objective1, x1, prior1, objective2, x2, prior2)
+def _uncertainty(one: _StageFit, two: _StageFit | None, targets, variances, stage: int):
+    G1, G2, A1, A2 = _gains(one, two)
+    objective1, x1 = one.objective, one.x
     G = G1 if G2 is None else jnp.concatenate([G1, G2], axis=0)
     cov = G @ G.T
     if targets is None:
@@ -317,7 +334,8 @@ def _uncertainty(objective1, x1, targets, variances, prior1, objective2, x2, pri
         A = jnp.einsum("kid,dr->kir", J, G1)
         T = _target_covariance(base1.model(x1), rig, targets, variances)
     else:
-        base2: Stage2Objective = objective2.base
+        base2: Stage2Objective = two.objective.base
+        x2 = two.x
         d1 = x1.shape[0]
 
         def cmd(z):

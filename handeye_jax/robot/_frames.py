@@ -340,27 +340,7 @@ class Frames:
                       ("note",))  # fmt: skip
         s2 = r.table(d["stage2"], at("stage2"), ("A1", "A2", "centres_mm"), ("rule",))
         affines = [_read_affine(r, s2[k], at(f"stage2.{k}")) for k in ("A1", "A2")]
-        deploy = 2
-        # An export's "stage" (the stage it carries) is its default; else the calibration's.
-        for key in ("deploy_stage", "stage"):
-            if key in d:
-                deploy = r.number(d[key], at(key))
-                if deploy not in (1.0, 2.0):
-                    r.fail(at(key), f"must be 1 or 2 (got {d[key]!r:.40})")
-        height = None
-        if "heights" in d:
-            hd = r.table(d["heights"], at("heights"), ("pen_minus_camera_mm",), ("rule",))
-            height = r.number(hd["pen_minus_camera_mm"], at("heights.pen_minus_camera_mm"),
-                              MAX_MM)  # fmt: skip
-        distortion = None
-        if "distortion" in d:
-            dd = r.table(d["distortion"], at("distortion"), ("model", *DISTORTION_COEFFICIENTS),
-                         ("rule",))  # fmt: skip
-            if dd["model"] != DISTORTION_MODEL:
-                r.fail(at("distortion.model"), f"must be {DISTORTION_MODEL!r} (got "
-                       f"{dd['model']!r:.40})")  # fmt: skip
-            distortion = tuple(r.number(dd[k], at(f"distortion.{k}"), MAX_DISTORTION)
-                               for k in DISTORTION_COEFFICIENTS)  # fmt: skip
+        deploy, height, distortion, given = _read_extras(r, d, at)
         return cls(
             R_hand_camera=r.rotation(T_hc["R"], at("T_hand_camera.R")),
             t_hand_camera_mm=values["t_hand_camera_mm"],
@@ -387,10 +367,37 @@ class Frames:
             pen_minus_camera_z_mm=height,
             deploy_stage=int(deploy),
             distortion=distortion,
-            given=tuple(r.table(g, at(f"given[{i}]"), ("component",), ("note",))["component"]
-                        for i, g in enumerate(r.table_list(d.get("given", []), at("given")))),
-
+            given=given,
         )  # fmt: skip
+
+
+def _read_extras(r: _Check, d: dict, at) -> tuple[float, float | None, tuple | None, tuple]:
+    """A frames document's optional parts, checked: the stage to deploy, the heights' rule
+    (``z_pen − z_camera``, mm), the lens distortion and the components the user gave."""
+    deploy = 2
+    # An export's "stage" (the stage it carries) is its default; else the calibration's.
+    for key in ("deploy_stage", "stage"):
+        if key in d:
+            deploy = r.number(d[key], at(key))
+            if deploy not in (1.0, 2.0):
+                r.fail(at(key), f"must be 1 or 2 (got {d[key]!r:.40})")
+    height = None
+    if "heights" in d:
+        hd = r.table(d["heights"], at("heights"), ("pen_minus_camera_mm",), ("rule",))
+        height = r.number(hd["pen_minus_camera_mm"], at("heights.pen_minus_camera_mm"),
+                          MAX_MM)  # fmt: skip
+    distortion = None
+    if "distortion" in d:
+        dd = r.table(d["distortion"], at("distortion"), ("model", *DISTORTION_COEFFICIENTS),
+                     ("rule",))  # fmt: skip
+        if dd["model"] != DISTORTION_MODEL:
+            r.fail(at("distortion.model"), f"must be {DISTORTION_MODEL!r} (got "
+                   f"{dd['model']!r:.40})")  # fmt: skip
+        distortion = tuple(r.number(dd[k], at(f"distortion.{k}"), MAX_DISTORTION)
+                           for k in DISTORTION_COEFFICIENTS)  # fmt: skip
+    given = tuple(r.table(g, at(f"given[{i}]"), ("component",), ("note",))["component"]
+                  for i, g in enumerate(r.table_list(d.get("given", []), at("given"))))  # fmt: skip
+    return deploy, height, distortion, given
 
 
 def _read_translations(r: _Check, d: dict, at) -> tuple[list[str], dict, dict, dict]:

@@ -547,7 +547,6 @@ def optimise_layout(
     design = _design(acq)
     history = [float(grad(design, nobj)[0])]
     scale = 1.0
-    first = acq.capture_poses[0]
     for _ in range(steps):
         _, g = grad(design, nobj)
 
@@ -562,7 +561,8 @@ def optimise_layout(
         if acq.pictures > 1:  # the first picture stays: the rig's capture
             pos = moved(design.capture_position_mm[1:], g.capture_position_mm[1:], step_mm)
             turn = moved(design.capture_angle_deg[1:], g.capture_angle_deg[1:], step_deg)
-            poses = _reachable(truth, acq, first, pos, turn, reach_mm, turn_deg, margin_px)
+            poses = _reachable(truth, acq, pos, turn, reach_mm=reach_mm, turn_deg=turn_deg,
+                               margin_px=margin_px)  # fmt: skip
         tab = _project(truth, replace(acq, capture_poses=poses), tab, acq.tablet_px, margin_px)
         trial = replace(acq, tablet_px=tab, hand_angle_deg=ang, capture_poses=poses)
         tobj, _ = objective_at(trial)
@@ -600,10 +600,11 @@ def _row_map(obs) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(obs.capture_index), np.asarray(obs.touch_index)
 
 
-def _reachable(truth: TwinTruth, acq: Acquisition, first, pos, turn, reach_mm, turn_deg,
+def _reachable(truth: TwinTruth, acq: Acquisition, pos, turn, *, reach_mm, turn_deg,
                margin_px) -> tuple:  # fmt: skip
     """The pictures after the first moved to ``pos`` (mm) and ``turn`` (deg), within reach of
     the first and seeing every landmark ``margin_px`` inside; one that would not stays."""
+    first = acq.capture_poses[0]
     p0, a0 = np.asarray(first[0]), float(first[1])
     side, up = reach_mm
     poses = [first]

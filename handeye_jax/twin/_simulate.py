@@ -365,7 +365,8 @@ def simulate_captures(
         hand_angle_deg=truth.landmarks_hand_angle_deg, touch_error_px=np.round(touch_px),
         version=2,
     )  # fmt: skip
-    held = heldout_targets(truth, preset, rng_held, n_heldout, exact, settings, aim=aim)
+    held = heldout_targets(truth, preset, rng_held, n_heldout, exact=exact, settings=settings,
+                           aim=aim)  # fmt: skip
     first_px, first_depth = truth.project(truth.landmarks_tablet_px)
     return Twin(
         truth=truth, preset=preset, dataset=dataset, capture=shots[0][0], depth=shots[0][1],
@@ -380,6 +381,7 @@ def heldout_targets(
     preset: NoisePreset,
     rng: np.random.Generator,
     n_each: int,
+    *,
     exact: bool = False,
     settings: DetectSettings | None = None,
     rises_mm: tuple[float, ...] = HELDOUT_RISES_MM,
