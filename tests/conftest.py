@@ -8,8 +8,6 @@ import hypothesis
 import jax
 import pytest
 
-import handeye_jax
-
 # In-process CLI calls enable XLA's persistent cache; keep it out of the user's home.
 os.environ.setdefault(
     "HANDEYE_JAX_CACHE_DIR", str(Path(__file__).resolve().parents[1] / ".pytest_cache" / "xla")
@@ -20,10 +18,6 @@ os.environ.setdefault(
 jax.config.update("jax_compilation_cache_dir", os.environ["HANDEYE_JAX_CACHE_DIR"])
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-# The XLA flags the command line and the notebooks set (before JAX's first computation): the
-# persistent cache keys on them, so with the same flags the CLI subprocesses and the notebook
-# kernels load the programs this process compiled instead of compiling their own.
-handeye_jax.vectorise_small_loops()
 
 
 # Property tests: the same draws on every clone and every run ("ci", the default: derandomised,

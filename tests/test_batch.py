@@ -120,8 +120,6 @@ def test_a_bad_dataset_is_returned_in_its_place(twins, single):
 _WORKER = """
 import json, os, sys
 import jax
-import handeye_jax
-handeye_jax.vectorise_small_loops()  # the suite's flags (tests/conftest.py)
 {init}
 jax.config.update("jax_compilation_cache_dir", os.environ["HANDEYE_JAX_CACHE_DIR"])
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
