@@ -373,7 +373,7 @@ _HELD = _exact(np.random.default_rng(0).uniform(*_TRUE.landmark_area_px(), (12, 
 
 
 @pytest.mark.slow
-@settings(max_examples=3, deadline=None)
+@settings(max_examples=2, deadline=None)
 @given(st.sampled_from(HTMModel.param_names))
 def test_fixing_a_parameter_at_its_truth_recovers_the_rest(name):
     """Noise-free data, one parameter held at its true value, every other one searched: the
