@@ -138,8 +138,7 @@ def test_rows_pair_each_view_with_each_touch_and_skip_missing_landmarks():
 def fitted(request):
     model, zero, sign = request.param
     rig, ds = _dataset(model, zero, sign)
-    s = Settings(model=model, seed=0, population=200, generations=400)
-    return model, rig, ds, calibrate(ds, s)
+    return model, rig, ds, calibrate(ds, Settings(model=model, seed=0, generations=400))
 
 
 @pytest.mark.slow
@@ -243,7 +242,7 @@ def exact_twin(request, tmp_path_factory):
     twin = simulate(truth, PRESETS["none"], request.param, exact=True, n_heldout=5, captures=3)
     folder = tmp_path_factory.mktemp(f"twin{request.param}")
     write_twin(twin, folder)
-    return twin, folder, calibrate(twin.dataset, Settings(seed=0, population=200, generations=400))
+    return twin, folder, calibrate(twin.dataset, Settings(seed=0, generations=400))
 
 
 def test_twin_draws_captures_at_several_heights_and_hand_angles(exact_twin):

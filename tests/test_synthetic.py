@@ -43,7 +43,7 @@ def test_noise_free_data_is_recovered(model, zero, sign):
     rig = Rig(617.7, 617.7, 316.5, 242.3, with_capture, zero, sign)
     truth = cls.from_dict(TRUTH[model])
     ds = synthesize_dataset(truth, rig, snake_grid_px(), 22.5 * np.arange(9))
-    r = calibrate(ds, Settings(model=model, seed=0, population=200, generations=400))
+    r = calibrate(ds, Settings(model=model, seed=0, generations=400))
     assert r.stage1.F < 1e-6, r.stage1
     assert r.stage2.F < 1e-6, r.stage2
 
