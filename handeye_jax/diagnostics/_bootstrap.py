@@ -173,21 +173,9 @@ def bootstrap(
     pieces = np.split(spread, np.cumsum([p.k for p in parts])[:-1], axis=1)
     predicted = _predicted(result, [main] + [t for _, t in rises], stage)
     height_predicted = None if predicted is None else tuple(m for m, _ in predicted[2:])
-    error_map = None
-    if grid is not None:
-        per_point = pieces[1].mean(axis=0).reshape(MAP_POINTS, MAP_POINTS, len(angles))
-        rise_pieces = pieces[-len(rises):]
-        mm = data.mm_per_tablet_px
-        error_map = ErrorMap(
-            grid_x_mm=tuple(grid[1].tolist()), grid_y_mm=tuple(grid[2].tolist()),
-            spread_mm=tuple(tuple(r) for r in per_point.mean(axis=2).tolist()),
-            landmarks_mm=tuple((float(x), float(y)) for x, y in data.tablet_px * mm),
-            capture_z_mm=float(data.captures[0].hand_position_mm[2]),
-            rises_mm=tuple(r for r, _ in rises),
-            height_mean_mm=tuple(float(p.mean()) for p in rise_pieces),
-            height_p95_mm=tuple(float(np.percentile(p, QUANTILE)) for p in rise_pieces),
-            height_predicted_mm=height_predicted,
-        )  # fmt: skip
+    error_map = None if grid is None else _error_map(
+        data, grid, rises, pieces, len(angles), height_predicted
+    )
     return Bootstrap(
         resamples=resamples, fitted=len(ok), seed=seed, stage=stage,
         resampled=_resampled_words(data), spread_mean_mm=float(pieces[0].mean()),
@@ -196,6 +184,24 @@ def bootstrap(
         predicted_p95_mm=None if predicted is None else predicted[0][1],
         touching_mean_mm=None if predicted is None else predicted[1][0],
         seconds=time.perf_counter() - t0, map=error_map,
+    )  # fmt: skip
+
+
+def _error_map(data, grid, rises, pieces, n_angles: int, height_predicted) -> ErrorMap:
+    """The map of the spread: over the tablet grid (``pieces[1]``, averaged over the refits
+    and the hand angles) and over the capture heights (the last ``len(rises)`` pieces)."""
+    per_point = pieces[1].mean(axis=0).reshape(MAP_POINTS, MAP_POINTS, n_angles)
+    rise_pieces = pieces[-len(rises):]
+    mm = data.mm_per_tablet_px
+    return ErrorMap(
+        grid_x_mm=tuple(grid[1].tolist()), grid_y_mm=tuple(grid[2].tolist()),
+        spread_mm=tuple(tuple(r) for r in per_point.mean(axis=2).tolist()),
+        landmarks_mm=tuple((float(x), float(y)) for x, y in data.tablet_px * mm),
+        capture_z_mm=float(data.captures[0].hand_position_mm[2]),
+        rises_mm=tuple(r for r, _ in rises),
+        height_mean_mm=tuple(float(p.mean()) for p in rise_pieces),
+        height_p95_mm=tuple(float(np.percentile(p, QUANTILE)) for p in rise_pieces),
+        height_predicted_mm=height_predicted,
     )  # fmt: skip
 
 
