@@ -25,18 +25,28 @@ import urllib.parse
 from collections.abc import Callable
 from http import HTTPStatus
 from importlib import resources
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from .._core import InputError, reason
 from . import _guard as guard
 from . import _posts as posts
+from ._app import TabletApp
 from ._http import Request, Response
+from ._log import Log
 from ._targets import grid_targets
 
-if TYPE_CHECKING:
-    from ._server import TabletServer
+
+class ServerState(Protocol):
+    """What a handler reads of its server (:class:`~._server.TabletServer`): named here so
+    that the handler does not import the server that imports it."""
+
+    app: TabletApp
+    log: Log
+    port: int
+    token: str
+    host_names: tuple[str, ...]
 
 _HTML = "text/html; charset=utf-8"
 _STATIC = {
@@ -68,7 +78,7 @@ Route = Callable[[Request, urllib.parse.SplitResult], Response]
 class TabletHandler:
     """Answers requests for ``server`` (its app, secret, port and host names)."""
 
-    def __init__(self, server: TabletServer):
+    def __init__(self, server: ServerState):
         self.server = server
 
     def handle(self, request: Request) -> Response:
