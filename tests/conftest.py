@@ -8,6 +8,8 @@ import hypothesis
 import jax
 import pytest
 
+from handeye_jax import store_programs, vectorise_small_loops
+
 # In-process CLI calls enable XLA's persistent cache; keep it out of the user's home.
 os.environ.setdefault(
     "HANDEYE_JAX_CACHE_DIR", str(Path(__file__).resolve().parents[1] / ".pytest_cache" / "xla")
@@ -18,6 +20,12 @@ os.environ.setdefault(
 jax.config.update("jax_compilation_cache_dir", os.environ["HANDEYE_JAX_CACHE_DIR"])
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+# And as the command line runs, from the first test on, in every test process: XLA's flags as
+# the command line sets them (they are part of the persistent cache's key, so the suite's
+# processes, its command-line subprocesses and the notebooks' kernel share compiled code), and
+# the serialized programs beside that cache (a program one process traced, no other traces).
+vectorise_small_loops()
+store_programs(Path(os.environ["HANDEYE_JAX_CACHE_DIR"]) / "programs")
 
 
 # Property tests: the same draws on every clone and every run ("ci", the default: derandomised,

@@ -123,7 +123,8 @@ import jax
 {init}
 jax.config.update("jax_compilation_cache_dir", os.environ["HANDEYE_JAX_CACHE_DIR"])
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-from handeye_jax import calibrate_batch
+from handeye_jax import calibrate_batch, store_programs
+store_programs(os.path.join(os.environ["HANDEYE_JAX_CACHE_DIR"], "programs"))
 from tests.test_batch import SHARED, batch_twins, numbers, seeds
 twins, each = batch_twins(), seeds(3)
 out = calibrate_batch([twins[i] for i in SHARED], [each[i] for i in SHARED])
@@ -137,9 +138,13 @@ jax.distributed.initialize("127.0.0.1:{port}", num_processes=2, process_id={pid}
 """
 
 
-def _env(**extra) -> dict:
-    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
-    return {**env, "PYTHONPATH": str(ROOT), **extra}
+def _env(devices: int = 1) -> dict:
+    """This process's environment (its XLA flags: the programs compiled here are found in the
+    cache), with ``devices`` host devices."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    if devices > 1:
+        flags = f"{flags} --xla_force_host_platform_device_count={devices}".strip()
+    return {**os.environ, "PYTHONPATH": str(ROOT), "XLA_FLAGS": flags}
 
 
 def _parse(stdout: str) -> tuple[list[int], list[dict]]:
@@ -151,7 +156,7 @@ def _parse(stdout: str) -> tuple[list[int], list[dict]]:
 def test_two_host_devices_give_the_one_device_run(single):
     code = _WORKER.format(init="")
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
-                          env=_env(XLA_FLAGS="--xla_force_host_platform_device_count=2"),
+                          env=_env(devices=2),
                           timeout=600)  # fmt: skip
     assert done.returncode == 0, done.stderr[-3000:]
     devices, got = _parse(done.stdout)
