@@ -27,3 +27,29 @@ def test_disabled_bar_prints_nothing(capsys):
     with progress_bar(total=10, desc="x", enabled=False) as bar:
         bar.update(3)
     assert capsys.readouterr().err == ""
+
+
+def test_a_ctrl_c_while_the_bar_draws_still_ends_its_line(capsys, monkeypatch):
+    """A Ctrl-C that lands while tqdm draws the bar's first line (the CLI test sends it as soon
+    as "stage 1 DE" appears) used to leave that line open, and the CLI's "interrupted" message
+    was printed at its end."""
+    import signal
+
+    import pytest
+    from tqdm import tqdm
+
+    from handeye_jax._core import interrupts
+
+    drawn = tqdm.refresh
+
+    def refresh_then_ctrl_c(self, *args, **kwargs):
+        out = drawn(self, *args, **kwargs)
+        signal.raise_signal(signal.SIGINT)  # the first draw, inside tqdm's constructor
+        return out
+
+    monkeypatch.setattr(tqdm, "refresh", refresh_then_ctrl_c)
+    with interrupts.recording_interrupts(), pytest.raises(KeyboardInterrupt):
+        with progress_bar(total=10, desc="stage 1 DE", enabled=True) as bar:
+            bar.update(1)
+    err = capsys.readouterr().err
+    assert "stage 1 DE" in err and err.endswith("\n"), repr(err)

@@ -98,12 +98,14 @@ def recording_interrupts() -> Iterator[None]:
 def deferred() -> Iterator[None]:
     """Record SIGINT without raising until the block ends, then :func:`check`: for imports,
     where a KeyboardInterrupt inside a C extension's initialisation can crash the process."""
+    outer = _State.deferred  # nested: the outermost block checks
     _State.deferred = True
     try:
         yield
     finally:
-        _State.deferred = False
-    check()
+        _State.deferred = outer
+    if not outer:
+        check()
 
 
 def stop_recording() -> None:

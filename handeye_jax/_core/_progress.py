@@ -22,14 +22,20 @@ class _Bar(tqdm):
 def progress_bar(total: int, desc: str, enabled: bool, unit: str = "it") -> Iterator[tqdm]:
     """A progress bar on stderr; a run that ends early shrinks the total to what was done,
     so the closed bar reads complete rather than stopping part-way."""
-    bar = _Bar(
-        total=total, desc=desc, unit=unit, disable=not enabled, file=sys.stderr, leave=True,
-        dynamic_ncols=True,
-    )  # fmt: skip
+    bar = None
     try:
+        # A Ctrl-C while the bar draws or closes waits for the line's end, so that the message
+        # it prints starts on a line of its own.
+        with _interrupt.deferred():
+            bar = _Bar(
+                total=total, desc=desc, unit=unit, disable=not enabled, file=sys.stderr,
+                leave=True, dynamic_ncols=True,
+            )  # fmt: skip
         yield bar
         if not bar.disable and bar.n < bar.total:
             bar.total = bar.n
             bar.refresh()
     finally:
-        bar.close()
+        if bar is not None:
+            with _interrupt.deferred():
+                bar.close()
