@@ -16,7 +16,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._core import InputError, Stages, bounded, each, length, spec
-from .._jax import in_float64
+from .._jax import fast_compile, in_float64
 from ..data import Dataset
 from ..models import AbstractCorrection, AbstractModel, Rig, hand_command
 from ..problem import (
@@ -54,6 +54,10 @@ LEGACY_DEPLOY_STAGE = 2
 #: Largest magnitude of a fitted parameter: the widest search range a dataset admits (DE and
 #: the LM polish stay inside their range).
 MAX_PARAM = 1e6
+
+
+#: One program per shape of the targets (eager, each operation compiles on its own).
+_hand_command = fast_compile(hand_command)
 
 
 @dataclass(frozen=True)
@@ -216,7 +220,7 @@ class CalibrationResult:
         f = lambda a: None if a is None else jnp.asarray(a, dtype=float)  # noqa: E731
         if self.distortion is not None:  # the chain back-projects through a pinhole
             image_px = self.data.camera.undistort(image_px)
-        out = hand_command(
+        out = _hand_command(
             self.model,
             self.rig,
             jnp.asarray(image_px, dtype=float),

@@ -80,7 +80,8 @@ class _Context:
 
 
 def _chi2(ctx: _Context, x) -> float:
-    return float(jnp.sum(whitened_jacobian(ctx.chi2_objective, jnp.asarray(x))[0] ** 2))
+    r = np.asarray(whitened_jacobian(ctx.chi2_objective, jnp.asarray(x))[0])
+    return float(np.sum(r**2))  # in NumPy: JAX would compile the sum for each shape
 
 
 def _F(ctx: _Context, x) -> float:
@@ -221,6 +222,18 @@ def _first_capture(obs: Observations) -> tuple[np.ndarray, tuple]:
                   float(np.asarray(obs.capture_phi_deg())[rows[0]]))  # fmt: skip
 
 
+@fast_compile  # one program, not some forty eager operations compiled one by one
+def _image_to_base(model: AbstractModel, image_px, depth_mm, rig, position, phi):
+    return model.image_to_base(image_px, depth_mm, rig, position, phi)
+
+
+@fast_compile
+def _hand_and_mount(model: AbstractModel, phi):
+    """The hand's rotation in the base at ``phi`` (deg), and the camera mount."""
+    R_hc, t_hc = model.camera_mount()
+    return geo.matmul3(geo.R_base_hand_down(), geo.rot_z(phi)), R_hc, t_hc
+
+
 def _mirror_mount(ctx: _Context, model: AbstractModel) -> Ambiguity | None:
     """The camera mirrored through the first capture's landmark plane and a horizontal plane
     (see the module), refined by LM; ``None`` if the data exclude it or it is the fit."""
@@ -230,10 +243,19 @@ def _mirror_mount(ctx: _Context, model: AbstractModel) -> Ambiguity | None:
         return None
     rows, (position, phi) = _first_capture(ctx.obs)
     obs = ctx.obs
-    pos = None if obs.capture_position_mm is None else obs.capture_position_mm[rows]
-    phis = None if obs.capture_position_mm is None else obs.capture_phi_deg()[rows]
-    x_bi = np.asarray(model.image_to_base(obs.image_px[rows], obs.depth_mm[rows], obs.rig,
-                                          pos, phis))  # fmt: skip
+    # The rows taken in NumPy: JAX's indexing would compile a program per shape.
+    pos = None if obs.capture_position_mm is None else np.asarray(obs.capture_position_mm)[rows]
+    phis = None if obs.capture_position_mm is None else np.asarray(obs.capture_phi_deg())[rows]
+    x_bi = np.asarray(
+        _image_to_base(
+            model,
+            np.asarray(obs.image_px)[rows],
+            np.asarray(obs.depth_mm)[rows],
+            obs.rig,
+            pos,
+            phis,
+        )
+    )
     if len(x_bi) < 3:
         return None
     c0 = x_bi.mean(axis=0)
@@ -241,8 +263,7 @@ def _mirror_mount(ctx: _Context, model: AbstractModel) -> Ambiguity | None:
     n = n if n[2] >= 0 else -n
     D = np.diag([1.0, 1.0, -1.0])
     M = D @ (np.eye(3) - 2.0 * np.outer(n, n))
-    R_bh = np.asarray(geo.matmul3(geo.R_base_hand_down(), geo.rot_z(jnp.asarray(phi))))
-    R_hc, t_hc = (np.asarray(a) for a in model.camera_mount())
+    R_bh, R_hc, t_hc = (np.asarray(a) for a in _hand_and_mount(model, jnp.asarray(phi)))
     v = R_bh @ t_hc + position
     v_mirror = D @ (v - 2.0 * n * (n @ (v - c0)))
     v_mirror[2] = position[2]  # the horizontal plane's height keeps the camera's z on the hand
