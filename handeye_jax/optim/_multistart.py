@@ -137,8 +137,9 @@ def _starts_loop(fn: Problem, x0, lower, upper, lm: LevenbergMarquardt, run: Boo
     return x, st.cost, st.steps, st.quiet >= _QUIET_ITERATIONS
 
 
-# Compiled at LLVM level 1: the loop runs hundreds of iterations (see handeye_jax._jax).
-@fast_compile(llvm_opt_level=1)
+# At LLVM level 0: its callers run one start (the ML polish, a mirror check), which level 1
+# compiled about 0.4 s longer to run no faster (benchmarks/RESULTS.md).
+@fast_compile
 def _one(fn, x0, lower, upper, lm, run):
     return _starts_loop(fn, x0, lower, upper, lm, run)
 
