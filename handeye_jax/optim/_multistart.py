@@ -137,8 +137,9 @@ def _starts_loop(fn: Problem, x0, lower, upper, lm: LevenbergMarquardt, run: Boo
     return x, st.cost, st.steps, st.quiet >= _QUIET_ITERATIONS
 
 
-# At LLVM level 0: its callers run one start (the ML polish, a mirror check), which level 1
-# compiled about 0.4 s longer to run no faster (benchmarks/RESULTS.md).
+# At LLVM level 0: the package calls it with one start (the ML polish, the mirror check),
+# which level 1 compiled about 0.4 s longer to run no faster (benchmarks/RESULTS.md). Many
+# starts of one problem run slower at level 0; the restarts use `_starts`, at level 1.
 @fast_compile
 def _one(fn, x0, lower, upper, lm, run):
     return _starts_loop(fn, x0, lower, upper, lm, run)
