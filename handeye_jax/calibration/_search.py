@@ -259,7 +259,7 @@ def _restarts(batch: _Batch, found: list[DESearch], keys, settings: Settings,
     # As wide as the refits' (the last start repeated): one LM program and one program for
     # the ends' values serve both.
     ends = _multistart(batch, [f.objective for f in found], lower, upper, points,
-                       max(restarts, REFIT_WIDTH), padded=True)  # fmt: skip
+                       max(restarts, REFIT_WIDTH))  # fmt: skip
     labels = [own + [own[-1]] * (ends.shape[1] - restarts) for own in labels]
     full = np.array([[t.space.embed(subs[i].free, e, found[i].base) for e in ends[i]]
                      for i, t in enumerate(batch.tasks)])  # fmt: skip
@@ -297,8 +297,7 @@ def _refits(batch: _Batch, best: _Best,
     lower, upper = np.array([s.lower for s in spaces]), np.array([s.upper for s in spaces])
     landmarks = tasks[0].restart_landmarks
     # All the padded ends, as wide as the restarts': their values are then one program.
-    ends = _multistart(batch, batch.objective, lower, upper, starts, max(size, REFIT_WIDTH),
-                       padded=True)  # fmt: skip
+    ends = _multistart(batch, batch.objective, lower, upper, starts, max(size, REFIT_WIDTH))
     labels = [own + [own[-1]] * (ends.shape[1] - len(own)) for own in labels]
     out, _, _ = _best_end(batch, ends, labels, best, landmarks is not None)
     changed = out.value != best.value
@@ -311,19 +310,17 @@ def _refits(batch: _Batch, best: _Best,
     return _Best(out.x, out.value, found_by), replaced
 
 
-def _multistart(batch: _Batch, objectives, lower, upper, starts: np.ndarray, size: int,
-                padded: bool = False):  # fmt: skip
-    """:func:`~._stage._multistart` of every problem: LM end points ``(b, k, d)``, or
-    ``(b, max(k, size), d)`` with ``padded`` (the last start's end repeated)."""
+def _multistart(batch: _Batch, objectives, lower, upper, starts: np.ndarray, size: int):
+    """:func:`~._stage._multistart` of every problem: LM end points ``(b, max(k, size), d)``
+    for ``k`` starts, the last start's end repeated up to ``size``."""
     landmarks = batch.tasks[0].restart_landmarks
     searched = objectives if landmarks is None else [o.on_landmarks(landmarks)
                                                      for o in objectives]  # fmt: skip
     k = starts.shape[1]
     wide = np.concatenate([starts, np.repeat(starts[:, -1:], max(size - k, 0), axis=1)], axis=1)
     lm = LevenbergMarquardt(rtol=1e-10, atol=0.0, max_steps=RESTART_STEPS)
-    ends = minimise_starts_many(stack(searched), lm, lower, upper, wide, run=batch.live,
+    return minimise_starts_many(stack(searched), lm, lower, upper, wide, run=batch.live,
                                 mesh=batch.mesh).x  # fmt: skip
-    return ends if padded else ends[:, :k]
 
 
 def _best_end(batch: _Batch, ends: np.ndarray, labels: list[list[str]], best: _Best,
