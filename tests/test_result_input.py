@@ -138,6 +138,9 @@ BAD_FIELDS = [
     # others: the rig and the fit
     (("rig", "camera_px", "fx"), 0.5, "rig.camera_px.fx", "at least 1 px"),
     (("stage1", "params", "xt"), 1e30, "stage1.params.xt", "at most"),
+    # a class's own check (found by the explore profile: it was a traceback)
+    (("stage1", "noise", "noise", "image_sigma_px"), -1.0, "stage1.noise.noise",
+     "image_sigma_px must be finite and >= 0"),
 ]
 
 

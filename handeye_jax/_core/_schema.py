@@ -27,6 +27,7 @@ from collections.abc import Callable
 from functools import cache
 from typing import Any, Literal
 
+from ._errors import InputError
 from ._validate import Reader, describe, join_key
 
 OMIT_NONE = "none"
@@ -142,7 +143,12 @@ def read(r: Reader, cls: type, doc: Any, where: str = "") -> Any:
         value = _read(r, hint, doc[key], at)
         check = f.metadata.get("check")
         values[f.name] = value if check is None or value is None else check(r, value, at)
-    out = cls(**values)
+    try:
+        out = cls(**values)
+    except InputError:
+        raise
+    except (ValueError, TypeError) as e:  # the class's own checks, e.g. a negative sigma
+        r.fail(where, str(e))
     # Rules across fields (lengths that must agree, legacy forms brought up to date).
     return out.checked(r, where) if hasattr(out, "checked") else out
 
