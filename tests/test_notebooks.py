@@ -50,7 +50,13 @@ def test_notebook_runs(path, kernel):
     for cell in nb.cells:
         if cell.cell_type == "code":
             cell.outputs = []
-    nb.cells.insert(0, nbformat.v4.new_code_cell("%reset -f"))
+    # An emptied namespace, then the suite's stored programs (tests/conftest.py): a program a
+    # test process already traced is loaded, not traced and lowered again in the kernel.
+    nb.cells.insert(0, nbformat.v4.new_code_cell(
+        "%reset -f\nimport os as _os, handeye_jax as _hj\n"
+        "_hj.store_programs(_os.path.join(_os.environ['HANDEYE_JAX_CACHE_DIR'], 'programs'))\n"
+        "del _os, _hj"
+    ))  # fmt: skip
     client = NotebookClient(nb, timeout=600, kernel_name="python3",
                             km=kernel[0].km if kernel else None,
                             resources={"metadata": {"path": str(path.parent)}})  # fmt: skip
