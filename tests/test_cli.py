@@ -242,7 +242,8 @@ def test_a_fit_that_does_not_fit_the_data_is_plainly_warned_about(tmp_path, caps
 def test_console_script_exit_keeps_every_output(tmp_path):
     # The console script leaves by os._exit: its streams and the result must be complete.
     out = tmp_path / "r.json"
-    env = dict(os.environ, JAX_PLATFORMS="cpu", HANDEYE_JAX_CACHE_DIR="off")
+    # The suite's caches (tests/conftest.py), as the closed-pipe test below: the same programs.
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
     for name in ("HANDEYE_JAX_DEBUG", "PYTHONUNBUFFERED"):  # block-buffered, as for most users
         env.pop(name, None)
     p = subprocess.run([sys.executable, "-m", "handeye_jax.cli", "calibrate", str(PAPER),
