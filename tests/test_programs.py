@@ -46,8 +46,16 @@ def _solve():
 @pytest.fixture
 def store(tmp_path):
     folder = tmp_path / "programs"
+    suites = _xla._store.folder  # the suite's own store (tests/conftest.py), put back after
     yield folder
     _xla.store_programs(None)
+    _xla.store_programs(suites)
+
+
+def _as_a_new_process(store):
+    """Nothing in memory, the files on disk (the same folder again keeps what is loaded)."""
+    _xla.store_programs(None)
+    _xla.store_programs(store)
 
 
 def _same(a, b):
@@ -62,12 +70,26 @@ def test_a_stored_program_is_loaded_without_tracing_and_gives_the_same_numbers(s
     built = _solve()
     files = sorted(store.glob("*.program"))
     assert len(files) >= 3  # the DE's start and loop, and the LM
-    _xla.store_programs(store)  # as a new process would: nothing in memory, files on disk
+    _as_a_new_process(store)
     before = TRACES["n"]
     loaded = _solve()
     assert TRACES["n"] == before  # the problem was not traced again
     _same(plain, built)
     _same(plain, loaded)
+
+
+def test_the_same_folder_again_keeps_what_this_process_loaded(store):
+    """Each command run in one process turns the store on again: it must not drop and reload
+    every program (in-process commands of the suite, the notebooks, a user's script)."""
+    _xla.store_programs(store)
+    want = _solve()
+    for f in store.glob("*.program"):
+        f.unlink()
+    _xla.store_programs(store)
+    before = TRACES["n"]
+    _same(_solve(), want)
+    assert TRACES["n"] == before  # neither traced again
+    assert not list(store.glob("*.program"))  # nor rebuilt from the (now empty) folder
 
 
 @pytest.mark.parametrize("damage", ["truncated", "garbage", "another program", "empty"])
@@ -86,14 +108,14 @@ def test_a_damaged_or_stale_program_is_rebuilt_with_the_same_numbers(store, dama
             "empty": b"",
         }[damage]  # fmt: skip
         f.write_bytes(damaged[f])
-    _xla.store_programs(store)
+    _as_a_new_process(store)
     before = TRACES["n"]
     _same(_solve(), want)
     assert TRACES["n"] > before  # rebuilt: traced again
     for f in files:  # and stored again, whole
         data = f.read_bytes()
         assert data != damaged[f] and data.startswith(_xla.FORMAT) and len(data) > 1000
-    _xla.store_programs(store)
+    _as_a_new_process(store)
     before = TRACES["n"]
     _same(_solve(), want)
     assert TRACES["n"] == before  # the rebuilt files load
