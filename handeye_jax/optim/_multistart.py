@@ -47,6 +47,7 @@ class _State(eqx.Module):
     lam: Float[Array, " s"]
     quiet: Int[Array, ""]
     steps: Int[Array, ""]
+    fresh: Bool[Array, ""]  # r, J and cost are not yet the starts': the first pass takes them
 
 
 def _rows_sum(term, m: int):
@@ -109,15 +110,19 @@ def _step(fn: Problem, lower, upper, lm: LevenbergMarquardt, st: _State) -> _Sta
     better = cost_t < st.cost
     gain = jnp.where(better, st.cost - cost_t, 0.0)
     enough = gain > lm.rtol * jnp.where(jnp.isfinite(st.cost), st.cost, 0.0) + lm.atol
-    lam = jnp.where(better, st.lam * _SHRINK, st.lam * _GROW)
+    lam = jnp.clip(jnp.where(better, st.lam * _SHRINK, st.lam * _GROW), *_LAMBDA_RANGE)
+    # The first pass (r = J = 0, so dz = −0.0 and z + dz is z) evaluates the starts: it is
+    # neither a step nor a refusal, and its r and J are kept even where they are not finite.
+    take = better | st.fresh
     return _State(
         z=jnp.where(better[:, None], st.z + dz, st.z),
-        r=jnp.where(better[:, None], r_t, r),
-        J=jnp.where(better[:, None, None], J_t, J),
+        r=jnp.where(take[:, None], r_t, r),
+        J=jnp.where(take[:, None, None], J_t, J),
         cost=jnp.where(better, cost_t, st.cost),
-        lam=jnp.clip(lam, *_LAMBDA_RANGE),
-        quiet=jnp.where(enough.any(), 0, st.quiet + 1),
-        steps=st.steps + 1,
+        lam=jnp.where(st.fresh, st.lam, lam),
+        quiet=jnp.where(st.fresh | enough.any(), 0, st.quiet + 1),
+        steps=jnp.where(st.fresh, st.steps, st.steps + 1),
+        fresh=jnp.asarray(False),
     )
 
 
@@ -125,12 +130,16 @@ def _starts_loop(fn: Problem, x0, lower, upper, lm: LevenbergMarquardt, run: Boo
     """LM from the starts ``x0`` (s, d) of one problem: end points, costs, iterations and
     whether the batch's stopping rule held. ``run`` False returns the starts untouched."""
     z = _box.to_z(x0, lower, upper)
-    r, J, cost = _evaluate(fn, z, lower, upper)
-    st = _State(z, r, J, cost, jnp.full(cost.shape, _LAMBDA0), jnp.asarray(0), jnp.asarray(0))
+    # The starts are evaluated by the loop's first pass, not before it: the residuals and
+    # their Jacobian then appear once in the program, which halves what XLA compiles.
+    r, J, cost = jax.eval_shape(lambda: _evaluate(fn, z, lower, upper))
+    st = _State(z, jnp.zeros(r.shape, r.dtype), jnp.zeros(J.shape, J.dtype),
+                jnp.full(cost.shape, jnp.inf, cost.dtype), jnp.full(cost.shape, _LAMBDA0),
+                jnp.asarray(0), jnp.asarray(0), jnp.asarray(True))  # fmt: skip
     limit = jnp.where(run, lm.max_steps, 0)
 
     def going(st):
-        return (st.steps < limit) & (st.quiet < _QUIET_ITERATIONS)
+        return st.fresh | (st.steps < limit) & (st.quiet < _QUIET_ITERATIONS)
 
     st = jax.lax.while_loop(going, lambda st: _step(fn, lower, upper, lm, st), st)
     x = _box.to_x(st.z, lower, upper)
