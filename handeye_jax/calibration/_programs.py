@@ -7,7 +7,7 @@ import jax
 import numpy as np
 
 from .._jax import Blocks, fast_compile, per_device, problem_mesh
-from ..optim import LOOPED, latin_hypercube
+from ..optim import LOOPED, latin_hypercube, values_many
 from ..problem import (
     AbstractObjective,
     chain_points,
@@ -58,31 +58,19 @@ def stage_error_jacobian(objective, x):
     return error_jacobian(objective, x)
 
 
-# -- a batch of problems (calibration/_batch_stage.py) ----------------------------------------
-# Each runs the single run's program problem after problem (lax.map) inside one program, with
-# its XLA options: each problem's numbers are its single run's, bit for bit.
-
-
-@fast_compile
-def _reports(block):
-    objectives, x = block
-    return jax.lax.map(lambda a: stage_report.__wrapped__(*a), (objectives, x))
-
-
-@fast_compile
-def _reports_each(block):
-    objectives, x = block  # x: (b, s, d), each point evaluated as a single run evaluates it
-    return jax.lax.map(lambda a: jax.lax.map(lambda x: stage_report.__wrapped__(a[0], x), a[1]),
-                       (objectives, x))  # fmt: skip
+# -- a batch of problems (calibration/_search.py) ---------------------------------------------
 
 
 def stage_values_many(objectives: AbstractObjective, x: np.ndarray, mesh) -> np.ndarray:
-    """:func:`stage_value` of each problem (stacked ``objectives``) at its point ``(b, d)`` or at
-    each of its points ``(b, s, d)``."""
-    mesh = problem_mesh() if mesh is None else mesh
-    x = np.asarray(x, float)
-    program = _reports if x.ndim == 2 else _reports_each
-    return np.asarray(per_device(program, Blocks.of((objectives, x), mesh, LOOPED)).gather()[3])
+    """The value the optimisers minimise, of each problem (stacked ``objectives``) at its point
+    ``(b, d)`` or at each of its points ``(b, s, d)``: the optimisers' own program
+    (:func:`~handeye_jax.optim.values_many`), which the LM polish already compiled for its
+    start and end values, so that the search compiles no program of its own for them."""
+    return values_many(objectives, np.asarray(x, float), mesh)
+
+
+# Each runs the single run's program problem after problem (lax.map) inside one program, with
+# its XLA options: each problem's numbers are its single run's, bit for bit.
 
 
 @fast_compile
