@@ -7,7 +7,7 @@ import jax
 import numpy as np
 
 from .._jax import Blocks, fast_compile, per_device, problem_mesh
-from ..optim import LOOPED, latin_hypercube, values_many
+from ..optim import LOOPED, latin_hypercube
 from ..problem import (
     AbstractObjective,
     chain_points,
@@ -59,16 +59,6 @@ def stage_error_jacobian(objective, x):
 
 
 # -- a batch of problems (calibration/_search.py) ---------------------------------------------
-
-
-def stage_values_many(objectives: AbstractObjective, x: np.ndarray, mesh) -> np.ndarray:
-    """The value the optimisers minimise, of each problem (stacked ``objectives``) at its point
-    ``(b, d)`` or at each of its points ``(b, s, d)``: the optimisers' own program
-    (:func:`~handeye_jax.optim.values_many`), which the LM polish already compiled for its
-    start and end values, so that the search compiles no program of its own for them."""
-    return values_many(objectives, np.asarray(x, float), mesh)
-
-
 # Each runs the single run's program problem after problem (lax.map) inside one program, with
 # its XLA options: each problem's numbers are its single run's, bit for bit.
 

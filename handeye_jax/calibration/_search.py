@@ -28,10 +28,11 @@ from ..optim import (
     minimise_starts_many,
     mode_leaders,
     take,
+    values_many,
 )
 from ..problem import AbstractObjective, MaskedObjective
 from ._payloads import PolishSummary, RestartSummary
-from ._programs import lhs_many, stage_values_many
+from ._programs import lhs_many
 from ._settings import Settings
 from ._stage import (
     BETTER_BY_MM,
@@ -159,7 +160,8 @@ def fit_stages(
         x = np.array([t.space.embed(search, f.de.x, b) for t, f, b in zip(tasks, found, bases,
                                                                             strict=True)])
         label = "DE"
-    best = _Best(x, stage_values_many(stack(objective), x, mesh), [label] * len(tasks))
+    # The values come from the program the LM polish compiles for its own (no other program).
+    best = _Best(x, values_many(stack(objective), x, mesh), [label] * len(tasks))
     summaries = [de_summary(search, None if found is None else found[i], float(best.value[i]))
                  for i in range(len(tasks))]  # fmt: skip
     t1 = time.perf_counter()
@@ -327,7 +329,7 @@ def _best_end(batch: _Batch, ends: np.ndarray, labels: list[list[str]], best: _B
               narrowed: bool) -> tuple[_Best, np.ndarray, np.ndarray]:  # fmt: skip
     """:func:`~._stage._best_end` of every problem: the new bests, every end point's value and
     the lowest one's value after its polish."""
-    values = stage_values_many(stack(batch.objective), ends, batch.mesh)
+    values = values_many(stack(batch.objective), ends, batch.mesh)
     values = np.where(np.isfinite(values), values, np.inf)
     i = np.argmin(values, axis=1)
     rows = np.arange(len(i))
