@@ -112,11 +112,14 @@ def test_closed_form_estimate_recovers_a_noise_free_rig(seed, model, convention,
     errors = [max(float(np.abs(a - b).max()) for a, b in
                   zip(_frames(cls.from_dict(c.params(cls))), want, strict=True))
               for c in candidates]  # fmt: skip
-    assert min(errors) < 1e-6, errors
+    # A tilt shows only to second order in the touches' fit (see the estimate's module), so
+    # rounding there is amplified by 1 / tilt: a nearly level tablet is held less tightly.
+    tol = 1e-6 + 1e-9 / np.radians(max(est.tilt_deg, 1e-4))
+    assert min(errors) < tol, (errors, est.tilt_deg)
     best = candidates[int(np.argmin(errors))]
     with float64():
         F = Stage1Objective(cls, data.observations())(cls.from_dict(best.params(cls)).to_vector())
-    assert float(F) < 1e-6
+    assert float(F) < tol
     # The default box around it holds the truth, each parameter well inside its range.
     ranges = plan_search(data, cls, "estimate").report.stage1
     true = _true_params(truth, cls)
