@@ -19,7 +19,8 @@ Two linear steps, then a rigid fit:
    by a rotation and a translation (Kabsch): ``R_hand_camera``, ``t_hand_camera``. One
    capture cannot tell the two signs of the tablet's tilt apart (a plane's mirror image is a
    turned copy of it: both fit exactly, with camera mounts the shift/tilt trade-off apart);
-   captures at several hand angles can, and the better fit comes first.
+   captures at several hand angles can, and the better fit comes first (else the camera
+   nearer the hand's axis, as mounts are usually designed).
 
 A model turns each candidate into its parameters with ``from_frames``.
 """
@@ -75,7 +76,8 @@ class ClosedFormEstimate:
     """The closed-form estimate of :func:`closed_form_estimate`.
 
     Attributes:
-        candidates: the rig for each sign of the tablet's tilt, the better view fit first.
+        candidates: the rig for each sign of the tablet's tilt, the better view fit first
+            (when the views cannot tell them apart, the camera nearer the hand's axis).
         touch_rms_mm: RMS length of the touches' residuals in step 1, mm.
         touches: the distinct touches used.
         pen_determined: the touches were made at two or more hand angles, so the pen offset
@@ -175,6 +177,11 @@ def _capture_poses(obs: Observations) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(obs.capture_position_mm, float), np.asarray(obs.capture_phi_deg(), float)
 
 
+def _off_axis(R_hand_camera: np.ndarray) -> float:
+    """The angle between the camera's optical axis and the hand's z axis, rad."""
+    return float(np.arccos(np.clip(abs(R_hand_camera[2, 2]), 0.0, 1.0)))
+
+
 def closed_form_estimate(obs: Observations) -> ClosedFormEstimate:
     """The rig from the data alone, in closed form (see the module): no search ranges.
 
@@ -206,7 +213,11 @@ def closed_form_estimate(obs: Observations) -> ClosedFormEstimate:
         candidates.append(RigEstimate(R_hc, t_hc, R_bt, np.array([t[0], t[1], 0.0]),
                                       np.array([p[0], p[1], 0.0]), rms))  # fmt: skip
     candidates.sort(key=lambda c: c.view_rms_mm)
-    tilt = float(np.degrees(np.arccos(np.clip(abs(candidates[0].R_base_tablet[2, 2]), 0, 1))))
     best, other = candidates[0].view_rms_mm, candidates[1].view_rms_mm
     determined = other > SIGN_RULED_OUT * best + 1e-9
+    if not determined:
+        # Both fit alike, so their order by fit is rounding's: the camera nearer the hand's
+        # axis (how mounts are designed) comes first, the same on every machine.
+        candidates.sort(key=lambda c: _off_axis(c.R_hand_camera))
+    tilt = float(np.degrees(np.arccos(np.clip(abs(candidates[0].R_base_tablet[2, 2]), 0, 1))))
     return ClosedFormEstimate(tuple(candidates), touch_rms, k, pen, tilt, determined)
