@@ -12,11 +12,15 @@ import pytest
 def test_import_does_not_flip_x64_and_api_is_float64_anyway():
     code = textwrap.dedent(
         """
+        import os
         import jax, jax.numpy as jnp, numpy as np
         import handeye_jax as hj
         from handeye_jax import snake_grid_px, synthesize_dataset
         assert not jax.config.jax_enable_x64, "import flipped jax_enable_x64"
         assert jnp.ones(1).dtype == jnp.float32
+        # the suite's stored programs (tests/conftest.py): what this checks is not compiling
+        hj.store_programs(os.path.join(os.environ["HANDEYE_JAX_CACHE_DIR"], "programs"))
+        assert not jax.config.jax_enable_x64, "store_programs flipped jax_enable_x64"
         with hj.float64():
             truth = hj.HTMModel.from_dict(dict(xc=-3.0, yc=35.0, alpha_c=-1.5, beta_c=2.0,
                 gamma_c=4.0, xt=150.0, yt=40.0, alpha_t=2.0, beta_t=-8.0, gamma_t=-3.0,
