@@ -51,10 +51,11 @@ from handeye_jax.cli import main
 from handeye_jax.models import AffinePair
 from handeye_jax.problem import stage1_errors
 from handeye_jax.twin._truth import CHANGE_MARGIN, CHANGES, RANGES
+from tests.common import FAST, FAST_SETTINGS
 
-#: One small budget for every fit here, so that they share compiled programs.
-BUDGET = dict(population=100, generations=300, restarts=8)
-FAST = ["--population", "100", "--generations", "300", "--restarts", "8", "--no-progress"]
+#: The suite's budget (tests/common.py) for every fit here, so that they share compiled
+#: programs with each other and with the rest of the suite.
+BUDGET = dict(population=FAST_SETTINGS.population, generations=FAST_SETTINGS.generations)
 #: The landmarks of a recalibration on four touches: the grid's corners.
 CORNERS = (0, 2, 6, 8)
 LANDMARK_FIELDS = ("tablet_px", "image_px", "depth_mm", "hand_xy_mm", "hand_angle_deg",
