@@ -384,9 +384,9 @@ def main(argv=None) -> str:
     ap.add_argument("--results", type=Path, help="also write the tables into this Markdown file")
     args = ap.parse_args(argv)
     settings = Settings(population=args.population, generations=args.generations)
-    if args.quick:  # the budget of tests/test_recalibration.py: its compiled programs serve
+    if args.quick:  # the test suite's budget (tests/common.py): its compiled programs serve
         args.seeds, args.parts, args.ks = [1], ["pen"], [4]
-        settings = Settings(population=100, generations=300, restarts=8)
+        settings = Settings(population=200, generations=400)
     SUBSETS[3] = tuple(args.k3)
     global PAPER_DATA_TERM
     PAPER_DATA_TERM = args.paper_data_term
