@@ -52,8 +52,11 @@ def de_start(objective, n: int, key: int = 0):
     ``optim._de._chunk`` takes after the state: its step (the box, CR 0.9, F 0.5) and its stop
     (no generation limit, early stop off)."""
     lower, upper = (jnp.asarray(b) for b in HTMModel.search_bounds())
-    state = de._init(objective, jax.random.PRNGKey(key), lower, upper, n)
+    state = de._init(jax.random.PRNGKey(key), lower, upper, n)
     step = de._Step(lower, upper, np.asarray(0.9), np.asarray(0.5))
+    # A chunk with no generations to run only evaluates the initial members.
+    evaluate = de._Stop(*(np.asarray(v) for v in (0, 0.0, 0.0, False)))
+    state = de._chunk(objective, state, step, evaluate)[0]
     stop = de._Stop(*(np.asarray(v) for v in (10**9, 0.0, 0.0, False)))
     return state, lower, upper, (step, stop)
 

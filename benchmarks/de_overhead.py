@@ -62,34 +62,39 @@ from _common import PAPER, de_start, interleaved_ms  # noqa: E402
 from de_throughput import _objective_scan  # noqa: E402
 
 
-def _scaled(fn, state, step):
-    return de._select(fn, state, state.population * (1.0 + 1e-12 * step.mutation))
+def _kept(fn, state, trial, fresh):
+    """The shipped generation's end: the members themselves in a fresh state's first pass."""
+    return de._select(fn, state, jnp.where(fresh, state.population, trial), fresh)
 
 
-def _fixed_donors(fn, state, step):
+def _scaled(fn, state, step, fresh):
+    return _kept(fn, state, state.population * (1.0 + 1e-12 * step.mutation), fresh)
+
+
+def _fixed_donors(fn, state, step, fresh):
     pop, lower, upper = state.population, step.lower, step.upper
     base, b, c = (jnp.roll(pop, k, axis=0) for k in (1, 2, 3))
     trial = jnp.where(pop > 0.5 * (lower + upper), base + step.mutation * (b - c), pop)
     trial = jnp.where(trial < lower, 0.5 * (base + lower), trial)
     trial = jnp.where(trial > upper, 0.5 * (base + upper), trial)
-    return de._select(fn, state, trial)
+    return _kept(fn, state, trial, fresh)
 
 
-def _draws_only(fn, state, step):
+def _draws_only(fn, state, step, fresh):
     pop = state.population
     n, d = pop.shape
     u = _rng.uniforms(state.seed, state.generation, (n, d + 4))
     j_rand = jnp.floor(u[:, 3] * d).astype(jnp.int32)
     cross = (u[:, 4:] < step.crossover) | (jnp.arange(d)[None, :] == j_rand[:, None])
-    return de._select(fn, state, jnp.where(cross, pop * (1.0 + 1e-12 * step.mutation), pop))
+    return _kept(fn, state, jnp.where(cross, pop * (1.0 + 1e-12 * step.mutation), pop), fresh)
 
 
-def _no_random_gather(fn, state, step):
+def _no_random_gather(fn, state, step, fresh):
     pop = state.population
     n, d = pop.shape
     u = _rng.uniforms(state.seed, state.generation, (n, d + 4))
     donors = jnp.stack([jnp.roll(pop, k, axis=0) for k in (1, 2, 3)])
-    return de._select(fn, state, de._trial(pop, donors, u, step))
+    return _kept(fn, state, de._trial(pop, donors, u, step), fresh)
 
 
 def _loop_with(generation, name: str):

@@ -102,7 +102,8 @@ def test_de_finds_a_sphere_minimum():
     assert r.converged and r.steps < 2000
     assert r.evaluations == 60 * (r.steps + 1)
     assert len(r.best_history) == r.steps
-    every = list(range(CHUNK_GENERATIONS, r.steps, CHUNK_GENERATIONS))
+    # the first chunk's first pass evaluates the initial members: it runs one generation less
+    every = list(range(CHUNK_GENERATIONS - 1, r.steps, CHUNK_GENERATIONS))
     assert list(r.median_generations) == [*every, r.steps]
     assert np.all(r.median_history >= r.best_history[r.median_generations - 1])
     assert np.all(np.diff(r.best_history) <= 0)  # the best never gets worse

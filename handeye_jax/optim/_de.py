@@ -12,7 +12,10 @@ nothing about what ``fn`` computes. Choices, each documented where a user could 
 * **Bounds.** A trial component outside ``[lower, upper]`` is replaced by the midpoint between
   the base vector's component (``x_r1``, always inside) and the bound it crossed. This keeps
   the search direction, needs no extra random numbers, and never leaves the box.
-* **Initial population.** Latin hypercube sampling of the box, as scipy does by default.
+* **Initial population.** Latin hypercube sampling of the box, as scipy does by default. Its
+  fitness is computed in the loop's first pass (the objective then appears in one compiled
+  program, not two): that pass evaluates the members themselves, keeps them, and counts as
+  no generation, so the first chunk runs ``CHUNK_GENERATIONS − 1`` generations.
 * **Determinism.** Generation ``g`` draws from stream ``g`` of the seed, so a key gives the same
   result bit for bit however the run is split into chunks.
 * **History.** The best fitness is recorded every generation; the population's median is
@@ -145,23 +148,27 @@ def _trial(
     return jnp.where(trial > step.upper, 0.5 * (base + step.upper), trial)
 
 
-def _select(fn: Callable, state: DEState, trial: Float[Array, "n d"]) -> DEState:
-    """Evaluate the trials and keep each one that is no worse than its target."""
+def _select(
+    fn: Callable, state: DEState, trial: Float[Array, "n d"], fresh: Bool[Array, ""]
+) -> DEState:
+    """Evaluate the trials and keep each one that is no worse than its target (``fresh``:
+    the trials are the members themselves, not yet evaluated; all are kept, and no
+    generation is counted)."""
     # The objective is mapped over the trials as columns of a (d, n) array: the same numbers
     # (populations bit-identical), but XLA then runs the objective's first loops, which pick
     # parameters out of every trial, on both cores (benchmarks/RESULTS.md, "DE throughput").
     f_trial = _safe(jax.vmap(fn, in_axes=1)(trial.T))
-    better = f_trial <= state.fitness
+    better = fresh | (f_trial <= state.fitness)
     return DEState(
         seed=state.seed,
         population=jnp.where(better[:, None], trial, state.population),
         fitness=jnp.where(better, f_trial, state.fitness),
-        generation=state.generation + 1,
+        generation=state.generation + jnp.where(fresh, 0, 1).astype(state.generation.dtype),
         converged=state.converged,
     )
 
 
-def _generation(fn: Callable, state: DEState, step: _Step) -> DEState:
+def _generation(fn: Callable, state: DEState, step: _Step, fresh: Bool[Array, ""]) -> DEState:
     pop = state.population
     n, d = pop.shape
     u = _rng.uniforms(state.seed, state.generation, (n, d + 4))
@@ -170,7 +177,8 @@ def _generation(fn: Callable, state: DEState, step: _Step) -> DEState:
     # test checks it), so the gather needs no bounds handling: about 5 % faster a generation
     # than "fill" mode at N = 10,000 (interleaved A/B, benchmarks/de_throughput.py's harness).
     donors = pop.at[jnp.concatenate([r1, r2, r3])].get(mode="promise_in_bounds")
-    return _select(fn, state, _trial(pop, donors.reshape(3, n, d), u, step))
+    trial = _trial(pop, donors.reshape(3, n, d), u, step)
+    return _select(fn, state, jnp.where(fresh, pop, trial), fresh)
 
 
 def _spread_converged(f: Float[Array, " n"], tol: float, atol: float) -> Bool[Array, ""]:
@@ -178,13 +186,14 @@ def _spread_converged(f: Float[Array, " n"], tol: float, atol: float) -> Bool[Ar
 
 
 @fast_compile
-def _init(fn, key, lower, upper, n):
+def _init(key, lower, upper, n):
+    """The Latin hypercube, not yet evaluated (fitness NaN: the loop's first pass does it)."""
     k_pop, k_seed = jax.random.split(key)
     pop = latin_hypercube(k_pop, n, lower, upper)
     return DEState(
         seed=_rng.seed_from_key(k_seed),
         population=pop,
-        fitness=_safe(jax.vmap(fn)(pop)),
+        fitness=jnp.full(n, jnp.nan, pop.dtype),
         generation=jnp.asarray(0),
         converged=jnp.asarray(False),
     )
@@ -192,9 +201,10 @@ def _init(fn, key, lower, upper, n):
 
 def _chunk_scan(fn: Callable, state: DEState, step: _Step, stop: _Stop):
     def one(state, _):
-        active = (~state.converged) & (state.generation < stop.generations)
-        new = _generation(fn, state, step)
-        state = jax.tree.map(lambda a, b: jnp.where(active, a, b), new, state)
+        fresh = jnp.isnan(state.fitness[0])  # evaluated fitness is never NaN (_safe)
+        active = (~state.converged) & (state.generation < stop.generations) & ~fresh
+        new = _generation(fn, state, step, fresh)
+        state = jax.tree.map(lambda a, b: jnp.where(active | fresh, a, b), new, state)
         spread = _spread_converged(state.fitness, stop.tol, stop.atol)
         converged = state.converged | (stop.early & active & spread)
         state = eqx.tree_at(lambda s: s.converged, state, converged)
@@ -242,7 +252,7 @@ class DifferentialEvolution(AbstractSolver[DESolution]):
             raise ValueError("differential evolution needs a PRNG key")
         lower = jnp.asarray(box.lower, dtype=float)
         upper = jnp.asarray(box.upper, dtype=float)
-        state = _init(fn, key, lower, upper, self.population)
+        state = _init(key, lower, upper, self.population)
         # Arrays, not Python numbers, so that new settings reuse the compiled program (NumPy's:
         # jnp.asarray would compile a small program for each).
         step = _Step(lower, upper, np.asarray(self.crossover), np.asarray(self.mutation))

@@ -58,9 +58,9 @@ def take(solution: Solution, i: int) -> Solution:
 # The single run's programs, vmapped over a block of problems, with their own XLA options.
 @fast_compile
 def _de_init(block, n):
-    fns, keys, lower, upper = block
+    keys, lower, upper = block
     init = _de._init.__wrapped__
-    return jax.vmap(lambda f, k, lo, hi: init(f, k, lo, hi, n))(fns, keys, lower, upper)
+    return jax.vmap(lambda k, lo, hi: init(k, lo, hi, n))(keys, lower, upper)
 
 
 @hot_loop
@@ -71,7 +71,7 @@ def _de_chunk(block, stop):
 
 def _de_many(fns, de: DifferentialEvolution, lower, upper, keys, *, mesh, progress, desc):
     b = lower.shape[0]
-    init = per_device(_de_init, Blocks.of((fns, keys, lower, upper), mesh), de.population)
+    init = per_device(_de_init, Blocks.of((keys, lower, upper), mesh), de.population)
     step = _de._Step(lower, upper, np.full(b, de.crossover), np.full(b, de.mutation))
     problems = Blocks.of((fns, step), mesh)
     stop = _de._Stop(np.asarray(de.generations), np.asarray(de.tol), np.asarray(de.atol),
