@@ -1,6 +1,7 @@
 """Recalibration after a change of the rig (issue 17): twins of a changed rig, the
 recalibration command end to end, the objective's properties, priors right and wrong."""
 
+import functools
 import json
 import math
 import re
@@ -285,8 +286,13 @@ def test_a_prior_wrong_by_five_sigma_is_flagged_naming_the_parameter(rig):
 
 # -- properties of the objective -------------------------------------------------------------
 
-_OBS = synthesize_dataset(draw_truth(5).htm(), draw_truth(5).rig(), snake_grid_px(),
-                          22.5 * np.arange(9)).observations()  # fmt: skip
+
+@functools.cache
+def _obs():
+    """A noise-free twin's observations (made at first use: collection, which every test
+    process does, stays free of JAX's computations)."""
+    return synthesize_dataset(draw_truth(5).htm(), draw_truth(5).rig(), snake_grid_px(),
+                              22.5 * np.arange(9)).observations()  # fmt: skip
 
 
 @settings(max_examples=25, deadline=None)
@@ -300,8 +306,9 @@ def test_every_parameter_free_and_no_prior_is_the_papers_objective(seed):
     assert space.free == HTMModel.param_names and space.prior is None
     from handeye_jax.calibration import with_prior
 
-    objective = with_prior(Stage1Objective(space.template, _OBS, space.free), space, 9)
-    F, f1, f2 = fitness(stage1_errors(chain_points(HTMModel.from_vector(jnp.asarray(theta)), _OBS)))
+    obs = _obs()
+    objective = with_prior(Stage1Objective(space.template, obs, space.free), space, 9)
+    F, f1, f2 = fitness(stage1_errors(chain_points(HTMModel.from_vector(jnp.asarray(theta)), obs)))
     terms = objective.terms(jnp.asarray(theta))
     assert set(terms) == {"f1", "f2"}
     assert float(objective(jnp.asarray(theta))) == pytest.approx(float(F), rel=1e-12)
@@ -320,7 +327,7 @@ def test_prior_residual_squares_are_the_negative_log_density(seed, k):
     free = HTMModel.param_names
     index = tuple(free.index(n) for n in names)
     weight = float(rng.uniform(0.01, 2.0))
-    objective = PriorObjective(Stage1Objective(HTMModel, _OBS, free), index,
+    objective = PriorObjective(Stage1Objective(HTMModel, _obs(), free), index,
                                jnp.asarray(prior.mean), jnp.asarray(prior.whitener()),
                                jnp.asarray(weight))  # fmt: skip
     theta = rng.uniform(*HTMModel.search_bounds())
@@ -340,7 +347,7 @@ def test_a_map_fits_data_term_is_gaussian_and_takes_leave_one_out_weights(seed, 
     """GaussianObjective: each length block becomes c times the mean squared length, its
     residuals' squares sum to it, and a zero weight leaves a landmark out exactly."""
     theta = jnp.asarray(np.random.default_rng(seed).uniform(*HTMModel.search_bounds()))
-    base = Stage1Objective(HTMModel, _OBS)
+    base = Stage1Objective(HTMModel, _obs())
     gauss = GaussianObjective(base, jnp.asarray(c))
     e = errors_of(base, theta)
     want = c * (np.mean(np.sum(np.asarray(e.image_vs_tablet) ** 2, axis=1))
@@ -356,21 +363,21 @@ def test_a_map_fits_data_term_is_gaussian_and_takes_leave_one_out_weights(seed, 
     np.testing.assert_array_equal(wrapped.hand, e.hand)  # the paper's errors inside
 
 
-_TRUE = draw_truth(8)
+@functools.cache
+def _exact_twin():
+    """A twin truth and its noise-free data: at its own targets and hand angles, and at 12
+    held-out ones (made at first use, as :func:`_obs`)."""
+    t = draw_truth(8)
 
+    def exact(tablet_px, angles_deg):
+        return synthesize_dataset(
+            t.htm(), t.rig(), tablet_px, angles_deg, ppi=t.ppi, scale=t.scale,
+            tablet_height_mm=t.tablet_height_mm, camera_z_mm=t.camera_z_mm,
+        )  # fmt: skip
 
-def _exact(tablet_px, angles_deg):
-    """Noise-free data of the twin truth ``_TRUE`` at these targets and hand angles."""
-    t = _TRUE
-    return synthesize_dataset(
-        t.htm(), t.rig(), tablet_px, angles_deg, ppi=t.ppi, scale=t.scale,
-        tablet_height_mm=t.tablet_height_mm, camera_z_mm=t.camera_z_mm,
-    )  # fmt: skip
-
-
-_EXACT = _exact(_TRUE.landmarks_tablet_px, _TRUE.landmarks_hand_angle_deg)
-_HELD = _exact(np.random.default_rng(0).uniform(*_TRUE.landmark_area_px(), (12, 2)),
-               np.random.default_rng(1).uniform(0.0, 180.0, 12))  # fmt: skip
+    held = exact(np.random.default_rng(0).uniform(*t.landmark_area_px(), (12, 2)),
+                 np.random.default_rng(1).uniform(0.0, 180.0, 12))  # fmt: skip
+    return t, exact(t.landmarks_tablet_px, t.landmarks_hand_angle_deg), held
 
 
 @pytest.mark.slow
@@ -379,18 +386,19 @@ _HELD = _exact(np.random.default_rng(0).uniform(*_TRUE.landmark_area_px(), (12, 
 def test_fixing_a_parameter_at_its_truth_recovers_the_rest(name):
     """Noise-free data, one parameter held at its true value, every other one searched: the
     fit sends the hand where the truth does, to 1e-6 mm (held-out targets)."""
+    truth, exact, held = _exact_twin()
     free = tuple(n for n in HTMModel.param_names if n != name)
     lo, hi = HTMModel.search_bounds()
     keep = [HTMModel.param_names.index(n) for n in free]
-    space1 = ParameterSpace(_TRUE.htm(), free, lo[keep], hi[keep], None, {name: "the truth"})
+    space1 = ParameterSpace(truth.htm(), free, lo[keep], hi[keep], None, {name: "the truth"})
     identity = AffinePair.from_dict(dict(X1=0.0, Y1=0.0, theta1=0.0, Sx1=1.0, Sy1=1.0,
                                          X2=0.0, Y2=0.0, theta2=0.0, Sx2=1.0, Sy2=1.0))  # fmt: skip
     space2 = ParameterSpace(identity, (), [], [])
-    r = fit(_EXACT, Plan(space1, space2, free, ()), Settings(seed=1, **BUDGET))
+    r = fit(exact, Plan(space1, space2, free, ()), Settings(seed=1, **BUDGET))
     assert r.stage1.status[name] == "fixed" and r.stage1.fixed_source[name] == "the truth"
-    assert r.stage1.params[name] == _TRUE.model[name] and r.stage1.F < 1e-6
-    sent = r.predict(_HELD.image_px, _HELD.depth_mm, _HELD.hand_angle_deg, stage=1)
-    assert np.max(np.linalg.norm(sent - _HELD.hand_xy_mm, axis=1)) < 1e-6
+    assert r.stage1.params[name] == truth.model[name] and r.stage1.F < 1e-6
+    sent = r.predict(held.image_px, held.depth_mm, held.hand_angle_deg, stage=1)
+    assert np.max(np.linalg.norm(sent - held.hand_xy_mm, axis=1)) < 1e-6
 
 
 # -- a third model ---------------------------------------------------------------------------
