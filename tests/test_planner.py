@@ -2,6 +2,7 @@
 linearised and by Monte Carlo, the recommendation, the layout optimised by gradient, and the
 ``plan-acquisition`` command's answers to bad input."""
 
+import functools
 import json
 
 import numpy as np
@@ -26,16 +27,22 @@ from handeye_jax.twin import (
 )
 from tests.common import FAST_SETTINGS, PAPER
 
-TRUTH = draw_truth(3)
 PAPER_NOISE = get_noise_model("paper")
-#: A small workspace keeps each prediction quick: 3 x 3 targets at 4 hand angles.
-SPACE = default_workspace(TRUTH, per_side=3, angles=4)
-GRID3 = grid_acquisition(TRUTH, 3)
+
+
+@functools.cache
+def _planned():
+    """The twin truth, its workspace and the paper's 3 x 3 grid on it, made at first use (not
+    at collection, which every test process does). A small workspace keeps each prediction
+    quick: 3 x 3 targets at 4 hand angles."""
+    truth = draw_truth(3)
+    return truth, default_workspace(truth, per_side=3, angles=4), grid_acquisition(truth, 3)
 
 
 @pytest.fixture(scope="module")
 def paper_grid():
-    return predict_acquisition(TRUTH, GRID3, PAPER_NOISE, SPACE)
+    truth, space, grid3 = _planned()
+    return predict_acquisition(truth, grid3, PAPER_NOISE, space)
 
 
 @settings(max_examples=3)
@@ -43,7 +50,8 @@ def paper_grid():
 def test_the_linearised_error_scales_with_every_noise_sigma(paper_grid, c):
     """Every σ times c (every variance times c²) gives c times the error: the fit's covariance
     and the targets' own noise are both linear in the variances."""
-    e = predict_acquisition(TRUTH, GRID3, PAPER_NOISE.scaled(view=c**2, touch=c**2), SPACE)
+    truth, space, grid3 = _planned()
+    e = predict_acquisition(truth, grid3, PAPER_NOISE.scaled(view=c**2, touch=c**2), space)
     for k in (1, 2):
         np.testing.assert_allclose(e.stage(k).mean_mm, c * paper_grid.stage(k).mean_mm, rtol=1e-6)
         np.testing.assert_allclose(e.stage(k).p95_mm, c * paper_grid.stage(k).p95_mm, rtol=1e-5)
@@ -55,18 +63,20 @@ def test_the_linearised_error_scales_with_every_noise_sigma(paper_grid, c):
 def test_more_touches_never_predict_more_error(paper_grid, extra):
     """The paper's grid plus two landmarks anywhere in its area (at any hand angles): stage 1
     has more information, so no target's error covariance grows."""
-    lo, hi = TRUTH.landmark_area_px()
+    truth, space, grid3 = _planned()
+    lo, hi = truth.landmark_area_px()
     more = np.array([lo + np.array(e[:2]) * (hi - lo) for e in extra])
-    acq = layout_acquisition(TRUTH, np.vstack([GRID3.tablet_px, more]),
-                             np.concatenate([GRID3.hand_angle_deg, [e[2] for e in extra]]))
-    e = predict_acquisition(TRUTH, acq, PAPER_NOISE, SPACE)
+    acq = layout_acquisition(truth, np.vstack([grid3.tablet_px, more]),
+                             np.concatenate([grid3.hand_angle_deg, [e[2] for e in extra]]))
+    e = predict_acquisition(truth, acq, PAPER_NOISE, space)
     assert e.touches == 11 and e.stage1.mean_mm <= paper_grid.stage1.mean_mm * (1 + 1e-9)
     assert e.stage1.p95_mm <= paper_grid.stage1.p95_mm * (1 + 1e-6)
 
 
 def test_three_pictures_predict_less_error_than_one(paper_grid):
     """The paper's grid seen from 3 capture poses: each landmark seen three times."""
-    three = predict_acquisition(TRUTH, grid_acquisition(TRUTH, 3, 3), PAPER_NOISE, SPACE)
+    truth, space, grid3 = _planned()
+    three = predict_acquisition(truth, grid_acquisition(truth, 3, 3), PAPER_NOISE, space)
     assert three.stage1.mean_mm < 0.85 * paper_grid.stage1.mean_mm
     assert (three.touches, three.pictures) == (9, 3)
 
@@ -74,7 +84,8 @@ def test_three_pictures_predict_less_error_than_one(paper_grid):
 def test_monte_carlo_agrees_with_the_linearised_prediction(paper_grid):
     """Four noisy twins calibrated in one batch: their mean held-out error is the linearised
     one's within a loose bound (the benchmark measures the agreement with more twins)."""
-    mc = monte_carlo_acquisition(TRUTH, GRID3, 4, PAPER_NOISE, SPACE, FAST_SETTINGS, seed=5)
+    truth, space, grid3 = _planned()
+    mc = monte_carlo_acquisition(truth, grid3, 4, PAPER_NOISE, space, FAST_SETTINGS, seed=5)
     assert mc.twins == 4 and mc.method == "monte carlo"
     for k in (1, 2):
         ratio = mc.stage(k).mean_mm / paper_grid.stage(k).mean_mm
@@ -83,16 +94,17 @@ def test_monte_carlo_agrees_with_the_linearised_prediction(paper_grid):
 
 
 def test_the_optimiser_lowers_the_error_within_the_limits(paper_grid):
-    opt = optimise_layout(TRUTH, GRID3, PAPER_NOISE, SPACE, steps=3)
+    truth, space, grid3 = _planned()
+    opt = optimise_layout(truth, grid3, PAPER_NOISE, space, steps=3)
     h = opt.history_mm
     assert len(h) >= 2 and all(b < a for a, b in zip(h, h[1:], strict=False))
     np.testing.assert_allclose(h[0], paper_grid.stage1.mean_mm, rtol=1e-6)
     acq = opt.acquisition
-    again = predict_acquisition(TRUTH, acq, PAPER_NOISE, SPACE)
+    again = predict_acquisition(truth, acq, PAPER_NOISE, space)
     np.testing.assert_allclose(again.stage1.mean_mm, h[-1], rtol=1e-6)
-    w, hgt = TRUTH.display_px
+    w, hgt = truth.display_px
     assert (acq.tablet_px >= 0).all() and (acq.tablet_px <= [w - 1, hgt - 1]).all()
-    assert TRUTH.sees(acq.tablet_px)
+    assert truth.sees(acq.tablet_px)
     assert ((acq.hand_angle_deg >= 0) & (acq.hand_angle_deg <= 180)).all()
 
 
@@ -111,16 +123,17 @@ def test_recommend_takes_the_fewest_touches_then_pictures_that_meet_the_target()
 
 
 def test_the_rig_from_a_dataset_is_near_the_truth():
-    """planning_truth of a noise-free dataset of TRUTH: the closed form recovers the model
+    """planning_truth of a noise-free dataset of truth: the closed form recovers the model
     and the tablet's height, so the predicted error is the truth's. (One capture leaves the
-    tilt's sign open; the estimate takes the camera nearer the hand's axis, as TRUTH's is,
+    tilt's sign open; the estimate takes the camera nearer the hand's axis, as truth's is,
     on every machine: before, rounding chose.)"""
+    truth, space, grid3 = _planned()
     from handeye_jax.twin import exact_dataset
 
-    got = planning_truth(exact_dataset(TRUTH, GRID3))
-    for n, v in TRUTH.model.items():
+    got = planning_truth(exact_dataset(truth, grid3))
+    for n, v in truth.model.items():
         assert abs(got.model[n] - v) < 1e-3, n
-    assert abs(got.tablet_height_mm - (TRUTH.tablet_height_mm + TRUTH.camera_z_mm)) < 1e-3
+    assert abs(got.tablet_height_mm - (truth.tablet_height_mm + truth.camera_z_mm)) < 1e-3
 
 
 def test_plan_acquisition_prints_a_table_and_a_recommendation(capsys):
@@ -146,14 +159,15 @@ def test_plan_acquisition_refuses_bad_options_in_one_line(capsys, args, says):
 
 
 def test_plan_acquisition_names_the_bad_file_and_field(capsys, tmp_path):
+    truth, space, grid3 = _planned()
     missing = tmp_path / "none.toml"
     assert main(["plan-acquisition", str(missing), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert str(missing) in err and len(err.strip().splitlines()) == 1
-    truth = json.loads(TRUTH.to_json())
-    truth["model"]["xc"] = "left"
+    doc = json.loads(truth.to_json())
+    doc["model"]["xc"] = "left"
     bad = tmp_path / "truth.json"
-    bad.write_text(json.dumps(truth))
+    bad.write_text(json.dumps(doc))
     assert main(["plan-acquisition", str(bad), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert str(bad) in err and "model.xc" in err and len(err.strip().splitlines()) == 1
@@ -162,13 +176,14 @@ def test_plan_acquisition_names_the_bad_file_and_field(capsys, tmp_path):
 
 def test_a_rig_the_data_do_not_determine_is_refused(capsys, tmp_path):
     """Landmarks in a line leave the camera mount open: one line naming the file."""
+    truth, space, grid3 = _planned()
     from handeye_jax import dataset_to_toml
     from handeye_jax.twin import exact_dataset
 
-    line = layout_acquisition(TRUTH, np.column_stack([np.linspace(500, 900, 4), np.full(4, 300)]),
+    line = layout_acquisition(truth, np.column_stack([np.linspace(500, 900, 4), np.full(4, 300)]),
                               np.linspace(0, 180, 4))  # fmt: skip
     path = tmp_path / "line.toml"
-    path.write_text(dataset_to_toml(exact_dataset(TRUTH, line)))
+    path.write_text(dataset_to_toml(exact_dataset(truth, line)))
     assert main(["plan-acquisition", str(path), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert str(path) in err and "cannot plan from it" in err

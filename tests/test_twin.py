@@ -1,5 +1,6 @@
 """The synthetic twin: its truth, its determinism, its evaluation, and the commands end to end."""
 
+import functools
 import importlib.util
 import json
 import sys
@@ -115,7 +116,7 @@ def test_same_seed_same_bits_and_noise_where_the_preset_says():
     touch=st.tuples(st.floats(-5, 5), st.floats(-5, 5)),
 )  # fmt: skip
 def test_pen_lands_where_the_true_chain_says(x, y, angle, touch):
-    truth = _TRUTH
+    truth = _truth()
     target = np.array([[x, y]])
     ds = synthesize_dataset(
         truth.htm(), truth.rig(), target, np.array([angle]), ppi=truth.ppi, scale=truth.scale,
@@ -125,7 +126,11 @@ def test_pen_lands_where_the_true_chain_says(x, y, angle, touch):
     np.testing.assert_allclose(landed - target, [touch], atol=1e-9)
 
 
-_TRUTH = draw_truth(8)
+@functools.cache
+def _truth():
+    """A twin truth, drawn at first use (collection, which every test process does, stays
+    free of JAX's computations)."""
+    return draw_truth(8)
 
 
 class _Perfect:
@@ -143,25 +148,26 @@ class _Perfect:
 
 
 def test_evaluate_gives_zero_for_the_truth_on_exact_observations():
-    twin = simulate(_TRUTH, PRESETS["none"], 1, exact=True, n_heldout=6)
+    truth = _truth()
+    twin = simulate(truth, PRESETS["none"], 1, exact=True, n_heldout=6)
     # Exact held-out observations: the true image points and depths.
-    image_px, depth_mm = _TRUTH.project(twin.heldout_tablet_px)
+    image_px, depth_mm = truth.project(twin.heldout_tablet_px)
     held = Heldout(image_px, depth_mm, twin.heldout_hand_angle_deg, twin.heldout_tablet_px)
-    rows = evaluate(_Perfect(_TRUTH), _TRUTH, held)
+    rows = evaluate(_Perfect(truth), truth, held)
     assert [r.label for r in rows] == ["stage 1", "stage 2", "oracle"]
     for r in rows:
         assert r.max_mm < 1e-9
     # A model off by 1 mm in the pen offset misses by about that much.
-    wrong = HTMModel.from_dict(dict(_TRUTH.model, xp=_TRUTH.model["xp"] + 1.0))
+    wrong = HTMModel.from_dict(dict(truth.model, xp=truth.model["xp"] + 1.0))
 
     class _Off(_Perfect):
         def predict(self, image_px, depth_mm, hand_angle_deg, stage=2):
             from handeye_jax import hand_command
 
-            return np.asarray(hand_command(wrong, _TRUTH.rig(), jnp.asarray(image_px),
+            return np.asarray(hand_command(wrong, truth.rig(), jnp.asarray(image_px),
                               jnp.asarray(depth_mm), jnp.asarray(hand_angle_deg)))  # fmt: skip
 
-    off = evaluate(_Off(_TRUTH), _TRUTH, held)[0]
+    off = evaluate(_Off(truth), truth, held)[0]
     assert 0.99 < off.mean_mm < 1.01 and abs(off.mean_px * off.mm_per_px - off.mean_mm) < 1e-12
 
 
@@ -221,9 +227,10 @@ def _one_line(capsys, *needles) -> str:
 
 
 def test_evaluate_refuses_a_result_fitted_on_another_dataset(loop, tmp_path, capsys):
+    truth = _truth()
     twin, result = loop
     other = tmp_path / "other"
-    write_twin(simulate(_TRUTH, PRESETS["none"], 5, exact=True, n_heldout=2), other)
+    write_twin(simulate(truth, PRESETS["none"], 5, exact=True, n_heldout=2), other)
     assert main(["evaluate", str(result), str(other)]) == 2
     _one_line(capsys, f"{result}: dataset: fitted on dataset 'twin-seed2-paper', not on "
               f"'twin-seed5-none' ({other / 'dataset.toml'})")  # fmt: skip
@@ -311,8 +318,9 @@ def _snapshot(folder: Path) -> dict:
 
 
 def test_simulate_refuses_a_folder_that_is_not_empty_unless_forced(tmp_path, capsys):
+    truth = _truth()
     folder = tmp_path / "twin"
-    write_twin(simulate(_TRUTH, PRESETS["none"], 1, exact=True, n_heldout=2), folder)
+    write_twin(simulate(truth, PRESETS["none"], 1, exact=True, n_heldout=2), folder)
     (folder / "result.json").write_text("{}")  # made from the old twin
     (folder / "result_report").mkdir()
     (folder / "result_report" / "convergence.png").write_bytes(b"png")
@@ -324,7 +332,7 @@ def test_simulate_refuses_a_folder_that_is_not_empty_unless_forced(tmp_path, cap
               "heldout.csv and 4 more)", "--force")  # fmt: skip
     assert _snapshot(folder) == before
     with pytest.raises(InputError, match="not empty"):
-        write_twin(simulate(_TRUTH, PRESETS["none"], 2, exact=True, n_heldout=2), folder)
+        write_twin(simulate(truth, PRESETS["none"], 2, exact=True, n_heldout=2), folder)
     assert _snapshot(folder) == before
 
     assert main([*argv, "--seed", "7", "--force"]) == 0
@@ -370,6 +378,7 @@ def test_simulate_from_a_truth_file_and_exact(tmp_path, capsys):
 
 
 def test_simulate_and_evaluate_input_errors(tmp_path, capsys):
+    truth = _truth()
     bad = tmp_path / "truth.json"
     bad.write_text("{")
     assert main(["simulate", str(tmp_path / "o"), "--truth", str(bad)]) == 2
@@ -382,7 +391,7 @@ def test_simulate_and_evaluate_input_errors(tmp_path, capsys):
     assert main(["simulate", str(tmp_path / "afile")]) == 2
     assert "afile: cannot write: is a file, not a folder" in capsys.readouterr().err
     assert (tmp_path / "afile").read_text() == "mine"
-    write_twin(simulate(_TRUTH, PRESETS["none"], 1, exact=True, n_heldout=2), tmp_path / "t")
+    write_twin(simulate(truth, PRESETS["none"], 1, exact=True, n_heldout=2), tmp_path / "t")
     assert main(["evaluate", str(tmp_path / "missing.json"), str(tmp_path / "t")]) == 2
     assert "missing.json" in capsys.readouterr().err
 
