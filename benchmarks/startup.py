@@ -38,6 +38,8 @@ ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "data" / "paper2023.toml"
 SUBCOMMANDS = ("calibrate", "predict", "report", "tablet", "simulate", "detect", "evaluate",
                "export")  # fmt: skip
+#: ``--quick`` times the help of these only (the three tests/test_benchmarks.py reads).
+QUICK_SUBCOMMANDS = ("calibrate", "export", "detect")
 POINTS_CSV = "u,v,depth,hand_angle\n338,244,169.2,90\n119,105,168.2,0\n"
 TARGETS_S = {"predict": 1.0, "help": 0.5, "calibrate cold": 12.0, "calibrate warm": 6.0}
 PREDICTOR_TARGET_US = 20.0
@@ -141,9 +143,11 @@ def _calibrate_parts(tree: Path, cache: str, extra: list[str], tmp: Path) -> dic
     return {"wall": wall, **json.loads(report.read_text())}
 
 
-def measure(trees: dict[str, Path], runs: int, extra: list[str], tmp: Path):
+def measure(trees: dict[str, Path], runs: int, extra: list[str], tmp: Path,
+            subcommands: tuple[str, ...] = SUBCOMMANDS):  # fmt: skip
     """Wall times, s, ``{tree: {what: [run, ...]}}``, and the instrumented calibrations'
-    parts, ``{tree: {kind: [parts, ...]}}``; the trees in turn within each run."""
+    parts, ``{tree: {kind: [parts, ...]}}``; the trees in turn within each run. The ``--help``
+    of the command line and of each of ``subcommands``."""
     walls: dict[str, dict[str, list[float]]] = {name: {} for name in trees}
     parts: dict[str, dict[str, list[dict]]] = {name: {"cold": [], "warm": []} for name in trees}
     points = tmp / "points.csv"
@@ -160,7 +164,7 @@ def measure(trees: dict[str, Path], runs: int, extra: list[str], tmp: Path):
                 (tmp / "result.json").replace(result)
                 wall = _wall(_cli("predict", str(result), str(points)), _env(tree, cache))
                 w.setdefault("predict", []).append(wall)
-            for sub in ("", *SUBCOMMANDS):
+            for sub in ("", *subcommands):
                 cmd = _cli(*([sub] if sub else []), "--help")
                 w.setdefault(f"{sub or 'handeye-jax'} --help", []).append(_wall(cmd, _env(tree)))
         print(f"run {run + 1} of {runs} done", file=sys.stderr)
@@ -255,7 +259,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--runs", type=int, default=5, help="fresh processes per figure")
     ap.add_argument("--before", type=Path, help="another source tree to run beside this one")
     ap.add_argument("--quick", action="store_true",
-                    help="1 run, tiny DE, no diagnostics, 1000 points (a smoke test)")  # fmt: skip
+                    help="1 run, tiny DE, no diagnostics, the help of 3 subcommands, 1000 points "
+                         "(a smoke test)")  # fmt: skip
     args = ap.parse_args(argv)
     runs = 1 if args.quick else args.runs
     extra = ["--population", "40", "--generations", "20", "--no-diagnostics"] if args.quick else []
@@ -264,7 +269,8 @@ def main(argv: list[str] | None = None) -> None:
         trees = {"before": args.before.resolve(), "after": ROOT}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        walls, parts = measure(trees, runs, extra, tmp)
+        subcommands = QUICK_SUBCOMMANDS if args.quick else SUBCOMMANDS
+        walls, parts = measure(trees, runs, extra, tmp, subcommands)
         n = 1000 if args.quick else 10_000
         us = predictor_us(tmp / "after.result.json", n, 5 if args.quick else 50)
 
