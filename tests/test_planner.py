@@ -75,7 +75,7 @@ def test_more_touches_never_predict_more_error(paper_grid, extra):
 
 def test_three_pictures_predict_less_error_than_one(paper_grid):
     """The paper's grid seen from 3 capture poses: each landmark seen three times."""
-    truth, space, grid3 = _planned()
+    truth, space, _ = _planned()
     three = predict_acquisition(truth, grid_acquisition(truth, 3, 3), PAPER_NOISE, space)
     assert three.stage1.mean_mm < 0.85 * paper_grid.stage1.mean_mm
     assert (three.touches, three.pictures) == (9, 3)
@@ -127,7 +127,7 @@ def test_the_rig_from_a_dataset_is_near_the_truth():
     and the tablet's height, so the predicted error is the truth's. (One capture leaves the
     tilt's sign open; the estimate takes the camera nearer the hand's axis, as truth's is,
     on every machine: before, rounding chose.)"""
-    truth, space, grid3 = _planned()
+    truth, _, grid3 = _planned()
     from handeye_jax.twin import exact_dataset
 
     got = planning_truth(exact_dataset(truth, grid3))
@@ -159,7 +159,7 @@ def test_plan_acquisition_refuses_bad_options_in_one_line(capsys, args, says):
 
 
 def test_plan_acquisition_names_the_bad_file_and_field(capsys, tmp_path):
-    truth, space, grid3 = _planned()
+    truth = _planned()[0]
     missing = tmp_path / "none.toml"
     assert main(["plan-acquisition", str(missing), "--quiet"]) == 2
     err = capsys.readouterr().err
@@ -176,7 +176,7 @@ def test_plan_acquisition_names_the_bad_file_and_field(capsys, tmp_path):
 
 def test_a_rig_the_data_do_not_determine_is_refused(capsys, tmp_path):
     """Landmarks in a line leave the camera mount open: one line naming the file."""
-    truth, space, grid3 = _planned()
+    truth = _planned()[0]
     from handeye_jax import dataset_to_toml
     from handeye_jax.twin import exact_dataset
 
