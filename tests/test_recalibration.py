@@ -291,8 +291,8 @@ def test_a_prior_wrong_by_five_sigma_is_flagged_naming_the_parameter(rig):
 def _obs():
     """A noise-free twin's observations (made at first use: collection, which every test
     process does, stays free of JAX's computations)."""
-    return synthesize_dataset(draw_truth(5).htm(), draw_truth(5).rig(), snake_grid_px(),
-                              22.5 * np.arange(9)).observations()  # fmt: skip
+    t = draw_truth(5)
+    return synthesize_dataset(t.htm(), t.rig(), snake_grid_px(), 22.5 * np.arange(9)).observations()
 
 
 @settings(max_examples=25, deadline=None)
