@@ -9,9 +9,10 @@ S)``) and, unannounced, P moves by 5 of its prior σ (the old posterior's margin
 parameters outside the pen); the new twin (noise seed 1000 + S) is cut to k landmarks (k = 4:
 the corners, m = 0, 2, 6, 8) and recalibrated from the old result with ``--refit pen``: every
 other parameter takes the old posterior as its prior. The summary names a moved prior
-parameter in its checks, largest w-test pull first, the parameters that only follow it (their
-pull vanishes once it moves) on the same line. Counted: the fits whose first prior check
-names P, and the parameters flagged beside it (a check of their own).
+parameter in its checks, largest pull first, the parameters that only follow it (their
+pull vanishes once it moves) on the same line, and stage 2's prior checks, when stage 1 has
+one, on one line that follows it. Counted: the fits whose first prior check names P, and the
+parameters flagged beside it (a check of their own).
 """
 
 from __future__ import annotations
@@ -60,7 +61,8 @@ def run(seed: int, params, k: int) -> dict:
         out[p] = {
             "sigma": sigma, "pull": pulls[p].pull,
             "first": checks[0].param if checks else None,
-            "beside": [w.param for w in checks[1:]],
+            "beside": [w.param for w in checks[1:] if w.param is not None],
+            "stage2_following": any(w.param is None for w in checks),
             "following": [q.param for q in pulls.values() if q.follows],
             "text": checks[0].text if checks else "",
         }  # fmt: skip
@@ -84,9 +86,9 @@ def main() -> None:
         f"machine: {platform.machine()}; {time.perf_counter() - t0:.0f} s; the pen changed and "
         f"one parameter moved {SIGMAS:g} prior σ; recalibrate --refit pen on k = {args.k} "
         f"touches (m = {', '.join(map(str, SUBSETS[args.k]))})", "",
-        "| moved | prior σ | named first | its w-test pull (mean, min) | flagged beside it per "
-        "fit | shown as following it per fit |",
-        "|---|---|---|---|---|---|",
+        "| moved | prior σ | named first | its pull (mean, min) | flagged beside it per fit | "
+        "shown as following it per fit | stage 2's checks on one line, following |",
+        "|---|---|---|---|---|---|---|",
     ]  # fmt: skip
     for p in args.params:
         rows = [runs[s][p] for s in args.seeds]
@@ -96,7 +98,8 @@ def main() -> None:
         follow = sum(len(r["following"]) for r in rows) / len(rows)
         lines.append(f"| {p} | {rows[0]['sigma']:.3g} | {first} of {len(rows)} | "
                      f"{sum(pulls) / len(pulls):.1f}, {min(pulls):.1f} | {beside:.1f} | "
-                     f"{follow:.1f} |")  # fmt: skip
+                     f"{follow:.1f} | {sum(r['stage2_following'] for r in rows)} of "
+                     f"{len(rows)} |")  # fmt: skip
     example = next((runs[s][args.params[0]]["text"] for s in args.seeds
                     if runs[s][args.params[0]]["text"]), "")  # fmt: skip
     if example:

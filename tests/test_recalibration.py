@@ -48,6 +48,8 @@ from handeye_jax import (
     snake_grid_px,
     synthesize_dataset,
 )
+from handeye_jax._core import Stages
+from handeye_jax.calibration import all_warnings, fitted_stages
 from handeye_jax.cli import main
 from handeye_jax.models import AffinePair
 from handeye_jax.problem import stage1_errors
@@ -277,6 +279,23 @@ def test_a_prior_wrong_by_five_sigma_is_flagged_naming_the_parameter(rig):
                         ("pen",), budget, source="old.json")  # fmt: skip
     pulls = {p.param: p.pull for p in wrong.stage1.prior.pulls}
     assert pulls["xt"] > 3.0  # towards where the tablet went
+    # xt alone is flagged: the parameters the wrong prior dragged along follow it.
+    checks = [w for w in wrong.warnings if w.kind == "prior"]
+    assert [w.param for w in checks] == ["xt"]
+    assert {p.param: p.follows for p in wrong.stage1.prior.pulls}["yt"] == "xt"
+    # Stage 2's prior, fitted on the old stage 1, is pulled too when stage 1's is: its checks
+    # are one line that follows stage 1's, not flags of their own.
+    spaces = fitted_stages(wrong, {}).map(lambda s: s.space)
+    pulled = replace(wrong.stage2.prior, pulls=tuple(
+        replace(q, pull=9.0 - i, follows=None) for i, q in enumerate(wrong.stage2.prior.pulls)))
+    stages = Stages(wrong.stage1, replace(wrong.stage2, prior=pulled))
+    checks = [w for w in all_warnings(9, spaces, stages, None) if w.kind == "prior"]
+    assert [w.param for w in checks] == ["xt", None]
+    assert checks[1].text.startswith(f"stage 2: the data pull its prior too ({pulled.names[0]} 9.0")
+    assert "follows stage 1's prior check" in checks[1].text
+    alone = Stages(replace(wrong.stage1, prior=None), stages.stage2)
+    assert [w.param for w in all_warnings(9, spaces, alone, None)
+            if w.kind == "prior"] == list(pulled.names[:6])  # fmt: skip
     text = format_summary(wrong)
     said = [line for line in text.splitlines() if "the data pull xt " in line]
     assert len(said) == 1 and re.match(r"  \d+\. stage 1: the data pull xt ", said[0])

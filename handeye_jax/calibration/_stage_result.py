@@ -7,10 +7,14 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._core import InputError
+from .._jax import problem_mesh
+from ..optim import minimise_many, values_many
 from ..problem import (
     analyse_jacobian,
     fisher_information,
@@ -25,7 +29,8 @@ from ._payloads import (
 )
 from ._programs import stage_error_jacobian, stage_report, stage_value
 from ._result import StageResult
-from ._stage import StageFit
+from ._search import stack
+from ._stage import POLISH, StageFit
 from ._warnings import PULL_FLAG
 
 
@@ -36,7 +41,9 @@ def _prior_report(stage: StageFit) -> PriorReport | None:
     covariance when the prior is right, the pull of parameter j is Baarda's w-test of a shift
     of μ_j alone, ``(Q⁻¹d)_j/√(Q⁻¹)_jj``: standard normal for a right prior, and largest for
     the parameter that moved even when correlated ones absorb part of its move (the marginal
-    ``d_j/√Q_jj``, kept as ``marginal_pull``, then blames them). ``Σ_post`` is the Gauss–Newton
+    ``d_j/√Q_jj``, kept as ``marginal_pull``, then blames them). A flagged parameter's pull
+    is then the test's likelihood-ratio form, from refits (:func:`_released_pulls`): the
+    linear one misleads when a wrong prior has moved the fit far. ``Σ_post`` is the Gauss–Newton
     posterior ``(JᵀJ/σ² + Σ_prior⁻¹)⁻¹`` at the fit, with the noise σ of the fit the prior came
     from when the prior states it: a few new landmarks leave too few degrees of freedom to
     estimate σ (benchmarks/RESULTS.md, "Recalibration: what three touches can reach").
@@ -66,7 +73,10 @@ def _prior_report(stage: StageFit) -> PriorReport | None:
     pulls = np.array([(Q_inv[j] @ d) / math.sqrt(Q_inv[j, j]) if Q_inv[j, j] > 0 else 0.0
                       for j in range(len(prior.names))])  # fmt: skip
     tested = np.array([n not in prior.untested for n in prior.names])
-    follows = _followers(Q_inv, d, np.where(tested, pulls, 0.0), prior.names)
+    flagged = [j for j in range(len(pulls)) if tested[j] and abs(pulls[j]) > PULL_FLAG]
+    follows = {}
+    if flagged:
+        pulls, follows = _released_pulls(stage, pulls, flagged)
     out = []
     for j, name in enumerate(prior.names):
         sp, spost = float(sig_prior[j]), post[name]
@@ -101,24 +111,68 @@ def _update_precision(Q: np.ndarray, P: np.ndarray) -> np.ndarray:
     return (A / lam[keep]) @ A.T
 
 
-def _followers(M: np.ndarray, d: np.ndarray, pulls: np.ndarray,
-               names: tuple[str, ...]) -> dict[str, str]:  # fmt: skip
-    """The flagged parameters that only follow the one pulled most: those whose w-test,
-    given that one's shift (data snooping's next step: ``d`` less its estimated shift, the
-    test of each other shift on what is left), is no longer flagged. ``M = Q⁻¹``."""
-    j = int(np.argmax(np.abs(pulls)))
-    if abs(pulls[j]) <= PULL_FLAG or M[j, j] <= 0:
-        return {}
-    shift = (M[j] @ d) / M[j, j]
-    out = {}
-    for i, name in enumerate(names):
-        if i == j or abs(pulls[i]) <= PULL_FLAG:
-            continue
-        var = M[i, i] - M[i, j] ** 2 / M[j, j]
-        rest = (M[i] @ d - M[i, j] * shift) / math.sqrt(var) if var > 1e-12 * M[i, i] else 0.0
-        if abs(rest) <= PULL_FLAG:
-            out[name] = names[j]
-    return out
+def _refit_released(stage: StageFit, cols: list[int],
+                    starts: list[np.ndarray]) -> tuple[float, np.ndarray]:  # fmt: skip
+    """The stage's lowest value and its point, by LM from each of ``starts``, with the prior
+    means of the prior's parameters ``cols`` free: the prior's precision ``P`` becomes
+    ``P − PE(EᵀPE)⁻¹EᵀP`` (``E``: those columns of the identity), the prior's information about
+    everything else kept. The objective's structure is the fit's, so the fit's own LM program
+    runs it."""
+    prior = stage.space.prior
+    P = prior.precision
+    E = np.eye(len(P))[:, cols]
+    A = np.eye(len(P)) - E @ np.linalg.solve(E.T @ P @ E, E.T @ P)
+    objective = stack([eqx.tree_at(lambda o: o.whitener, stage.objective,
+                                   jnp.asarray(prior.whitener() @ A))])  # fmt: skip
+    space = stage.space
+    best = (math.inf, starts[0])
+    for x0 in starts:
+        lm = minimise_many(objective, POLISH, space.lower[None], space.upper[None],
+                           x0=x0[None], mesh=problem_mesh(jax.devices()[:1]))  # fmt: skip
+        for value, x in ((lm.value[0], lm.x[0]), (lm.start_value[0], x0)):
+            if np.isfinite(value) and value < best[0]:
+                best = (float(value), np.asarray(x))
+    return best
+
+
+def _released_pulls(stage: StageFit, pulls: np.ndarray,
+                    flagged: list[int]) -> tuple[np.ndarray, dict[str, str]]:  # fmt: skip
+    """The flagged parameters' pulls as likelihood ratios, and which of them follow another.
+
+    Parameter j's pull becomes ``±√(2ΔF/w)``: ΔF is how far the stage's value drops when the
+    fit is redone with μ_j free (``w``: the prior block's weight, so ``2ΔF/w`` is the drop of
+    −2 log posterior, χ²₁ when the prior is right). In the linear limit this is the w-test;
+    unlike it, it stays right when a wrong prior has moved the fit far. Each refit starts from
+    the fit and from the prior's mean (a wrong prior can drag the fit across a fold, such as
+    the tablet's tilt signs, that LM from the fit does not cross back). The parameter pulled
+    most is then freed for good; each other flagged one whose pull, so tested again, is no
+    longer flagged only follows it (data snooping's next step)."""
+    prior = stage.space.prior
+    weight = float(stage.objective.weight)
+    at_prior = np.array(stage.x, dtype=float)
+    at_prior[list(stage.space.prior_indices())] = prior.mean
+    at_prior = stage.space.clip(at_prior)
+    F0 = float(values_many(stack([stage.objective]), stage.x[None],
+                           problem_mesh(jax.devices()[:1]))[0])  # fmt: skip
+
+    def pull(drop: float) -> float:
+        return math.sqrt(max(2.0 * drop / weight, 0.0))
+
+    out = np.array(pulls, dtype=float)
+    released = {}
+    for j in flagged:
+        released[j] = _refit_released(stage, [j], [stage.x, at_prior])
+        out[j] = math.copysign(pull(F0 - released[j][0]), pulls[j])
+    top = max(flagged, key=lambda j: abs(out[j]))
+    follows = {}
+    if abs(out[top]) > PULL_FLAG:
+        F1, x1 = released[top]
+        for i in flagged:
+            if i != top and abs(out[i]) > PULL_FLAG:
+                F2, _ = _refit_released(stage, [top, i], [x1, at_prior])
+                if pull(F1 - F2) <= PULL_FLAG:
+                    follows[prior.names[i]] = prior.names[top]
+    return out, follows
 
 
 def _stage_result(stage: StageFit, prior_report: PriorReport | None = None) -> StageResult:
