@@ -49,7 +49,7 @@ from handeye_jax import (
     synthesize_dataset,
 )
 from handeye_jax._core import Stages
-from handeye_jax.calibration import all_warnings, fitted_stages
+from handeye_jax.calibration import all_warnings, recalibration_plan
 from handeye_jax.cli import main
 from handeye_jax.models import AffinePair
 from handeye_jax.problem import stage1_errors
@@ -285,7 +285,8 @@ def test_a_prior_wrong_by_five_sigma_is_flagged_naming_the_parameter(rig):
     assert {p.param: p.follows for p in wrong.stage1.prior.pulls}["yt"] == "xt"
     # Stage 2's prior, fitted on the old stage 1, is pulled too when stage 1's is: its checks
     # are one line that follows stage 1's, not flags of their own.
-    spaces = fitted_stages(wrong, {}).map(lambda s: s.space)
+    plan = recalibration_plan(wrong.data, old, ("pen",), source="old.json")
+    spaces = Stages(plan.space1, plan.space2)
     pulled = replace(wrong.stage2.prior, pulls=tuple(
         replace(q, pull=9.0 - i, follows=None) for i, q in enumerate(wrong.stage2.prior.pulls)))
     stages = Stages(wrong.stage1, replace(wrong.stage2, prior=pulled))

@@ -14,8 +14,9 @@ import numpy as np
 
 from .._core import InputError
 from .._jax import problem_mesh
-from ..optim import minimise_many, values_many
+from ..optim import minimise_many
 from ..problem import (
+    AbstractObjective,
     analyse_jacobian,
     fisher_information,
     std_of_precision,
@@ -116,23 +117,30 @@ def _refit_released(stage: StageFit, cols: list[int],
     """The stage's lowest value and its point, by LM from each of ``starts``, with the prior
     means of the prior's parameters ``cols`` free: the prior's precision ``P`` becomes
     ``P − PE(EᵀPE)⁻¹EᵀP`` (``E``: those columns of the identity), the prior's information about
-    everything else kept. The objective's structure is the fit's, so the fit's own LM program
-    runs it."""
+    everything else kept. Every refit of a stage runs one LM program (its objective differs
+    from the fit's in the whitener's values alone)."""
     prior = stage.space.prior
     P = prior.precision
     E = np.eye(len(P))[:, cols]
     A = np.eye(len(P)) - E @ np.linalg.solve(E.T @ P @ E, E.T @ P)
-    objective = stack([eqx.tree_at(lambda o: o.whitener, stage.objective,
-                                   jnp.asarray(prior.whitener() @ A))])  # fmt: skip
-    space = stage.space
+    objective = eqx.tree_at(lambda o: o.whitener, stage.objective,
+                            jnp.asarray(prior.whitener() @ A))  # fmt: skip
     best = (math.inf, starts[0])
     for x0 in starts:
-        lm = minimise_many(objective, POLISH, space.lower[None], space.upper[None],
-                           x0=x0[None], mesh=problem_mesh(jax.devices()[:1]))  # fmt: skip
-        for value, x in ((lm.value[0], lm.x[0]), (lm.start_value[0], x0)):
-            if np.isfinite(value) and value < best[0]:
-                best = (float(value), np.asarray(x))
+        value, x = _lm_from(stage, objective, x0)
+        if np.isfinite(value) and value < best[0]:
+            best = (value, x)
     return best
+
+
+def _lm_from(stage: StageFit, objective: AbstractObjective,
+             x0: np.ndarray) -> tuple[float, np.ndarray]:  # fmt: skip
+    """LM (:data:`POLISH`) on ``objective``, of the stage's structure, from ``x0``: its value
+    and end point."""
+    space = stage.space
+    lm = minimise_many(stack([objective]), POLISH, space.lower[None], space.upper[None],
+                       x0=np.asarray(x0)[None], mesh=problem_mesh(jax.devices()[:1]))  # fmt: skip
+    return float(lm.value[0]), np.asarray(lm.x[0])
 
 
 def _released_pulls(stage: StageFit, pulls: np.ndarray,
@@ -152,8 +160,9 @@ def _released_pulls(stage: StageFit, pulls: np.ndarray,
     at_prior = np.array(stage.x, dtype=float)
     at_prior[list(stage.space.prior_indices())] = prior.mean
     at_prior = stage.space.clip(at_prior)
-    F0 = float(values_many(stack([stage.objective]), stage.x[None],
-                           problem_mesh(jax.devices()[:1]))[0])  # fmt: skip
+    # The fit's own value as these refits reach it (LM from the fit), so that the drops
+    # compare optimum with optimum.
+    F0, _ = _lm_from(stage, stage.objective, stage.x)
 
     def pull(drop: float) -> float:
         return math.sqrt(max(2.0 * drop / weight, 0.0))
