@@ -43,6 +43,7 @@ from handeye_jax import (
 )
 from handeye_jax.problem import get_noise_model
 from handeye_jax.twin import (
+    LayoutSearch,
     default_workspace,
     draw_truth,
     errors_on_workspace,
@@ -124,7 +125,7 @@ def main() -> None:
     if not args.quick:
         candidates += [grid_acquisition(truth, 5), grid_acquisition(truth, 7), paper3]
     t_opt = time.perf_counter()
-    opt = optimise_layout(truth, paper3, noise, workspace, steps=args.steps)
+    opt = optimise_layout(truth, paper3, noise, workspace, LayoutSearch(steps=args.steps))
     t_opt = time.perf_counter() - t_opt
     candidates.append(opt.acquisition)
     rows = []

@@ -75,6 +75,7 @@ _EXPORTS = {
     "AcquisitionError": "twin",
     "grid_acquisition": "twin",
     "monte_carlo_acquisition": "twin",
+    "LayoutSearch": "twin",
     "optimise_layout": "twin",
     "planning_truth": "twin",
     "predict_acquisition": "twin",
@@ -312,6 +313,7 @@ if TYPE_CHECKING:
     from .twin._plan import (
         Acquisition,
         AcquisitionError,
+        LayoutSearch,
         grid_acquisition,
         monte_carlo_acquisition,
         optimise_layout,
@@ -413,6 +415,7 @@ __all__ = [
     "AcquisitionError",
     "grid_acquisition",
     "monte_carlo_acquisition",
+    "LayoutSearch",
     "optimise_layout",
     "planning_truth",
     "predict_acquisition",

@@ -14,6 +14,7 @@ from handeye_jax.cli import main
 from handeye_jax.problem import get_noise_model
 from handeye_jax.twin import (
     AcquisitionError,
+    LayoutSearch,
     StageError,
     default_workspace,
     draw_truth,
@@ -95,7 +96,7 @@ def test_monte_carlo_agrees_with_the_linearised_prediction(paper_grid):
 
 def test_the_optimiser_lowers_the_error_within_the_limits(paper_grid):
     truth, space, grid3 = _planned()
-    opt = optimise_layout(truth, grid3, PAPER_NOISE, space, steps=3)
+    opt = optimise_layout(truth, grid3, PAPER_NOISE, space, LayoutSearch(steps=3))
     h = opt.history_mm
     assert len(h) >= 2 and all(b < a for a, b in zip(h, h[1:], strict=False))
     np.testing.assert_allclose(h[0], paper_grid.stage1.mean_mm, rtol=1e-6)

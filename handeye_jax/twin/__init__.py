@@ -17,11 +17,10 @@ _EXPORTS = {
     ),
     "_plan": (
         "Acquisition", "AcquisitionError", "default_workspace", "errors_on_workspace",
-        "exact_dataset",
-        "grid_acquisition", "layout_acquisition", "monte_carlo_acquisition", "noisy_dataset",
-        "optimise_layout", "OptimisedLayout", "planning_truth", "predict_acquisition",
-        "recommend", "StageError", "summarise", "Workspace", "workspace_as_targets",
-        "workspace_heldout",
+        "exact_dataset", "grid_acquisition", "layout_acquisition", "LayoutSearch",
+        "monte_carlo_acquisition", "noisy_dataset", "optimise_layout", "OptimisedLayout",
+        "planning_truth", "predict_acquisition", "recommend", "StageError", "summarise",
+        "Workspace", "workspace_as_targets", "workspace_heldout",
     ),
     "_render": ("render_capture", "render_depth"),
     "_simulate": (

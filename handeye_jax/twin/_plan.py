@@ -490,38 +490,54 @@ class OptimisedLayout:
     history_mm: tuple[float, ...]
 
 
+@dataclass(frozen=True)
+class LayoutSearch:
+    """How :func:`optimise_layout` moves a design, and where it keeps it.
+
+    Attributes:
+        steps: the most gradient steps.
+        step_px: the largest move of a landmark per step, tablet px.
+        step_deg: the largest turn of a hand angle (touches' and pictures') per step, deg.
+        step_mm: the largest move of a picture's hand position per step, mm.
+        margin_px: how far inside every picture the landmarks stay, image px (the detector
+            loses one-pixel dots in a vignetted corner).
+        reach_mm: how far a picture may move from the first (sideways, up), mm.
+        turn_deg: how far a picture's hand angle may turn from the first's, deg.
+    """
+
+    steps: int = 40
+    step_px: float = 40.0
+    step_deg: float = 10.0
+    step_mm: float = 10.0
+    margin_px: float = LAYOUT_MARGIN_PX
+    reach_mm: tuple[float, float] = CAPTURE_REACH_MM
+    turn_deg: float = CAPTURE_TURN_DEG
+
+
 @in_float64
 def optimise_layout(
     truth: TwinTruth,
     acquisition: Acquisition,
     noise: NoiseModel | None = None,
     workspace: Workspace | None = None,
-    *,
-    steps: int = 40,
-    step_px: float = 40.0,
-    step_deg: float = 10.0,
-    step_mm: float = 10.0,
-    margin_px: float = LAYOUT_MARGIN_PX,
-    reach_mm: tuple[float, float] = CAPTURE_REACH_MM,
-    turn_deg: float = CAPTURE_TURN_DEG,
+    search: LayoutSearch = LayoutSearch(),
 ) -> OptimisedLayout:
     """Landmark positions (tablet px), hand angles (deg) and the pictures after the first
     (hand position mm, hand angle deg) that lower the linearised stage-1 mean error of
     ``acquisition``, by projected gradient descent.
 
-    Each step moves the landmarks by at most ``step_px``, the angles (touches' and
-    pictures') by at most ``step_deg`` and the pictures' positions by at most ``step_mm``
-    along the normalised gradient (halving all when a step does not lower the error), then
-    projects: the landmarks onto the display's whole px and ``margin_px`` inside every
-    picture (a landmark that would leave one stays), the touches' angles into [0, 180]; a
-    picture stays within ``reach_mm`` (sideways, up) of the first (never below it) and
-    ``turn_deg`` of its hand angle, and where it was if it would lose a landmark.
+    Each step moves the landmarks, the angles (touches' and pictures') and the pictures'
+    positions by at most ``search``'s steps along the normalised gradient (halving all when a
+    step does not lower the error), then projects: the landmarks onto the display's whole px
+    and ``search.margin_px`` inside every picture (a landmark that would leave one stays),
+    the touches' angles into [0, 180]; a picture stays within ``search.reach_mm`` (sideways,
+    up) of the first (never below it) and ``search.turn_deg`` of its hand angle, and where it
+    was if it would lose a landmark.
 
     The gradient flows through the views' image points, depths, the tablet points and the
     hand angles of the noise-free acquisition; the noise model's weights (which depend on
     where the views fall only through the camera's orientation) are those of each step's
-    start. ``margin_px``: how far inside every picture the landmarks stay, image px (the
-    detector loses one-pixel dots in a vignetted corner).
+    start.
     """
     noise = noise or get_noise_model("paper")
     workspace = workspace or default_workspace(truth)
@@ -544,37 +560,45 @@ def optimise_layout(
 
     grad = eqx.filter_jit(jax.value_and_grad(loss))
     acq = acquisition
-    design = _design(acq)
-    history = [float(grad(design, nobj)[0])]
+    history = [float(grad(_design(acq), nobj)[0])]
     scale = 1.0
-    for _ in range(steps):
-        _, g = grad(design, nobj)
-
-        def moved(x, gx, step, scale=scale):
-            x, gx = np.asarray(x), np.asarray(gx)
-            return x - scale * step * gx / (np.abs(gx).max() or 1.0)
-
-        tab = moved(design.tablet_px, g.tablet_px, step_px)
-        ang = np.clip(moved(design.hand_angle_deg, g.hand_angle_deg, step_deg), 0.0,
-                      ANGLE_SPAN_DEG)  # fmt: skip
-        poses = acq.capture_poses
-        if acq.pictures > 1:  # the first picture stays: the rig's capture
-            pos = moved(design.capture_position_mm[1:], g.capture_position_mm[1:], step_mm)
-            turn = moved(design.capture_angle_deg[1:], g.capture_angle_deg[1:], step_deg)
-            poses = _reachable(truth, acq, pos, turn, reach_mm=reach_mm, turn_deg=turn_deg,
-                               margin_px=margin_px)  # fmt: skip
-        tab = _project(truth, replace(acq, capture_poses=poses), tab, acq.tablet_px, margin_px)
-        trial = replace(acq, tablet_px=tab, hand_angle_deg=ang, capture_poses=poses)
+    for _ in range(search.steps):
+        _, g = grad(_design(acq), nobj)
+        trial = _layout_step(truth, acq, g, scale, search)
         tobj, _ = objective_at(trial)
         tv = float(command_error(tobj, x1, targets, noise).mean_mm)
         if tv < history[-1]:
-            acq, nobj, design = trial, tobj, _design(trial)
+            acq, nobj = trial, tobj
             history.append(tv)
         else:
             scale /= 2
-            if scale * step_px < 0.5:
+            if scale * search.step_px < 0.5:
                 break
     return OptimisedLayout(replace(acq, name=f"{acquisition.name}, optimised"), tuple(history))
+
+
+def _layout_step(truth: TwinTruth, acq: Acquisition, g: _Design, scale: float,
+                 search: LayoutSearch) -> Acquisition:  # fmt: skip
+    """``acq`` moved ``scale`` times :func:`optimise_layout`'s steps down the gradient ``g``,
+    then projected where a design may be."""
+    design = _design(acq)
+
+    def moved(x, gx, step):
+        x, gx = np.asarray(x), np.asarray(gx)
+        return x - scale * step * gx / (np.abs(gx).max() or 1.0)
+
+    tab = moved(design.tablet_px, g.tablet_px, search.step_px)
+    ang = np.clip(moved(design.hand_angle_deg, g.hand_angle_deg, search.step_deg), 0.0,
+                  ANGLE_SPAN_DEG)  # fmt: skip
+    poses = acq.capture_poses
+    if acq.pictures > 1:  # the first picture stays: the rig's capture
+        pos = moved(design.capture_position_mm[1:], g.capture_position_mm[1:], search.step_mm)
+        turn = moved(design.capture_angle_deg[1:], g.capture_angle_deg[1:], search.step_deg)
+        poses = _reachable(truth, acq, pos, turn, reach_mm=search.reach_mm,
+                           turn_deg=search.turn_deg, margin_px=search.margin_px)  # fmt: skip
+    tab = _project(truth, replace(acq, capture_poses=poses), tab, acq.tablet_px,
+                   search.margin_px)  # fmt: skip
+    return replace(acq, tablet_px=tab, hand_angle_deg=ang, capture_poses=poses)
 
 
 def _project(truth: TwinTruth, acq: Acquisition, tab: np.ndarray, old: np.ndarray,
