@@ -353,6 +353,8 @@ def test_a_prior_parameter_at_the_edge_says_how_far_the_data_pulled_it(paper):
     assert xt, [str(w) for w in r.warnings]
     text = str(xt[0])
     pulled = re.search(r"the data pulled it (\d+\.\d) σ", text)
-    assert "from the prior" in text and pulled and float(pulled.group(1)) >= 6.0
+    # The pull is the likelihood ratio's (a refit with xt's prior mean free, against the fit
+    # refitted likewise), not the range edge's 6 σ.
+    assert "from the prior" in text and pulled and float(pulled.group(1)) >= 5.0
     assert "widen [search]" not in text and xt[0].param == "xt"
     assert abs(r.stage1.params["xt"] - 203.0) < 0.1
