@@ -9,6 +9,7 @@ import pytest
 
 from handeye_jax import format_summary
 from handeye_jax.cli import main
+from handeye_jax.report._figures import verdict_title
 from handeye_jax.report._verdict import MAX_CHECKS, with_sigma
 from tests.common import FAST, PAPER
 
@@ -49,6 +50,26 @@ def test_the_verdict_comes_first_with_what_a_robot_engineer_needs(paper_result):
     for detail in ("LM polish", "DE:", "singular values", "residuals per landmark"):
         assert detail not in text, detail
     assert "saved: r.json" in format_summary(paper_result, saved="r.json")
+
+
+def test_no_expected_error_is_printed_where_the_fits_own_touches_contradict_it(paper_result):
+    """Touches that miss by more than the noise model allows (outliers of the deployed stage)
+    contradict the covariance's prediction: the verdict says so instead of a number."""
+    d = paper_result.diagnostics
+    key = "stage2" if paper_result.deploy_stage == 2 else "stage1"
+    assert d.expected is not None and getattr(d, key).outliers == ()
+    bad = replace(paper_result, diagnostics=replace(d, **{key: replace(getattr(d, key),
+                                                                        outliers=(2, 5))}))
+    verdict = format_summary(bad).split("CHECKS")[0]
+    assert "expected touching error: not given: touch(es) 2, 5 miss by more than" in verdict
+    assert " mm mean" not in verdict
+    assert "expected touching error" not in verdict_title(bad)
+    assert "expected touching error" in verdict_title(paper_result)
+    # The other stage's outliers say nothing about the deployed one's prediction.
+    other = "stage1" if key == "stage2" else "stage2"
+    fine = replace(paper_result, diagnostics=replace(d, **{other: replace(getattr(d, other),
+                                                                         outliers=(2,))}))
+    assert re.search(r"expected touching error: [\d.]+ mm mean", format_summary(fine))
 
 
 def test_each_failed_check_says_what_fixes_it(paper_result):

@@ -43,7 +43,7 @@ from ..calibration import CalibrationResult, load_result
 from ..data import Observations, load_dataset
 from ..optim import CHUNK_GENERATIONS
 from ..problem import chain_points, stage1_errors, stage2_errors, touch_groups
-from ._verdict import mm_text
+from ._verdict import contradicted, mm_text
 
 DPI = 120
 #: Residual arrows are drawn this many times their length in both stages' figures (which say
@@ -387,7 +387,7 @@ def verdict_title(result: CalibrationResult) -> str:
     expect (mm), as the summary prints them."""
     line = f"verdict: deploy stage {result.deploy_stage}"
     expected = None if result.diagnostics is None else result.diagnostics.expected
-    if expected is not None:
+    if expected is not None and contradicted(result) is None:
         line += (f"; expected touching error {mm_text(expected.mean_mm)} mean, "
                  f"{mm_text(expected.p95_mm)} 95th percentile")  # fmt: skip
     return line

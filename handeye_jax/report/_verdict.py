@@ -64,7 +64,10 @@ def verdict_lines(result: CalibrationResult, saved: str | None) -> list[str]:
     if result.deploy is not None:
         lines.append(f"  why: {result.deploy.reason}")
     expected = None if d is None else d.expected
-    if expected is not None:
+    why_not = contradicted(result)
+    if expected is not None and why_not:
+        lines.append(f"  expected touching error: not given: {why_not} (see CHECKS)")
+    elif expected is not None:
         lines.append(f"  expected touching error: {mm_text(expected.mean_mm)} mean, "
                      f"{mm_text(expected.p95_mm)} 95th percentile (hand-command x-y error for "
                      f"{expected.where}; from the fit's covariance and noise model)")  # fmt: skip
@@ -88,6 +91,20 @@ def verdict_lines(result: CalibrationResult, saved: str | None) -> list[str]:
         lines.append("  saved: nothing (no --out): run again with --out RESULT.json to keep "
                      "the result for predict and export")  # fmt: skip
     return lines
+
+
+def contradicted(result: CalibrationResult) -> str | None:
+    """Why the expected touching error is not to be believed, or ``None``: the deployed
+    stage's own touches miss by more than the noise model allows (its outliers), so the
+    covariance and noise model that predict it do not describe this fit."""
+    d = result.diagnostics
+    if d is None:
+        return None
+    deployed = d.stage2 if result.deploy_stage == 2 else d.stage1
+    if deployed is None or not deployed.outliers:
+        return None
+    return (f"touch(es) {some(deployed.outliers)} miss by more than "
+            f"{d.outlier_threshold_mm:g} mm, which the noise model does not allow")
 
 
 def bootstrap_lines(boot: Bootstrap) -> list[str]:
