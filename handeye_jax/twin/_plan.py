@@ -563,8 +563,9 @@ def optimise_layout(
     history = [float(grad(_design(acq), nobj)[0])]
     scale = 1.0
     for _ in range(search.steps):
-        _, g = grad(_design(acq), nobj)
-        trial = _layout_step(truth, acq, g, scale, search)
+        design = _design(acq)
+        _, g = grad(design, nobj)
+        trial = _layout_step(truth, acq, design, g, scale, search)
         tobj, _ = objective_at(trial)
         tv = float(command_error(tobj, x1, targets, noise).mean_mm)
         if tv < history[-1]:
@@ -577,11 +578,10 @@ def optimise_layout(
     return OptimisedLayout(replace(acq, name=f"{acquisition.name}, optimised"), tuple(history))
 
 
-def _layout_step(truth: TwinTruth, acq: Acquisition, g: _Design, scale: float,
-                 search: LayoutSearch) -> Acquisition:  # fmt: skip
-    """``acq`` moved ``scale`` times :func:`optimise_layout`'s steps down the gradient ``g``,
-    then projected where a design may be."""
-    design = _design(acq)
+def _layout_step(truth: TwinTruth, acq: Acquisition, design: _Design, g: _Design,
+                 scale: float, search: LayoutSearch) -> Acquisition:  # fmt: skip
+    """``acq`` (its ``design``) moved ``scale`` times :func:`optimise_layout`'s steps down the
+    gradient ``g``, then projected where a design may be."""
 
     def moved(x, gx, step):
         x, gx = np.asarray(x), np.asarray(gx)
