@@ -490,10 +490,25 @@ def _held_out(lengths: np.ndarray, which_groups: np.ndarray, groups: np.ndarray)
     return np.sum(np.where(mask, lengths, 0.0), axis=1) / np.sum(mask, axis=1)
 
 
+def _stage2_loo(p: _Pair, lm: LevenbergMarquardt, X1: np.ndarray, W: np.ndarray, bounds2):
+    """Stage 2 refitted on each leave-one-out stage 1 (``X1``, weights ``W``): the held-out
+    error lengths ``(m1, m2)``, and stage 2's error vectors and Jacobian at the full fit."""
+    k, x2 = X1.shape[0], p.x2
+
+    def batch2(X, X1=X1):
+        return _stage2_batch(p.stage1, p.stage2, p.loss, X1, W, np.asarray(X))
+
+    x2s = minimise_batch(lambda X: batch2(X)[:2], lm, bounds2, np.broadcast_to(x2, (k, x2.size))).x
+    m1, m2 = (np.asarray(v) for v in batch2(x2s)[4])
+    # Problem 0 at the full fit (x1, x2) gives stage 2's error vectors and Jacobian there.
+    x2_fit = np.concatenate([x2[None], x2s[1:]])
+    _, _, e2, J2, _ = batch2(x2_fit, np.concatenate([p.x1[None], X1[1:]]))
+    return m1, m2, np.asarray(e2)[0], np.asarray(J2)[0]
+
+
 def _refits_exact(p: _Pair, seed, starts, max_steps) -> Refits:
     """:func:`refits` with leave-one-out by exact refits, O(n²)."""
-    stage1, stage2, loss, x1, x2, bounds1, bounds2 = (p.stage1, p.stage2, p.loss, p.x1, p.x2,
-                                                     p.box1, p.box2)  # fmt: skip
+    stage1, loss, x1, bounds1 = p.stage1, p.loss, p.x1, p.box1
     obs = _obs(stage1)
     n, d1 = obs.n_landmarks, x1.shape[0]
     zero, sign, declared, conv_of, x0 = _convention_problems(obs, x1, bounds1, seed, starts,
@@ -527,17 +542,7 @@ def _refits_exact(p: _Pair, seed, starts, max_steps) -> Refits:
     F_conv = np.where(np.isfinite(F[k:]), F[k:], np.inf)
     best = _best_per_convention(F_conv, conv_of)
 
-    X1, W = xs[:k], leave_out
-
-    def batch2(X, X1=X1):
-        return _stage2_batch(stage1, stage2, loss, X1, W, np.asarray(X))
-
-    x2s = minimise_batch(lambda X: batch2(X)[:2], lm, bounds2, np.broadcast_to(x2, (k, x2.size))).x
-    m1, m2 = (np.asarray(v) for v in batch2(x2s)[4])
-    # Problem 0 at the full fit (x1, x2) gives stage 2's error vectors and Jacobian there.
-    x2_fit = np.concatenate([x2[None], x2s[1:]])
-    _, _, e2, J2, _ = batch2(x2_fit, np.concatenate([x1[None], xs[1:k]]))
-    e2, J2 = np.asarray(e2)[0], np.asarray(J2)[0]
+    m1, m2, e2, J2 = _stage2_loo(p, lm, xs[:k], leave_out, p.box2)
     mine = k + np.flatnonzero(conv_of == declared)
     each = np.arange(k)
     return Refits(
