@@ -16,8 +16,8 @@ know (or any, on a backend that is not the CPU) is left out, and JAX's default a
   LLVM's optimisation passes (level 0), or at level 1 for a program called once per
   iteration of a host loop. On the diagnostics' stage-1 Jacobians, compilation takes 0.94 s
   at full optimisation, 0.59 s at level 1 and 0.30 s at level 0, and a call 0.57, 0.58 and
-  1.39 ms. With the other changes of ``benchmarks/RESULTS.md``, a first calibration from the
-  shell went from 12.7 s to 7.7–9.3 s (``benchmarks/first_call.py``).
+  1.39 ms. ``benchmarks/startup.py`` measures what a first calibration from the shell spends
+  compiling, program by program.
 
 One more setting cannot be scoped to a program: LLVM's loop vectoriser leaves any loop of
 fewer than 16 iterations scalar, and XLA's CPU code for a population is full of them (the 12
