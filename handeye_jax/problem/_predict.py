@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._jax import fast_compile
+from .._jax import fast_compile, in_float64
 from ..data import Observations
 from ..models import AbstractCorrection, AbstractModel, AffinePair, Rig, hand_command
 from ._noise import NoiseModel, NoiseObjective, noise_objective
@@ -102,6 +102,7 @@ def _noise_map_product(
     return jnp.concatenate([views, touches], axis=1)
 
 
+@in_float64
 def noise_to_parameters(
     objective1: NoiseObjective,
     x1: Float[Array, " d1"],
@@ -151,6 +152,7 @@ def _gains(one: _StageFit, two: _StageFit | None):
     return G1, G2, A1, A2
 
 
+@in_float64
 def parameter_covariance(
     objective1: NoiseObjective,
     x1: Float[Array, " d1"],
@@ -165,6 +167,7 @@ def parameter_covariance(
     return _uncertainty(*fits, None, None, 1)[0]
 
 
+@in_float64
 def workspace_targets(obs: Observations, angles: int = 8, views: int = 64) -> Targets:
     """The targets a calibration's summary predicts for: the views in ``obs`` (their image
     points, depths and capture poses; at most ``views`` of them, spread over the rows),
@@ -260,6 +263,7 @@ def error_statistics(covariance_mm2: Float[Array, "k 2 2"]) -> tuple[Array, Arra
     return jnp.mean(per_target), q, per_target
 
 
+@in_float64
 def command_error(
     objective1: NoiseObjective,
     x1: Float[Array, " d1"],
@@ -279,6 +283,7 @@ def command_error(
                        x2=x2, prior2=prior2, stage=stage)[2]  # fmt: skip
 
 
+@in_float64
 def uncertainty(
     objective1: NoiseObjective,
     x1: Float[Array, " d1"],
@@ -354,6 +359,7 @@ def _uncertainty(one: _StageFit, two: _StageFit | None, targets, variances, stag
     return cov, (A1, A2), ErrorPrediction(mean, p95, per, C)
 
 
+@in_float64
 def predict_command_error(
     model: AbstractModel,
     free: Sequence[str],
@@ -395,6 +401,7 @@ def predict_command_error(
                          x2=x2, prior2=prior2, stage=stage)  # fmt: skip
 
 
+@in_float64
 def fisher_information(objective: NoiseObjective, x: Float[Array, " d"]) -> Float[Array, "d d"]:
     """``JᵀJ`` of the whitened residuals at ``x``: the data's information on the free
     parameters (a prior's is added apart)."""
