@@ -10,7 +10,7 @@ held-out targets (command against the true command), and the stage deployed. The
 the deployed stage's error is on average within 1.02× of the better stage's.
 
 The twins are coverage.py's: their rows are read from ``--rows`` (``coverage.py`` writes them);
-``--run`` computes the missing ones (``coverage.run_twin``) and adds them to the file. The
+``--run`` computes the missing ones (``coverage.run_twins``) and adds them to the file. The
 table goes to ``benchmarks/RESULTS.md`` and the rows used to ``results/stage_choice.json``.
 """
 
@@ -86,13 +86,17 @@ def main() -> None:
         sys.exit(f"{args.rows}: no rows for {len(missing)} twins (e.g. {missing[0]}); run "
                  "benchmarks/coverage.py first, or pass --run")  # fmt: skip
     if missing:
-        from coverage import run_twin
+        from coverage import run_twins
 
         from handeye_jax import vectorise_small_loops
 
         vectorise_small_loops()
-        for key in missing:
-            have[key] = json.loads(json.dumps(run_twin(key[2], key[0], key[1])))
+        for model, captures in {(k[0], k[1]) for k in missing}:
+            seeds = [k[2] for k in missing if k[:2] == (model, captures)]
+            for seed, row in run_twins(seeds, model, captures).items():
+                if isinstance(row, Exception):
+                    sys.exit(f"{model}, {captures} capture(s), seed {seed}: {row}")
+                have[(model, captures, seed)] = json.loads(json.dumps(row))
             args.rows.write_text(json.dumps(list(have.values())))
     m = measure([have[w] for w in wanted])
     OUT.parent.mkdir(parents=True, exist_ok=True)
