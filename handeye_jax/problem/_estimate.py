@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from jaxtyping import Float
 
+from .._jax import in_float64
 from ..data import Observations
 from ..models import AbstractModel
 
@@ -182,6 +183,7 @@ def _off_axis(R_hand_camera: np.ndarray) -> float:
     return float(np.arccos(np.clip(abs(R_hand_camera[2, 2]), 0.0, 1.0)))
 
 
+@in_float64
 def closed_form_estimate(obs: Observations) -> ClosedFormEstimate:
     """The rig from the data alone, in closed form (see the module): no search ranges.
 

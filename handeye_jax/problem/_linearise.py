@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._jax import in_float64
 from ._objective import AbstractObjective, errors_of
 
 #: A scaled singular value below this fraction of the largest marks a weak direction.
@@ -240,6 +241,7 @@ def std_of_precision(precision: np.ndarray, names: Sequence[str]) -> dict[str, f
     }
 
 
+@in_float64
 def jacobian_diagnostics(
     objective: AbstractObjective,
     theta: Float[Array, " d"],

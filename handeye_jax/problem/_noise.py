@@ -37,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._jax import fast_compile
+from .._jax import fast_compile, in_float64
 from ..data import Observations
 from ..models import AbstractModel
 from ._objective import (
@@ -388,6 +388,7 @@ def _hat_diagonal(J: np.ndarray, prior_precision: np.ndarray | None) -> np.ndarr
     return np.einsum("ij,jk,ik->i", J, np.linalg.pinv(A, hermitian=True), J)
 
 
+@in_float64
 def estimate_noise(
     objective: NoiseObjective,
     theta: Float[Array, " d"],
