@@ -10,8 +10,8 @@ picture shows every landmark; the others are counted and printed; the paper's 3Ã
 one capture), then timed in turn, round after round: the loop (``calibrate`` of each twin),
 the batch on one device and, with ``--devices 2``, the batch on two host devices
 (``XLA_FLAGS=--xla_force_host_platform_device_count``, set here before JAX starts). Each is
-run once first (the loop: one ``calibrate``) so that every program is compiled before the
-clock starts. Prints a Markdown
+run once first (the loop: one ``calibrate``; a batch: on as few twins as make every wave size
+it will meet) so that every program is compiled before the clock starts. Prints a Markdown
 table: seconds per problem, the speed-up of each batch over the loop, the largest difference
 of F (both stages, mm) and of any parameter between each batch result and its own loop
 result, and the process's peak memory.
@@ -24,6 +24,7 @@ timed after a first run that compiles; process 0 reports its wall time per probl
 from __future__ import annotations
 
 import argparse
+import inspect
 import os
 import platform
 import resource
@@ -95,6 +96,13 @@ def numbers(results) -> np.ndarray:
                       *r.stage2.params.values()] for r in results])  # fmt: skip
 
 
+def _wave_shapes(data: list, devices: int) -> list:
+    """As few of the problems as give a batch of ``data`` every wave size it will meet (a full
+    wave and the remainder's), so that a run on them compiles every program it needs."""
+    per_wave = inspect.signature(calibrate_batch).parameters["wave"].default * devices
+    return data if len(data) <= per_wave else data[:per_wave] + data[: len(data) % per_wave]
+
+
 def run_size(b: int, settings: Settings, rounds: int) -> dict:
     data = twins(b, ARGS.preset)
     meshes = {f"batch, {k} device{'s' * (k > 1)}": problem_mesh(jax.devices()[:k])
@@ -103,7 +111,9 @@ def run_size(b: int, settings: Settings, rounds: int) -> dict:
     for name, mesh in meshes.items():
         candidates[name] = lambda mesh=mesh: calibrate_batch(data, settings, mesh=mesh)
     calibrate(data[0], settings)  # compiles the loop's programs (every twin has its shape)
-    out = {name: fn() for name, fn in candidates.items() if name.startswith("batch")}
+    for mesh in meshes.values():  # compiles the batches' programs: a wave of each size
+        calibrate_batch(_wave_shapes(data, mesh.devices.size), settings, mesh=mesh)
+    out = {}
     times = {name: [] for name in candidates}
     for _ in range(rounds):
         for name, fn in candidates.items():
