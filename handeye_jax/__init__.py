@@ -129,6 +129,7 @@ _EXPORTS = {
     "PriorObjective": "problem",
     "put": "problem",
     "recalibrate": "calibration",
+    "recalibrate_batch": "calibration",
     "recalibration_plan": "calibration",
     "render": "report",
     "resolve_names": "problem",
@@ -231,7 +232,13 @@ if TYPE_CHECKING:
         SignTwin,
         StageDiagnostics,
     )
-    from .calibration._pipeline import calibrate, fit, fit_correction, recalibrate
+    from .calibration._pipeline import (
+        calibrate,
+        fit,
+        fit_correction,
+        recalibrate,
+        recalibrate_batch,
+    )
     from .calibration._plans import Plan, full_plan, recalibration_plan
     from .calibration._ranges import SearchRange, SearchReport, plan_search
     from .calibration._result import CalibrationResult, StageResult
@@ -450,6 +457,7 @@ __all__ = [
     "planned_view",
     "put",
     "recalibrate",
+    "recalibrate_batch",
     "recalibration_plan",
     "render",
     "resolve_names",

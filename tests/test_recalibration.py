@@ -43,6 +43,7 @@ from handeye_jax import (
     load_result,
     load_truth,
     recalibrate,
+    recalibrate_batch,
     save_dataset,
     simulate,
     snake_grid_px,
@@ -279,6 +280,13 @@ def test_a_prior_wrong_by_five_sigma_is_flagged_naming_the_parameter(rig):
                         ("pen",), budget, source="old.json")  # fmt: skip
     pulls = {p.param: p.pull for p in wrong.stage1.prior.pulls}
     assert pulls["xt"] > 3.0  # towards where the tablet went
+    # The same two in one recalibrate_batch (one problem a wave: the programs above serve):
+    # each is its own recalibration, bit for bit, in order.
+    both = recalibrate_batch([right.data, wrong.data], old, ("pen",), budget, wave=1)
+    for one, batched in zip((right, wrong), both, strict=True):
+        assert [batched.stage1.F, batched.stage2.F] == [one.stage1.F, one.stage2.F]
+        assert batched.stage1.params == one.stage1.params
+        assert batched.stage2.params == one.stage2.params
     # xt alone is flagged: the parameters the wrong prior dragged along follow it.
     checks = [w for w in wrong.warnings if w.kind == "prior"]
     assert [w.param for w in checks] == ["xt"]

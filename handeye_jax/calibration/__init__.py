@@ -25,7 +25,7 @@ _EXPORTS = {
     "_likelihood": (
         "is_ml", "ml_objective", "noise_part", "polish", "prior_information", "refine_ml",
     ),
-    "_pipeline": ("calibrate", "fit", "fit_correction", "recalibrate"),
+    "_pipeline": ("calibrate", "fit", "fit_correction", "recalibrate", "recalibrate_batch"),
     "_plans": ("full_plan", "Plan", "recalibration_plan"),
     "_result": ("CalibrationResult", "StageResult"),
     "_result_frames": ("compute_frames",),

@@ -103,11 +103,16 @@ def _settings_of(datasets: Sequence[Dataset], settings) -> list[Settings]:
     each = [settings] * len(datasets) if isinstance(settings, Settings) else list(settings)
     if len(each) != len(datasets):
         raise ValueError(f"{len(each)} settings for {len(datasets)} datasets")
+    check_shared(each)
+    return each
+
+
+def check_shared(each: Sequence[Settings]) -> None:
+    """Raise ``ValueError`` unless the settings of a batch differ in ``seed`` only."""
     for s in each[1:]:
         differ = [f for f in SHARED_SETTINGS if getattr(s, f) != getattr(each[0], f)]
         if differ:
             raise ValueError(f"the settings of a batch may differ in seed only (not {differ[0]})")
-    return each
 
 
 def fit_batch(

@@ -16,12 +16,13 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from jax.sharding import Mesh
 
 from .._jax import in_float64, problem_mesh
 from ..data import Dataset
 from ..models import AbstractCorrection, AbstractModel, AffinePair, get_model
 from ..problem import NoiseModel, ParameterSpace
-from ._batch import fit_batch
+from ._batch import WAVE, check_shared, fit_batch
 from ._plans import Plan, full_plan, recalibration_plan
 from ._programs import rotation_centres, stage_keys
 from ._result import CalibrationResult, StageResult
@@ -131,6 +132,21 @@ def recalibrate(
             convention differ from ``previous``'s (a re-calibrated camera); without it they
             are an :class:`InputError` naming the field. The result records the change.
     """
+    plan, settings, changes = _recalibration(dataset, previous, refit, settings, fix, source,
+                                             accept_rig_change)  # fmt: skip
+    return _with_changes(fit(dataset, plan, settings, progress=progress), changes)
+
+
+def _recalibration(
+    dataset: Dataset,
+    previous: CalibrationResult,
+    refit: Sequence[str],
+    settings: Settings | None,
+    fix: bool,
+    source: str | Path | None,
+    accept_rig_change: bool,
+) -> tuple[Plan, Settings, tuple]:
+    """A recalibration's plan, settings and rig changes (see :func:`recalibrate`)."""
     if settings is None:
         settings = previous.settings
     if settings.model != previous.model_name:
@@ -141,11 +157,58 @@ def recalibrate(
     with jax.enable_x64(True):
         plan = recalibration_plan(dataset, previous, refit, fix=fix, source=source,
                                   preset=settings.search)  # fmt: skip
-    result = fit(dataset, plan, settings, progress=progress)
-    if changes:
-        recal = replace(result.recalibration, rig_changes=changes)
-        result = replace(result, recalibration=recal)
-    return result
+    return plan, settings, changes
+
+
+def _with_changes(result: CalibrationResult, changes) -> CalibrationResult:
+    if not changes:
+        return result
+    return replace(result, recalibration=replace(result.recalibration, rig_changes=changes))
+
+
+@in_float64
+def recalibrate_batch(
+    datasets: Sequence[Dataset],
+    previous: CalibrationResult | Sequence[CalibrationResult],
+    refit: Sequence[str],
+    settings: Settings | Sequence[Settings] | None = None,
+    *,
+    fix: bool = False,
+    progress: bool = False,
+    wave: int = WAVE,
+    mesh: Mesh | None = None,
+) -> list[CalibrationResult]:
+    """:func:`recalibrate` of every dataset, in one batch (as :func:`calibrate_batch` is to
+    :func:`calibrate`): result ``i`` is ``recalibrate(datasets[i], previous[i], refit,
+    settings[i], fix=fix)``'s, bit for bit.
+
+    Args:
+        datasets: the new measurements, one per problem.
+        previous: the earlier calibration, one for all or one per dataset.
+        refit: the groups or parameters that changed (the same for every problem).
+        settings: one for all, or one per dataset, differing in ``seed`` only (default: each
+            previous result's).
+        fix: hold the other parameters at the previous values instead of giving them a prior.
+        progress: a progress bar over the problems on stderr.
+        wave: the most problems per device fitted at once.
+        mesh: the devices (default: all of this process's).
+    """
+    n = len(datasets)
+    olds = [previous] * n if isinstance(previous, CalibrationResult) else list(previous)
+    each = ([settings] * n if settings is None or isinstance(settings, Settings)
+            else list(settings))  # fmt: skip
+    if len(olds) != n or len(each) != n:
+        raise ValueError(f"{len(olds)} previous results and {len(each)} settings for {n} "
+                         "datasets")  # fmt: skip
+    made = [_recalibration(d, o, refit, s, fix, None, False)
+            for d, o, s in zip(datasets, olds, each, strict=True)]  # fmt: skip
+    check_shared([m[1] for m in made])
+    outcomes = fit_batch(datasets, [m[0] for m in made], [m[1] for m in made],
+                         progress=progress, wave=wave, mesh=mesh)  # fmt: skip
+    for out in outcomes:
+        if isinstance(out, Exception):
+            raise out
+    return [_with_changes(r, m[2]) for r, m in zip(outcomes, made, strict=True)]
 
 
 @in_float64
