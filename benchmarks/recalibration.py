@@ -35,7 +35,9 @@ new twin at these hand angles. ``--paper-data-term``: the data term before the G
 "Recalibration: what three touches can reach").
 
 Every calibration runs in this process with the default settings (seed S), no diagnostics
-step; times are wall times after a warm-up, on a machine shared with other work.
+step; each kind of fit for all the seeds at once, in one ``calibrate_batch`` or
+``recalibrate_batch`` (each result its own single run's, bit for bit); a fit's time is its
+share of its batch's wall time, on a machine shared with other work.
 """
 
 from __future__ import annotations
@@ -67,12 +69,13 @@ from handeye_jax import (
     Stage1Objective,
     StageDiagnostics,
     Twin,
-    calibrate,
+    calibrate_batch,
     change_truth,
     draw_truth,
     evaluate,
     float64,
     recalibrate,
+    recalibrate_batch,
     simulate,
     vectorise_small_loops,
 )
@@ -213,45 +216,67 @@ def without_noise(result):
     return replace(result, diagnostics=diagnostics, fits=None)
 
 
-def run_seed(
-    seed: int, parts, ks, settings: Settings, wrong: bool, bounds: bool, angles=None
-) -> dict:
-    """Every fit of one seed: ``{part: {row: measure}}`` and the wrong-prior runs.
-    ``angles``: the hand angles (deg) of the new twin's k = 3 landmarks (default: 22.5·m)."""
-    s = replace(settings, seed=seed)
-    truth = draw_truth(seed)
-    old_twin = simulate(truth, PRESETS["paper"], seed)
-    old = calibrate(old_twin.dataset, s)
+def _batched(fn, datasets: list, *args, **kwargs):
+    """``fn(datasets, ...)`` (a batch) and each problem's share of its wall time, s."""
+    out, t = timed(fn, datasets, *args, **kwargs)
+    return out, t / max(len(datasets), 1)
+
+
+def _new_twin(truth, part: str, seed: int, angles) -> Twin:
+    changed = change_truth(truth, part, seed)
+    if angles is not None:
+        a = np.array(changed.landmarks_hand_angle_deg, dtype=float)
+        a[list(SUBSETS[3])] = angles
+        changed = replace(changed, landmarks_hand_angle_deg=a)
+    return simulate(changed, PRESETS["paper"], NEW_SEED + seed)
+
+
+def run_seeds(
+    seeds: list[int], parts, ks, settings: Settings, wrong: bool, bounds: bool, angles=None
+) -> list[dict]:
+    """Every fit of each seed: ``{part: {row: measure}}`` and the wrong-prior runs, one dict
+    per seed. Each kind of fit runs for all the seeds at once, in one ``calibrate_batch`` or
+    ``recalibrate_batch`` (each result its own single run's, bit for bit). ``angles``: the
+    hand angles (deg) of the new twin's k = 3 landmarks (default: 22.5·m)."""
+    each = [replace(settings, seed=seed) for seed in seeds]
+    truths = [draw_truth(seed) for seed in seeds]
+    old_twins = [simulate(t, PRESETS["paper"], seed) for t, seed in zip(truths, seeds,
+                                                                       strict=True)]  # fmt: skip
+    olds = calibrate_batch([t.dataset for t in old_twins], each)
     if PAPER_DATA_TERM:
-        old = without_noise(old)
-    out: dict = {}
+        olds = [without_noise(o) for o in olds]
+    out: list[dict] = [{} for _ in seeds]
     for part in parts:
-        changed = change_truth(truth, part, seed)
-        if angles is not None:
-            a = np.array(changed.landmarks_hand_angle_deg, dtype=float)
-            a[list(SUBSETS[3])] = angles
-            changed = replace(changed, landmarks_hand_angle_deg=a)
-        twin = simulate(changed, PRESETS["paper"], NEW_SEED + seed)
-        rows = {"old result unchanged": measure(old, twin, 0.0)}
-        rows["oracle (the new truth)"] = {**rows["old result unchanged"], "s1": math.nan}
-        full, t = timed(calibrate, twin.dataset, s)
-        rows["from scratch, 9"] = measure(full, twin, t)
+        twins = [_new_twin(t, part, seed, angles) for t, seed in zip(truths, seeds, strict=True)]
+        rows = [{"old result unchanged": measure(o, tw, 0.0)}
+                for o, tw in zip(olds, twins, strict=True)]  # fmt: skip
+        for r in rows:
+            r["oracle (the new truth)"] = {**r["old result unchanged"], "s1": math.nan}
+
+        def add(label: str, results, seconds: float, rows=rows, twins=twins) -> None:
+            for r, x, tw in zip(rows, results, twins, strict=True):
+                r[label] = measure(x, tw, seconds)
+
+        add("from scratch, 9", *_batched(calibrate_batch, [tw.dataset for tw in twins], each))
         for k in ks:
-            ds = subset(twin.dataset, SUBSETS[k])
+            dss = [subset(tw.dataset, SUBSETS[k]) for tw in twins]
             for fix in (False, True):
                 try:
-                    r, t = timed(recalibrate, ds, old, (part,), s, fix=fix)
+                    got = _batched(recalibrate_batch, dss, olds, (part,), each, fix=fix)
                 except InputError:  # fewer residuals than free parameters: refused
                     continue
-                rows[f"{'fix' if fix else 'prior'}, {k}"] = measure(r, twin, t)
+                add(f"{'fix' if fix else 'prior'}, {k}", *got)
             if 3 <= k < 9:
-                r, t = timed(calibrate, ds, s)
-                rows[f"from scratch, {k}"] = measure(r, twin, t)
-            if bounds and f"prior, {k}" in rows:
-                rows |= bound_rows(old, old_twin.dataset, truth, twin, part, k, s)
-        out[part] = rows
+                add(f"from scratch, {k}", *_batched(calibrate_batch, dss, each))
+            for i, r in enumerate(rows):
+                if bounds and f"prior, {k}" in r:
+                    r |= bound_rows(olds[i], old_twins[i].dataset, truths[i], twins[i], part, k,
+                                    each[i])  # fmt: skip
+        for o, r in zip(out, rows, strict=True):
+            o[part] = r
     if wrong and "pen" in parts:
-        out["wrong"] = wrong_prior(old, truth, seed, ks, s)
+        for o, w in zip(out, wrong_prior(olds, truths, seeds, ks, each), strict=True):
+            o["wrong"] = w
     return out
 
 
@@ -263,23 +288,28 @@ def prior_sigma(result, name: str, part: str) -> float:
     return float(others.sigma[others.names.index(name)])
 
 
-def wrong_prior(old, truth, seed: int, ks, settings: Settings) -> dict:
+def wrong_prior(olds, truths, seeds: list[int], ks, each: list[Settings]) -> list[dict]:
     """The pen changed and, unknown to the operator, ``WRONG_PARAM`` moved by ``WRONG_SIGMAS``
-    of its prior σ: the old result's prior is that wrong. Recalibrate with ``--refit pen``:
-    the pull reported on it, the warnings naming it, per k."""
-    sigma = prior_sigma(old, WRONG_PARAM, "pen")
-    changed = change_truth(truth, "pen", seed)
-    model = {**changed.model, WRONG_PARAM: changed.model[WRONG_PARAM] + WRONG_SIGMAS * sigma}
-    twin = simulate(replace(changed, model=model), PRESETS["paper"], NEW_SEED + seed)
-    out = {"sigma": sigma}
+    of its prior σ: each old result's prior is that wrong. Recalibrate with ``--refit pen``
+    (each k for all the seeds in one ``recalibrate_batch``): the pull reported on it, the
+    warnings naming it, per k; one dict per seed."""
+    out, twins = [], []
+    for old, truth, seed in zip(olds, truths, seeds, strict=True):
+        sigma = prior_sigma(old, WRONG_PARAM, "pen")
+        changed = change_truth(truth, "pen", seed)
+        model = {**changed.model, WRONG_PARAM: changed.model[WRONG_PARAM] + WRONG_SIGMAS * sigma}
+        twins.append(simulate(replace(changed, model=model), PRESETS["paper"], NEW_SEED + seed))
+        out.append({"sigma": sigma})
     for k in ks:
         try:
-            r = recalibrate(subset(twin.dataset, SUBSETS[k]), old, ("pen",), settings)
+            results = recalibrate_batch([subset(tw.dataset, SUBSETS[k]) for tw in twins], olds,
+                                        ("pen",), each)  # fmt: skip
         except InputError:
             continue
-        m = measure(r, twin, 0.0)
-        m["warnings"] = [w.text for w in r.warnings if f"pull {WRONG_PARAM} " in w.text]
-        out[k] = m
+        for o, r, tw in zip(out, results, twins, strict=True):
+            m = measure(r, tw, 0.0)
+            m["warnings"] = [w.text for w in r.warnings if f"pull {WRONG_PARAM} " in w.text]
+            o[k] = m
     return out
 
 
@@ -392,8 +422,8 @@ def main(argv=None) -> str:
     PAPER_DATA_TERM = args.paper_data_term
     t0 = time.perf_counter()
     with float64():  # the helpers here build models and objectives of their own
-        runs = [run_seed(s, args.parts, args.ks, settings, not args.no_wrong, args.bounds,
-                         args.k3_angles) for s in args.seeds]  # fmt: skip
+        runs = run_seeds(args.seeds, args.parts, args.ks, settings, not args.no_wrong,
+                         args.bounds, args.k3_angles)  # fmt: skip
     command = "python benchmarks/recalibration.py" + (" --quick" if args.quick else "")
     if not args.quick:
         command += f" --seeds {' '.join(map(str, args.seeds))} --parts {' '.join(args.parts)}"
@@ -415,7 +445,8 @@ def main(argv=None) -> str:
         "each fit's mean, mm; landmarks of each k: " +
         "; ".join(f"{k}: m = {', '.join(map(str, SUBSETS[k]))}" for k in args.ks) +
         f"; a pull is flagged above {PULL_FLAG:g} sigma; time: "
-        "each fit's median wall time over the seeds (the first seed's include compiling)",
+        "each fit's share of its batch's wall time (a kind of fit for all the seeds in one "
+        "batch; the first batch of a kind includes compiling)",
     ]  # fmt: skip
     for part in args.parts:
         text += ["", part_table(runs, part, args.ks)]
