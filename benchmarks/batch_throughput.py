@@ -64,10 +64,10 @@ from handeye_jax import (  # noqa: E402
     calibrate,
     calibrate_batch,
     draw_truth,
+    problem_mesh,
     simulate,
     vectorise_small_loops,
 )
-from handeye_jax._jax import problem_mesh  # noqa: E402
 from handeye_jax.vision import BlobCountError  # noqa: E402
 
 vectorise_small_loops()  # as the command line does, before JAX's first computation

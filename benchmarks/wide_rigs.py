@@ -37,6 +37,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from handeye_jax import (
     PRESETS,
@@ -56,7 +57,6 @@ from handeye_jax import (
     simulate,
     vectorise_small_loops,
 )
-from handeye_jax._core import progress_bar
 from handeye_jax.calibration import HALF_WIDTH
 
 OUT = Path(__file__).resolve().parent / "results" / "wide_rigs.json"
@@ -215,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
         kept = {int(k): v for k, v in json.loads(args.out.read_text()).items()}
     seeds = [args.first_seed + i for i in range(args.rigs)]
     rows = []
-    with progress_bar(len(seeds), "wide rigs", True, "rig") as bar:
+    with tqdm(total=len(seeds), desc="wide rigs", unit="rig") as bar:
         for i, seed in enumerate(seeds):
             if seed not in kept:
                 kept[seed] = run_rig(seed, i, settings)

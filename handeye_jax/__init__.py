@@ -148,6 +148,7 @@ _EXPORTS = {
     "StageResult": "calibration",
     "synthesize_captures": "twin",
     "store_programs": "_jax",
+    "problem_mesh": "_jax",
     "synthesize_dataset": "twin",
     "TouchingError": "twin",
     "Twin": "twin",
@@ -210,6 +211,7 @@ def __dir__() -> list[str]:
 if TYPE_CHECKING:
     from . import geometry, models, optim, tablet
     from ._core._errors import InputError
+    from ._jax._shard import problem_mesh
     from ._jax._x64 import float64
     from ._jax._xla import store_programs, vectorise_small_loops
     from .calibration._batch import calibrate_batch
@@ -466,6 +468,7 @@ __all__ = [
     "simulate",
     "snake_grid_px",
     "store_programs",
+    "problem_mesh",
     "synthesize_dataset",
     "tablet",
     "update_dataset",
