@@ -235,8 +235,7 @@ def run_twins(seeds: list[int], model: str, captures: int) -> dict[int, dict | E
             continue
         t0 = time.perf_counter()
         truth, dh, twin = twins[seed]
-        row = _row(seed, model, captures, truth if dh is None else None, dh, twin,
-                   diagnose(result))  # fmt: skip
+        row = _row(seed, model, captures, truth, dh, twin, diagnose(result))
         row["seconds"] = seconds[seed] + share + time.perf_counter() - t0
         out[seed] = row
     return {s: out[s] for s in seeds}
