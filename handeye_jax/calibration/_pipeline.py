@@ -180,7 +180,9 @@ def recalibrate_batch(
 ) -> list[CalibrationResult]:
     """:func:`recalibrate` of every dataset, in one batch (as :func:`calibrate_batch` is to
     :func:`calibrate`): result ``i`` is ``recalibrate(datasets[i], previous[i], refit,
-    settings[i], fix=fix)``'s, bit for bit.
+    settings[i], fix=fix)``'s, bit for bit. A dataset whose rig differs from its previous
+    result's (intrinsics, tablet pixel size, hand-angle convention) raises the
+    :class:`InputError` :func:`recalibrate` raises without ``accept_rig_change``.
 
     Args:
         datasets: the new measurements, one per problem.

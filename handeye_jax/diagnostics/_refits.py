@@ -490,7 +490,7 @@ def _held_out(lengths: np.ndarray, which_groups: np.ndarray, groups: np.ndarray)
     return np.sum(np.where(mask, lengths, 0.0), axis=1) / np.sum(mask, axis=1)
 
 
-def _stage2_loo(p: _Pair, lm: LevenbergMarquardt, X1: np.ndarray, W: np.ndarray, bounds2):
+def _stage2_loo(p: _Pair, lm: LevenbergMarquardt, X1: np.ndarray, W: np.ndarray):
     """Stage 2 refitted on each leave-one-out stage 1 (``X1``, weights ``W``): the held-out
     error lengths ``(m1, m2)``, and stage 2's error vectors and Jacobian at the full fit."""
     k, x2 = X1.shape[0], p.x2
@@ -498,7 +498,7 @@ def _stage2_loo(p: _Pair, lm: LevenbergMarquardt, X1: np.ndarray, W: np.ndarray,
     def batch2(X, X1=X1):
         return _stage2_batch(p.stage1, p.stage2, p.loss, X1, W, np.asarray(X))
 
-    x2s = minimise_batch(lambda X: batch2(X)[:2], lm, bounds2, np.broadcast_to(x2, (k, x2.size))).x
+    x2s = minimise_batch(lambda X: batch2(X)[:2], lm, p.box2, np.broadcast_to(x2, (k, x2.size))).x
     m1, m2 = (np.asarray(v) for v in batch2(x2s)[4])
     # Problem 0 at the full fit (x1, x2) gives stage 2's error vectors and Jacobian there.
     x2_fit = np.concatenate([x2[None], x2s[1:]])
@@ -542,7 +542,7 @@ def _refits_exact(p: _Pair, seed, starts, max_steps) -> Refits:
     F_conv = np.where(np.isfinite(F[k:]), F[k:], np.inf)
     best = _best_per_convention(F_conv, conv_of)
 
-    m1, m2, e2, J2 = _stage2_loo(p, lm, xs[:k], leave_out, p.box2)
+    m1, m2, e2, J2 = _stage2_loo(p, lm, xs[:k], leave_out)
     mine = k + np.flatnonzero(conv_of == declared)
     each = np.arange(k)
     return Refits(
