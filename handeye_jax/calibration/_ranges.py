@@ -22,12 +22,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
+import jax
 import numpy as np
 
 from .._core import SEARCH_PRESETS, spec
+from .._jax import problem_mesh
 from ..data import Dataset, Observations
 from ..models import AbstractParametric, AffinePair, HTMModel
-from ..optim import Box, minimise
+from ..optim import Box, minimise_many
 from ..problem import (
     ClosedFormEstimate,
     Stage1Objective,
@@ -173,23 +175,30 @@ def estimate_box(
     params = [c.params(model_cls) for c in estimate.candidates]
     X = _unwrapped([[p[n] for n in names] for p in params], units)
     caps = np.array([HALF_WIDTH.get(u, HALF_WIDTH["1"])[1] for u in units])
-    wide = Box(X.min(axis=0) - caps, X.max(axis=0) + caps)
     objective = Stage1Objective(model_cls.nominal(), obs)
-    ends = [minimise(objective, POLISH, wide, x0=x) for x in X]
-    values = np.array([e.value if np.isfinite(e.value) else np.inf for e in ends])
+    # Each candidate polished by the program the fit's stage-1 polish runs (a batch on one
+    # device, the candidates its problems): one compilation fewer, and the same end points,
+    # bit for bit, as one LM run per candidate.
+    k = len(X)
+    ends = minimise_many(
+        jax.tree.map(lambda a: np.stack([np.asarray(a)] * k), objective), POLISH,
+        np.tile(X.min(axis=0) - caps, (k, 1)), np.tile(X.max(axis=0) + caps, (k, 1)), x0=X,
+        mesh=problem_mesh(jax.devices()[:1]),
+    )  # fmt: skip
+    values = np.where(np.isfinite(ends.value), ends.value, np.inf)
     order = np.argsort(values, kind="stable")
     best = int(order[0])
     keep = [i for i in order if values[i] <= KEEP_F_FACTOR * values[best] + 1e-9]
-    hull = np.vstack([X[keep], np.array([ends[i].x for i in keep])])
-    e, J = (np.asarray(a) for a in stage_error_jacobian(objective, np.asarray(ends[best].x)))
+    hull = np.vstack([X[keep], ends.x[keep]])
+    e, J = (np.asarray(a) for a in stage_error_jacobian(objective, ends.x[best]))
     sigma = analyse_jacobian(e, J, names, units).std
     half = _half_widths(model_cls, sigma)
     lower, upper = hull.min(axis=0) - half, hull.max(axis=0) + half
-    F = float(stage_report(objective, np.asarray(ends[best].x))[1][0])  # the paper's F, x-y
+    F = float(stage_report(objective, ends.x[best])[1][0])  # the paper's F, x-y
     info = dict(estimate=dict(zip(names, (float(v) for v in X[0]), strict=True)),
                 estimate_F_mm=F, sigma=dict(sigma), candidates=len(keep),
                 frames_F_mm=_frames_F(model_cls, obs, estimate))  # fmt: skip
-    return lower, upper, np.array([ends[i].x for i in keep]), info
+    return lower, upper, ends.x[keep], info
 
 
 def _frames_F(model_cls, obs: Observations, estimate: ClosedFormEstimate) -> float | None:
