@@ -10,7 +10,9 @@ from .._core import lazy_exports
 # fmt: off
 _EXPORTS = {
     "_x64": ("float64", "in_float64"),
-    "_shard": ("Blocks", "padded_size", "per_device", "problem_mesh", "PROBLEMS"),
+    "_shard": (
+        "Blocks", "padded_size", "per_device", "problem_mesh", "PROBLEMS", "single_device_mesh",
+    ),
     "_xla": (
         "fast_compile", "fast_compile_options", "hot_loop", "loop_compiler_options",
         "store_programs", "vectorise_small_loops",

@@ -32,6 +32,13 @@ def problem_mesh(devices: Sequence[jax.Device] | None = None) -> Mesh:
     return Mesh(np.array(list(devices or jax.local_devices())), (PROBLEMS,))
 
 
+def single_device_mesh() -> Mesh:
+    """:func:`problem_mesh` of this process's first device: where one problem runs. (Not
+    ``jax.devices()[0]``: under ``jax.distributed`` that is process 0's, which another
+    process cannot run on.)"""
+    return problem_mesh(jax.local_devices()[:1])
+
+
 def padded_size(n: int, mesh: Mesh) -> int:
     """The smallest multiple of the mesh's size that holds ``n`` problems, each device's share
     rounded up to a power of two up to 64 and to a multiple of 64 above, so that batches of

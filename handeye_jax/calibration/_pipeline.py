@@ -18,7 +18,7 @@ import jax
 import numpy as np
 from jax.sharding import Mesh
 
-from .._jax import in_float64, problem_mesh
+from .._jax import in_float64, single_device_mesh
 from ..data import Dataset
 from ..models import AbstractCorrection, AbstractModel, AffinePair, get_model
 from ..problem import NoiseModel, ParameterSpace
@@ -49,7 +49,7 @@ def fit(
         settings: DE, LM and restart settings.
         progress: show each stage's DE progress bar on stderr.
     """
-    out = fit_batch([dataset], [plan], [settings], mesh=problem_mesh(jax.devices()[:1]),
+    out = fit_batch([dataset], [plan], [settings], mesh=single_device_mesh(),
                     stage_progress=progress)[0]  # fmt: skip
     if isinstance(out, Exception):
         raise out
@@ -74,7 +74,7 @@ def fit_correction_stage(
     padded = None if pad is None else [stage2_task(run, model, space2, search2, pad[2])[0].build]
     fit2 = fit_stages([task], run.settings, [keys2], padded=padded,
                       mask=None if pad is None else pad[1][None],
-                      mesh=problem_mesh(jax.devices()[:1]), progress=run.progress)[0]  # fmt: skip
+                      mesh=single_device_mesh(), progress=run.progress)[0]  # fmt: skip
     fit2, noise2 = likelihood(fit2, run, noise, model, estimate=estimate)
     stage2 = replace(finished_stage(fit2, "stage 2", run.source), noise=noise2)
     return fit2, stage2, np.asarray(rotation_centres(fit2.model(), points, run.obs.centre_index))

@@ -26,7 +26,7 @@ import jax
 import numpy as np
 
 from .._core import SEARCH_PRESETS, spec
-from .._jax import problem_mesh
+from .._jax import single_device_mesh
 from ..data import Dataset, Observations
 from ..models import AbstractParametric, AffinePair, HTMModel
 from ..optim import Box, minimise_many
@@ -183,7 +183,7 @@ def estimate_box(
     ends = minimise_many(
         jax.tree.map(lambda a: np.stack([np.asarray(a)] * k), objective), POLISH,
         np.tile(X.min(axis=0) - caps, (k, 1)), np.tile(X.max(axis=0) + caps, (k, 1)), x0=X,
-        mesh=problem_mesh(jax.devices()[:1]),
+        mesh=single_device_mesh(),
     )  # fmt: skip
     values = np.where(np.isfinite(ends.value), ends.value, np.inf)
     order = np.argsort(values, kind="stable")

@@ -20,7 +20,7 @@ import jax
 import numpy as np
 from jax.sharding import Mesh
 
-from .._jax import problem_mesh
+from .._jax import single_device_mesh
 from ..optim import (
     MAX_MODES,
     LevenbergMarquardt,
@@ -66,7 +66,7 @@ def fit_stage(
         keys: the DE's key and the restarts' key.
         progress: show DE's progress bar.
     """
-    return fit_stages([task], settings, [keys], mesh=problem_mesh(jax.devices()[:1]),
+    return fit_stages([task], settings, [keys], mesh=single_device_mesh(),
                       progress=progress)[0]  # fmt: skip
 
 

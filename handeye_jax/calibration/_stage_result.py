@@ -8,12 +8,11 @@ from pathlib import Path
 from typing import Any
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._core import InputError
-from .._jax import problem_mesh
+from .._jax import single_device_mesh
 from ..optim import minimise_many
 from ..problem import (
     AbstractObjective,
@@ -139,7 +138,7 @@ def _lm_from(stage: StageFit, objective: AbstractObjective,
     and end point."""
     space = stage.space
     lm = minimise_many(stack([objective]), POLISH, space.lower[None], space.upper[None],
-                       x0=np.asarray(x0)[None], mesh=problem_mesh(jax.devices()[:1]))  # fmt: skip
+                       x0=np.asarray(x0)[None], mesh=single_device_mesh())  # fmt: skip
     return float(lm.value[0]), np.asarray(lm.x[0])
 
 
