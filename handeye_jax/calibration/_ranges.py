@@ -176,9 +176,9 @@ def estimate_box(
     X = _unwrapped([[p[n] for n in names] for p in params], units)
     caps = np.array([HALF_WIDTH.get(u, HALF_WIDTH["1"])[1] for u in units])
     objective = Stage1Objective(model_cls.nominal(), obs)
-    # Each candidate polished by the program the fit's stage-1 polish runs (a batch on one
-    # device, the candidates its problems): one compilation fewer, and the same end points,
-    # bit for bit, as one LM run per candidate.
+    # The candidates polished as one batch on the program the fit's stage-1 polish compiles
+    # anyway: one compilation fewer. The end points matched one LM run per candidate bit for
+    # bit where checked (the paper's data, three twins, HTM and DH; benchmarks/RESULTS.md).
     k = len(X)
     ends = minimise_many(
         jax.tree.map(lambda a: np.stack([np.asarray(a)] * k), objective), POLISH,
