@@ -22,7 +22,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
-import jax
 import numpy as np
 
 from .._core import SEARCH_PRESETS, spec
@@ -168,6 +167,7 @@ def estimate_box(
     ``candidates``). Raises ``ValueError`` (the data give no estimate) or
     ``NotImplementedError`` (the model has no ``from_frames``).
     """
+    from ._search import stack
     from ._stage import POLISH
 
     estimate = estimate or closed_form_estimate(obs)
@@ -181,7 +181,7 @@ def estimate_box(
     # bit where checked (the paper's data, three twins, HTM and DH; benchmarks/RESULTS.md).
     k = len(X)
     ends = minimise_many(
-        jax.tree.map(lambda a: np.stack([np.asarray(a)] * k), objective), POLISH,
+        stack([objective] * k), POLISH,
         np.tile(X.min(axis=0) - caps, (k, 1)), np.tile(X.max(axis=0) + caps, (k, 1)), x0=X,
         mesh=single_device_mesh(),
     )  # fmt: skip
