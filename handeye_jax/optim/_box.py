@@ -31,6 +31,46 @@ def to_z(x: Float[Array, "*b d"], lower: Float[Array, " d"], upper: Float[Array,
     return xp.arcsin(xp.clip(2.0 * (x - lower) / (upper - lower) - 1.0, -1.0, 1.0))
 
 
+#: A coordinate is at a bound when ``|cos z|`` is below this (within about 2.5e-5 of its range).
+_AT_BOUND = 1e-2
+#: A step onto a bound stops this short of it (in ``sin z``), so that the coordinate's column of
+#: the Jacobian, ``∂x/∂z``, is not exactly 0 there and a later step can leave the bound.
+_EDGE = 1.0 - 1e-12
+
+
+def step(z: Float[Array, "*b d"], dz: Float[Array, "*b d"]):
+    """The trial point of an LM step ``dz`` in box coordinates: ``z + dz``, except at a bound.
+
+    At a bound ``∂x/∂z = 0``, so the linear model of the residuals in ``z`` is flat there and
+    its step in that coordinate is large and meaningless (the sine folds it back anywhere in
+    the box): LM refuses it, grows its damping, and can stop before any step is taken. A
+    coordinate at a bound takes instead the step its linear model gives in ``x``,
+    ``sin z + cos z·dz``, clipped onto the box: a projected step. Elsewhere, and where
+    ``dz`` is 0, the trial point is ``z + dz`` bit for bit.
+    """
+    xp = _xp(z, dz)
+    s, c = xp.sin(z), xp.cos(z)
+    at_bound = (xp.abs(c) < _AT_BOUND) & (dz != 0)
+    projected = xp.arcsin(xp.clip(s + c * dz, -_EDGE, _EDGE))
+    return xp.where(at_bound, projected, z + dz)
+
+
+def held(z: Float[Array, "*b d"], g: Float[Array, "*b d"], damped: Float[Array, "*b d"]):
+    """The coordinates an LM step decouples from the others: at a bound (as :func:`step` has
+    it), where the coordinate's own damped step, ``−g/damped`` (``g`` the cost's gradient in
+    ``z``, ``damped`` the diagonal of the damped normal equations), would leave the box.
+
+    Such a step is clipped onto the bound, so a step of the others solved jointly with it
+    would assume a move that is not made (projected, it crawls along the bound). Its couplings
+    in the normal equations are dropped: it takes its own step, clipped, and the others the
+    step of the problem without it (an active set). Where none is held, the equations are
+    unchanged, bit for bit.
+    """
+    xp = _xp(z, g, damped)
+    s, c = xp.sin(z), xp.cos(z)
+    return (xp.abs(c) < _AT_BOUND) & (xp.abs(s - c * g / damped) > _EDGE)
+
+
 def dx_dz(z: Float[Array, "*b d"], lower: Float[Array, " d"], upper: Float[Array, " d"]):
     """``∂x/∂z``, elementwise (the chain rule's factor for a Jacobian in ``z``)."""
     xp = _xp(z, lower, upper)

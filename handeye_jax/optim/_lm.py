@@ -147,15 +147,20 @@ def minimise_batch(
         Jt = J.transpose(0, 2, 1)
         H = Jt @ J
         g = (Jt @ r[..., None])[..., 0]
-        damping = lam[:, None, None] * (np.diagonal(H, axis1=1, axis2=2)[:, None, :] + 1e-12) * eye
+        diag = np.diagonal(H, axis1=1, axis2=2)
+        damping = lam[:, None] * (diag + 1e-12)
+        held = _box.held(z, g, diag + damping)
+        H = np.where((held[:, :, None] | held[:, None, :]) & ~eye.astype(bool), 0.0, H)
+        damping = damping[:, None, :] * eye
         # H + λ·(diag H + ε) is positive definite for λ > 0: the solve cannot fail.
         dz = -np.linalg.solve(H + damping, g[..., None])[..., 0]
         dz = np.where(np.isfinite(dz), dz, 0.0)
-        r_t, J_t, cost_t = evaluate(z + dz)
+        z_t = _box.step(z, dz)
+        r_t, J_t, cost_t = evaluate(z_t)
         better = cost_t < cost
         gain = np.where(better, cost - cost_t, 0.0)
         enough = gain > solver.rtol * np.where(np.isfinite(cost), cost, 0.0) + solver.atol
-        z = np.where(better[:, None], z + dz, z)
+        z = np.where(better[:, None], z_t, z)
         r = np.where(better[:, None], r_t, r)
         J = np.where(better[:, None, None], J_t, J)
         cost = np.where(better, cost_t, cost)

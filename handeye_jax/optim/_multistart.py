@@ -102,11 +102,15 @@ def _step(fn: Problem, lower, upper, lm: LevenbergMarquardt, st: _State) -> _Sta
     g = _rows_sum(lambda k: J[:, k] * r[:, k, None], m)
     d = H.shape[-1]
     diag = jnp.diagonal(H, axis1=1, axis2=2)
+    damping = st.lam[:, None] * (diag + 1e-12)
+    held = _box.held(st.z, g, diag + damping)
+    H = jnp.where((held[:, :, None] | held[:, None, :]) & ~jnp.eye(d, dtype=bool), 0.0, H)
     # H + λ·(diag H + ε): positive definite for λ > 0, so the factorisation cannot fail.
-    damped = H + (st.lam[:, None] * (diag + 1e-12))[:, :, None] * jnp.eye(d)
+    damped = H + damping[:, :, None] * jnp.eye(d)
     dz = -_cholesky_solve(damped, g)
     dz = jnp.where(jnp.isfinite(dz), dz, 0.0)
-    r_t, J_t, cost_t = _evaluate(fn, st.z + dz, lower, upper)
+    z_t = _box.step(st.z, dz)
+    r_t, J_t, cost_t = _evaluate(fn, z_t, lower, upper)
     better = cost_t < st.cost
     gain = jnp.where(better, st.cost - cost_t, 0.0)
     enough = gain > lm.rtol * jnp.where(jnp.isfinite(st.cost), st.cost, 0.0) + lm.atol
@@ -115,7 +119,7 @@ def _step(fn: Problem, lower, upper, lm: LevenbergMarquardt, st: _State) -> _Sta
     # neither a step nor a refusal, and its r and J are kept even where they are not finite.
     take = better | st.fresh
     return _State(
-        z=jnp.where(better[:, None], st.z + dz, st.z),
+        z=jnp.where(better[:, None], z_t, st.z),
         r=jnp.where(take[:, None], r_t, r),
         J=jnp.where(take[:, None, None], J_t, J),
         cost=jnp.where(better, cost_t, st.cost),
