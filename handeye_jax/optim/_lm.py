@@ -121,7 +121,9 @@ def minimise_batch(
 
     Each iteration solves ``(JᵀJ + λ·diag(JᵀJ))·δ = −Jᵀr`` (Marquardt's scaling) for every
     problem in the box coordinates ``z`` and keeps a problem's step only if it lowers its
-    ``|r|²``; λ shrinks after an accepted step and grows after a rejected one.
+    ``|r|²``; λ shrinks after an accepted step and grows after a rejected one. A parameter on
+    a bound is held there while the cost pushes it outward (an active set, as
+    :func:`~handeye_jax.optim.minimise_starts`).
 
     Args:
         fn: batched residuals and Jacobians: ``x (B, d) -> (r (B, m), J (B, m, d))``. Compile

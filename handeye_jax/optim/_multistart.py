@@ -13,7 +13,9 @@ its arithmetic is the same bit for bit whatever rows of zeros pad a problem's re
   positive definite for λ > 0), elementwise over the starts: no library call whose blocking
   depends on the batch's shape.
 
-It works in the box coordinates of :mod:`._box`, as the other LM does.
+It works in the box coordinates of :mod:`._box`, as the other LM does, with bounds kept as an
+active set there (:func:`._box.held`, :func:`._box.step`): a coordinate on a bound takes its
+step in ``x``, clipped onto the box, and one pushed outward leaves the normal equations.
 """
 
 from __future__ import annotations
@@ -175,7 +177,9 @@ def minimise_starts(
 
     Each iteration solves ``(JᵀJ + λ·diag(JᵀJ))·δ = −Jᵀr`` (Marquardt's scaling) for every
     start in the box coordinates and keeps a start's step only if it lowers its ``|r|²``; λ
-    shrinks after a kept step and grows after a refused one. All starts stop together, once
+    shrinks after a kept step and grows after a refused one. A parameter on a bound is held
+    there while the cost pushes it outward (an active set), so an optimum on a bound is
+    reached, not stalled before. All starts stop together, once
     none has lowered its cost by more than ``rtol·cost + atol`` for 10 iterations, or after
     ``max_steps``.
 
