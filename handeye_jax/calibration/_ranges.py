@@ -180,11 +180,8 @@ def estimate_box(
     # anyway: one compilation fewer. The end points matched one LM run per candidate bit for
     # bit where checked (the paper's data, three twins, HTM and DH; benchmarks/RESULTS.md).
     k = len(X)
-    ends = minimise_many(
-        stack([objective] * k), POLISH,
-        np.tile(X.min(axis=0) - caps, (k, 1)), np.tile(X.max(axis=0) + caps, (k, 1)), x0=X,
-        mesh=single_device_mesh(),
-    )  # fmt: skip
+    box = Box(np.tile(X.min(axis=0) - caps, (k, 1)), np.tile(X.max(axis=0) + caps, (k, 1)))
+    ends = minimise_many(stack([objective] * k), POLISH, box, x0=X, mesh=single_device_mesh())
     values = np.where(np.isfinite(ends.value), ends.value, np.inf)
     order = np.argsort(values, kind="stable")
     best = int(order[0])

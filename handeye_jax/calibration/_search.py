@@ -23,6 +23,7 @@ from jax.sharding import Mesh
 from .._jax import single_device_mesh
 from ..optim import (
     MAX_MODES,
+    Box,
     LevenbergMarquardt,
     minimise_many,
     minimise_starts_many,
@@ -201,9 +202,9 @@ def _de_searches(batch: _Batch, builds, search, settings: Settings, keys,
         objectives.append(batch.searched(objective, i))
         bases.append(base)
     de = minimise_many(
-        stack(objectives), settings.de(), np.array([s.lower for s in subs]),
-        np.array([s.upper for s in subs]), keys=np.stack([np.asarray(k) for k in keys]),
-        mesh=batch.mesh, progress=progress, desc=batch.tasks[0].label,
+        stack(objectives), settings.de(), _boxes(subs),
+        keys=np.stack([np.asarray(k) for k in keys]), mesh=batch.mesh, progress=progress,
+        desc=batch.tasks[0].label,
     )  # fmt: skip
     return [DESearch(s, o, b, take(de, i)) for i, (s, o, b) in
             enumerate(zip(subs, objectives, bases, strict=True))]  # fmt: skip
@@ -231,12 +232,15 @@ def _lm_searches(batch: _Batch, found, keys, settings: Settings,
     return best, out
 
 
+def _boxes(spaces) -> Box:
+    """The spaces' boxes, one row each: a batch of boxes."""
+    return Box(np.array([s.lower for s in spaces]), np.array([s.upper for s in spaces]))
+
+
 def _polish(batch: _Batch, objectives, x0: np.ndarray, run: np.ndarray):
     """The polish (:data:`POLISH`) of each problem that ``run`` marks, from ``x0``."""
-    spaces = [t.space for t in batch.tasks]
-    return minimise_many(stack(objectives), POLISH, np.array([s.lower for s in spaces]),
-                         np.array([s.upper for s in spaces]), x0=x0, run=run,
-                         mesh=batch.mesh)  # fmt: skip
+    return minimise_many(stack(objectives), POLISH, _boxes([t.space for t in batch.tasks]),
+                         x0=x0, run=run, mesh=batch.mesh)  # fmt: skip
 
 
 def _restarts(batch: _Batch, found: list[DESearch], keys, settings: Settings,
@@ -244,9 +248,9 @@ def _restarts(batch: _Batch, found: list[DESearch], keys, settings: Settings,
     """:func:`~._stage._restarts` of every problem."""
     restarts = settings.restarts
     subs = [f.space for f in found]
-    lower, upper = np.array([s.lower for s in subs]), np.array([s.upper for s in subs])
-    points = lhs_many(np.stack([np.asarray(k) for k in keys]), restarts, lower, upper,
-                       batch.mesh)  # fmt: skip
+    box = _boxes(subs)
+    points = lhs_many(np.stack([np.asarray(k) for k in keys]), restarts, box.lower, box.upper,
+                      batch.mesh)  # fmt: skip
     labels, ks = [], []
     for i, f in enumerate(found):
         leaders = mode_leaders(f.de.population, f.de.fitness, subs[i].lower,
@@ -260,7 +264,7 @@ def _restarts(batch: _Batch, found: list[DESearch], keys, settings: Settings,
     landmarks = batch.tasks[0].restart_landmarks
     # As wide as the refits' (the last start repeated): one LM program and one program for
     # the ends' values serve both.
-    ends = _multistart(batch, [f.objective for f in found], lower, upper, points,
+    ends = _multistart(batch, [f.objective for f in found], box, points,
                        max(restarts, REFIT_WIDTH))  # fmt: skip
     labels = [own + [own[-1]] * (ends.shape[1] - restarts) for own in labels]
     full = np.array([[t.space.embed(subs[i].free, e, found[i].base) for e in ends[i]]
@@ -295,24 +299,23 @@ def _refits(batch: _Batch, best: _Best,
         starts.append(np.concatenate([rows, np.repeat(rows[-1:], width - k - 1, axis=0)]))
         labels.append(own + [own[-1]] * (width - k - 1))
     starts = np.array(starts)
-    spaces = [t.space for t in tasks]
-    lower, upper = np.array([s.lower for s in spaces]), np.array([s.upper for s in spaces])
+    box = _boxes([t.space for t in tasks])
     landmarks = tasks[0].restart_landmarks
     # All the padded ends, as wide as the restarts': their values are then one program.
-    ends = _multistart(batch, batch.objective, lower, upper, starts, max(size, REFIT_WIDTH))
+    ends = _multistart(batch, batch.objective, box, starts, max(size, REFIT_WIDTH))
     labels = [own + [own[-1]] * (ends.shape[1] - len(own)) for own in labels]
     out, _, _ = _best_end(batch, ends, labels, best, landmarks is not None)
     changed = out.value != best.value
     found_by = list(out.found_by)
     for i in np.flatnonzero(changed):
-        width = upper[i] - lower[i]
+        width = box.upper[i] - box.lower[i]
         if np.all(np.abs(out.x[i] - best.x[i]) <= MODE_PARAM_FRACTION * width):
             found_by[i] = labels[i][-1]  # the fit's own optimum, further down
     replaced = [(float(best.value[i]),) if changed[i] else () for i in range(len(tasks))]
     return _Best(out.x, out.value, found_by), replaced
 
 
-def _multistart(batch: _Batch, objectives, lower, upper, starts: np.ndarray, size: int):
+def _multistart(batch: _Batch, objectives, box: Box, starts: np.ndarray, size: int):
     """:func:`~._stage._multistart` of every problem: LM end points ``(b, max(k, size), d)``
     for ``k`` starts, the last start's end repeated up to ``size``."""
     landmarks = batch.tasks[0].restart_landmarks
@@ -321,7 +324,7 @@ def _multistart(batch: _Batch, objectives, lower, upper, starts: np.ndarray, siz
     k = starts.shape[1]
     wide = np.concatenate([starts, np.repeat(starts[:, -1:], max(size - k, 0), axis=1)], axis=1)
     lm = LevenbergMarquardt(rtol=1e-10, atol=0.0, max_steps=RESTART_STEPS)
-    return minimise_starts_many(stack(searched), lm, lower, upper, wide, run=batch.live,
+    return minimise_starts_many(stack(searched), lm, box, wide, run=batch.live,
                                 mesh=batch.mesh).x  # fmt: skip
 
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from .._core import InputError
 from .._jax import single_device_mesh
-from ..optim import minimise_many
+from ..optim import Box, minimise_many
 from ..problem import (
     AbstractObjective,
     analyse_jacobian,
@@ -137,8 +137,9 @@ def _lm_from(stage: StageFit, objective: AbstractObjective,
     """LM (:data:`POLISH`) on ``objective``, of the stage's structure, from ``x0``: its value
     and end point."""
     space = stage.space
-    lm = minimise_many(stack([objective]), POLISH, space.lower[None], space.upper[None],
-                       x0=np.asarray(x0)[None], mesh=single_device_mesh())  # fmt: skip
+    box = Box(space.lower[None], space.upper[None])
+    lm = minimise_many(stack([objective]), POLISH, box, x0=np.asarray(x0)[None],
+                       mesh=single_device_mesh())  # fmt: skip
     return float(lm.value[0]), np.asarray(lm.x[0])
 
 

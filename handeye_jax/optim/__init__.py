@@ -4,10 +4,10 @@ Solvers are configuration objects kept apart from problems, as in optimistix:
 ``minimise(fn, solver, box, ...)`` returns a typed :class:`Solution` (one family: a
 :class:`DESolution`, an :class:`LMSolution`, or a :class:`BatchSolution` of many starts at
 once). One box type, :class:`Box`; one DE, the :class:`DifferentialEvolution` solver object.
-``minimise_many(fns, solver, lower, upper, ...)`` runs a solver on a batch of problems, each
-with its own box and stopping rule and each giving its own run's numbers bit for bit, the
-batch sharded over the devices; it returns the same Solution with a leading axis of problems
-(:func:`take` picks one).
+``minimise_many(fns, solver, box, ...)`` runs a solver on a batch of problems, each with its
+own box (a :class:`Box` of ``(b, d)`` bounds) and stopping rule and each giving its own run's
+numbers bit for bit, the batch sharded over the devices; it returns the same Solution with a
+leading axis of problems (:func:`take` picks one).
 """
 
 from ._box import Box

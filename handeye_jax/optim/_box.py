@@ -78,24 +78,26 @@ def dx_dz(z: Float[Array, "*b d"], lower: Float[Array, " d"], upper: Float[Array
 
 
 class Box(eqx.Module):
-    """A search box: ``lower < upper``, finite, one entry per parameter (in its unit).
+    """A search box: ``lower < upper``, finite, one entry per parameter (in its unit); or a
+    batch of boxes, one row per problem (``(b, d)``, for :func:`~handeye_jax.optim.minimise_many`).
 
     Built from concrete values it is checked and held as float64 NumPy arrays; it is a pytree,
     so it also passes through ``jit`` and ``vmap`` (as the notebooks and
     ``benchmarks/convergence.py`` run optimistix in box coordinates).
     """
 
-    lower: Float[Array, " d"]
-    upper: Float[Array, " d"]
+    lower: Float[Array, "*b d"]
+    upper: Float[Array, "*b d"]
 
-    def __init__(self, lower: Float[ArrayLike, " d"], upper: Float[ArrayLike, " d"]):
+    def __init__(self, lower: Float[ArrayLike, "*b d"], upper: Float[ArrayLike, "*b d"]):
         if isinstance(lower, jax.core.Tracer) or isinstance(upper, jax.core.Tracer):
             self.lower, self.upper = lower, upper  # inside a traced function: not checked
             return
-        lo = np.array(lower, dtype=np.float64).reshape(-1)
-        hi = np.array(upper, dtype=np.float64).reshape(-1)
+        lo, hi = np.array(lower, dtype=np.float64), np.array(upper, dtype=np.float64)
+        if lo.ndim != 2 or hi.ndim != 2:  # one box: any shape of d numbers
+            lo, hi = lo.reshape(-1), hi.reshape(-1)
         if lo.shape != hi.shape:
-            raise ValueError(f"bounds differ in length: {lo.shape[0]} and {hi.shape[0]}")
+            raise ValueError(f"bounds differ in shape: {lo.shape} and {hi.shape}")
         if not (np.isfinite(lo).all() and np.isfinite(hi).all() and (lo < hi).all()):
             raise ValueError("bounds must be finite with lower < upper in every parameter")
         self.lower, self.upper = lo, hi
@@ -103,7 +105,7 @@ class Box(eqx.Module):
     @property
     def d(self) -> int:
         """The number of parameters."""
-        return self.lower.shape[0]
+        return self.lower.shape[-1]
 
     def to_x(self, z):
         """Box coordinates to parameters (see :func:`to_x`)."""

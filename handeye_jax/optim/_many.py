@@ -178,8 +178,7 @@ def _starts(block, lm):
 def minimise_starts_many(
     fns: Problem,
     solver: LevenbergMarquardt,
-    lower: Float[ArrayLike, "b d"],
-    upper: Float[ArrayLike, "b d"],
+    box: Box,
     starts: Float[ArrayLike, "b s d"],
     *,
     run: Bool[ArrayLike, " b"] | None = None,
@@ -191,7 +190,7 @@ def minimise_starts_many(
     Args:
         fns: the problems stacked: one pytree whose array leaves have a leading axis ``b``.
         solver: the tolerances and the most iterations (shared).
-        lower, upper: each problem's box ``(b, d)``.
+        box: each problem's box, a batch of them (bounds ``(b, d)``).
         starts: each problem's starts ``(b, s, d)``.
         run: which problems to run (default: all); the others return their starts.
         mesh: the devices the problems are split over (default: this process's).
@@ -203,8 +202,8 @@ def minimise_starts_many(
     mesh = problem_mesh() if mesh is None else mesh
     x0 = np.asarray(starts, float)
     run = np.ones(x0.shape[0], bool) if run is None else np.asarray(run, bool)
-    block = Blocks.of((fns, x0, np.asarray(lower, float), np.asarray(upper, float),
-                       _padded_run(run, mesh)), mesh, LOOPED)  # fmt: skip
+    lower, upper = _bounds(box)
+    block = Blocks.of((fns, x0, lower, upper, _padded_run(run, mesh)), mesh, LOOPED)
     x, cost, steps, ok = per_device(_starts, block, _multistart._config(solver)).gather()
     steps = steps.astype(int)
     return BatchSolution(x=x, value=cost, steps=steps, evaluations=steps + 1, converged=ok)
@@ -213,12 +212,18 @@ def minimise_starts_many(
 # -- the entry point -------------------------------------------------------------------------
 
 
+def _bounds(box: Box) -> tuple[np.ndarray, np.ndarray]:
+    """A batch of boxes' bounds, ``(b, d)`` each."""
+    if np.ndim(box.lower) != 2:
+        raise ValueError("a batch of problems needs a batch of boxes: bounds of shape (b, d)")
+    return np.asarray(box.lower, float), np.asarray(box.upper, float)
+
+
 @in_float64
 def minimise_many(
     fns: Problem,
     solver: AbstractSolver,
-    lower: Float[ArrayLike, "b d"],
-    upper: Float[ArrayLike, "b d"],
+    box: Box,
     *,
     x0: Float[ArrayLike, "b d"] | None = None,
     keys: PRNGKeyArray | None = None,
@@ -236,7 +241,7 @@ def minimise_many(
         fns: the problems stacked: one pytree whose array leaves have a leading axis ``b``
             (e.g. ``jax.tree.map(lambda *a: np.stack(a), *problems)``), all of one structure.
         solver: :class:`DifferentialEvolution` or :class:`LevenbergMarquardt`.
-        lower, upper: each problem's box ``(b, d)``.
+        box: each problem's box, a batch of them (bounds ``(b, d)``).
         x0: each problem's start (Levenberg–Marquardt).
         keys: each problem's PRNG key, stacked (DE).
         run: which problems LM runs (default: all); the others keep their start.
@@ -245,7 +250,7 @@ def minimise_many(
         progress, desc: a progress bar of DE's generations on stderr, and its label.
     """
     mesh = problem_mesh() if mesh is None else mesh
-    lower, upper = np.asarray(lower, float), np.asarray(upper, float)
+    lower, upper = _bounds(box)
     if isinstance(solver, DifferentialEvolution):
         if keys is None:
             raise ValueError("differential evolution needs a PRNG key per problem")
