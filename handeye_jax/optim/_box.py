@@ -42,17 +42,18 @@ def step(z: Float[Array, "*b d"], dz: Float[Array, "*b d"]):
     """The trial point of an LM step ``dz`` in box coordinates: ``z + dz``, except at a bound.
 
     At a bound ``∂x/∂z = 0``, so the linear model of the residuals in ``z`` is flat there and
-    its step in that coordinate is large and meaningless (the sine folds it back anywhere in
-    the box): LM refuses it, grows its damping, and can stop before any step is taken. A
-    coordinate at a bound takes instead the step its linear model gives in ``x``,
+    its step in that coordinate is large and meaningless; and a step whose linear model in
+    ``x`` leaves the box is folded back by the sine to anywhere in it. LM refuses such steps,
+    grows its damping, and can stop before any step is taken. A coordinate at a bound, or
+    whose step leaves the box, takes instead the step its linear model gives in ``x``,
     ``sin z + cos z·dz``, clipped onto the box: a projected step. Elsewhere, and where
     ``dz`` is 0, the trial point is ``z + dz`` bit for bit.
     """
     xp = _xp(z, dz)
     s, c = xp.sin(z), xp.cos(z)
-    at_bound = (xp.abs(c) < _AT_BOUND) & (dz != 0)
-    projected = xp.arcsin(xp.clip(s + c * dz, -_EDGE, _EDGE))
-    return xp.where(at_bound, projected, z + dz)
+    u = s + c * dz
+    project = ((xp.abs(c) < _AT_BOUND) | (xp.abs(u) > _EDGE)) & (dz != 0)
+    return xp.where(project, xp.arcsin(xp.clip(u, -_EDGE, _EDGE)), z + dz)
 
 
 def held(z: Float[Array, "*b d"], g: Float[Array, "*b d"], damped: Float[Array, "*b d"]):
