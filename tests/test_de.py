@@ -181,14 +181,18 @@ def test_de_needs_a_key_and_a_box_with_lower_below_upper():
         Box([0.0, 1.0], [1.0, 1.0])
 
 
-class Curve(eqx.Module):
+class LeastSquares(eqx.Module):
+    """A problem given by its residuals; its value is their sum of squares."""
+
+    def __call__(self, x):
+        return jnp.sum(self.residuals(x) ** 2)
+
+
+class Curve(LeastSquares):
     """Least squares of a 6-parameter curve through ``n`` noisy points: r = n residuals."""
 
     t: jax.Array
     y: jax.Array
-
-    def __call__(self, x):
-        return jnp.sum(self.residuals(x) ** 2)
 
     def residuals(self, x):
         t = self.t
@@ -215,12 +219,9 @@ def test_lm_polish_memory_is_linear_in_the_residuals():
     assert large < 6 * small, (small, large)
 
 
-class DoubleWell(eqx.Module):
+class DoubleWell(LeastSquares):
     """``|r|² = (x² − 1)² + 0.09·(x − 1)²`` per coordinate: the global minimum at x = 1, a
     local one near x = −1."""
-
-    def __call__(self, x):
-        return jnp.sum(self.residuals(x) ** 2)
 
     def residuals(self, x):
         return jnp.concatenate([x**2 - 1.0, 0.3 * (x - 1.0)])
@@ -242,14 +243,11 @@ def test_lm_from_many_starts_finds_the_basin_one_start_misses():
     assert int(np.argmin(cost)) == 3 and cost[3] < 1e-16 < cost[0]
 
 
-class PastTheBound(eqx.Module):
+class PastTheBound(LeastSquares):
     """``x0`` wants ``a`` (beyond the box's upper bound 2 when a > 2); ``x1`` and ``x2`` follow
     ``x0``: inside the box the optimum is ``(min(a, 2), 0.1·x0², 1 − x0·x1)``."""
 
     a: float
-
-    def __call__(self, x):
-        return jnp.sum(self.residuals(x) ** 2)
 
     def residuals(self, x):
         return jnp.stack([x[0] - self.a, 3.0 * (x[1] - 0.1 * x[0] ** 2), x[2] + x[0] * x[1] - 1.0])
@@ -276,12 +274,9 @@ def test_lm_reaches_an_optimum_on_or_next_to_a_bound(a):
         np.testing.assert_allclose(out.x, np.broadcast_to(want, starts.shape), atol=1e-6)
 
 
-class BoxedLinear(eqx.Module):
+class BoxedLinear(LeastSquares):
     A: jax.Array
     b: jax.Array
-
-    def __call__(self, x):
-        return jnp.sum(self.residuals(x) ** 2)
 
     def residuals(self, x):
         return self.A @ x - self.b
