@@ -22,6 +22,7 @@ from handeye_jax.optim import (
     latin_hypercube,
     minimise,
     minimise_batch,
+    minimise_many,
     minimise_starts,
 )
 from handeye_jax.optim._de import distinct_indices
@@ -170,6 +171,18 @@ def test_lm_polish_solves_least_squares_and_respects_bounds():
     boxed = minimise(fn, lm, Box(-np.ones(3), np.ones(3)), x0=np.zeros(3))
     assert np.all(boxed.x >= -1) and np.all(boxed.x <= 1)
     np.testing.assert_allclose(boxed.x, [0.2, 1.0, -0.4], atol=1e-6)
+
+
+def test_a_box_holds_one_problem_or_a_batch_and_each_entry_point_takes_its_own():
+    one, batch = Box([-1.0, -1.0], [1.0, 1.0]), Box(-np.ones((3, 2)), np.ones((3, 2)))
+    assert one.lower.shape == (2,) and batch.lower.shape == (3, 2) and one.d == batch.d == 2
+    with pytest.raises(ValueError, match="lower < upper"):
+        Box(np.zeros((3, 2)), np.ones((3, 2)) * [[1.0], [0.0], [1.0]])
+    with pytest.raises(ValueError, match="one box"):
+        minimise(ShiftedSphere(jnp.zeros(2)), LevenbergMarquardt(), batch, x0=np.zeros(2))
+    with pytest.raises(ValueError, match="a batch of boxes"):
+        minimise_many(ShiftedSphere(jnp.zeros((3, 2))), LevenbergMarquardt(), one,
+                      x0=np.zeros((3, 2)))  # fmt: skip
 
 
 def test_de_needs_a_key_and_a_box_with_lower_below_upper():

@@ -123,4 +123,6 @@ def minimise(
         progress: show a progress bar on stderr.
         desc: the progress bar's label.
     """
+    if np.ndim(box.lower) != 1:
+        raise ValueError("one problem needs one box: bounds of shape (d,), not a batch")
     return solver.run(fn, box, x0=x0, key=key, progress=progress, desc=desc)
