@@ -287,6 +287,33 @@ def test_lm_reaches_an_optimum_on_or_next_to_a_bound(a):
         np.testing.assert_allclose(out.x, np.broadcast_to(want, starts.shape), atol=1e-6)
 
 
+class EvenInOne(LeastSquares):
+    """The residuals see x2 almost only through x2² (as the data see a tablet tilt at its sign
+    twin's mirror point): at x2 = 0 its Jacobian column is 1e-6, its gradient 1e-7."""
+
+    def residuals(self, x):
+        return jnp.stack([x[0] - 3.0, x[1] + 2.0, 0.1 + 1e-6 * x[2] + 0.5 * x[2] ** 2])
+
+
+def test_lm_moves_the_others_when_one_coordinate_is_flat():
+    """Marquardt's scaling, ``diag JᵀJ``, is 1e-12 for the flat coordinate: its step was
+    metres at any damping the others could bear, every step was refused until LM fell quiet,
+    and both batch LMs stopped at their start (cost 13.01). Floored at 1e-6 of the largest
+    scale, the flat coordinate's step shrinks with the damping and the others reach their
+    optimum."""
+    box = Box(-10.0 * np.ones(3), 10.0 * np.ones(3))
+    starts = np.zeros((1, 3))
+    lm = LevenbergMarquardt(max_steps=200)
+    with jax.enable_x64(True):
+        fn = EvenInOne()
+        compiled = minimise_starts(fn, lm, box, starts)
+        batched = jax.jit(jax.vmap(lambda x: (fn.residuals(x), jax.jacfwd(fn.residuals)(x))))
+        host = minimise_batch(batched, lm, box, starts)
+    for out in (compiled, host):
+        np.testing.assert_allclose(out.x[0, :2], [3.0, -2.0], atol=1e-4)
+        assert out.value[0] <= 0.01 + 1e-9  # r3 = 0.1 at x2 = 0, at most
+
+
 class BoxedLinear(LeastSquares):
     A: jax.Array
     b: jax.Array

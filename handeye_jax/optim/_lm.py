@@ -36,6 +36,22 @@ _GROW = 4.0
 _LAMBDA_RANGE = (1e-12, 1e12)
 #: The batch stops after this many iterations in a row in which no problem improved enough.
 _QUIET_ITERATIONS = 10
+#: Marquardt's scaling, ``diag JᵀJ``, is floored at this fraction of its largest entry.
+_SCALE_FLOOR = 1e-6
+
+
+def marquardt_scaling(diag: Float[Array, "*b d"]) -> Float[Array, "*b d"]:
+    """The damping's scale per coordinate: ``diag JᵀJ``, floored at :data:`_SCALE_FLOOR` of
+    the largest (and at 1e-12).
+
+    A coordinate the residuals barely see (a tilt at its sign twin's mirror point, where the
+    residuals are even in it) has ``diag ≈ 0``, and a gradient that rounding leaves at 1e-7
+    then asks for a step of radians at any damping the others can bear: every step is refused
+    until the damping has frozen the others, and LM stops far from the optimum
+    (``benchmarks/RESULTS.md``). Floored, that coordinate's step shrinks with the damping like
+    the others'; coordinates above the floor are damped as before."""
+    xp = _box._xp(diag)
+    return xp.maximum(diag, _SCALE_FLOOR * xp.max(diag, axis=-1, keepdims=True)) + 1e-12
 
 
 class LevenbergMarquardt(AbstractSolver[LMSolution]):
@@ -119,11 +135,11 @@ def minimise_batch(
 ) -> BatchSolution:
     """Levenberg–Marquardt on B problems at once, each inside ``bounds``.
 
-    Each iteration solves ``(JᵀJ + λ·diag(JᵀJ))·δ = −Jᵀr`` (Marquardt's scaling) for every
-    problem in the box coordinates ``z`` and keeps a problem's step only if it lowers its
-    ``|r|²``; λ shrinks after an accepted step and grows after a rejected one. A parameter on
-    a bound is held there while the cost pushes it outward (an active set, as
-    :func:`~handeye_jax.optim.minimise_starts`).
+    Each iteration solves ``(JᵀJ + λ·D)·δ = −Jᵀr``, ``D`` Marquardt's scaling ``diag(JᵀJ)``
+    floored (:func:`marquardt_scaling`), for every problem in the box coordinates ``z`` and
+    keeps a problem's step only if it lowers its ``|r|²``; λ shrinks after an accepted step
+    and grows after a rejected one. A parameter on a bound is held there while the cost
+    pushes it outward (an active set, as :func:`~handeye_jax.optim.minimise_starts`).
 
     Args:
         fn: batched residuals and Jacobians: ``x (B, d) -> (r (B, m), J (B, m, d))``. Compile
@@ -150,7 +166,7 @@ def minimise_batch(
         H = Jt @ J
         g = (Jt @ r[..., None])[..., 0]
         diag = np.diagonal(H, axis1=1, axis2=2)
-        damping = lam[:, None] * (diag + 1e-12)
+        damping = lam[:, None] * marquardt_scaling(diag)
         held = _box.held(z, g, diag + damping)
         H = np.where((held[:, :, None] | held[:, None, :]) & ~eye.astype(bool), 0.0, H)
         damping = damping[:, None, :] * eye

@@ -36,6 +36,7 @@ from ._lm import (
     _QUIET_ITERATIONS,
     _SHRINK,
     LevenbergMarquardt,
+    marquardt_scaling,
     residuals_and_jacobian,
 )
 from ._solvers import BatchSolution, Problem
@@ -104,7 +105,7 @@ def _step(fn: Problem, lower, upper, lm: LevenbergMarquardt, st: _State) -> _Sta
     g = _rows_sum(lambda k: J[:, k] * r[:, k, None], m)
     d = H.shape[-1]
     diag = jnp.diagonal(H, axis1=1, axis2=2)
-    damping = st.lam[:, None] * (diag + 1e-12)
+    damping = st.lam[:, None] * marquardt_scaling(diag)
     held = _box.held(st.z, g, diag + damping)
     H = jnp.where((held[:, :, None] | held[:, None, :]) & ~jnp.eye(d, dtype=bool), 0.0, H)
     # H + λ·(diag H + ε): positive definite for λ > 0, so the factorisation cannot fail.
@@ -175,9 +176,10 @@ def minimise_starts(
     """Levenberg–Marquardt on one problem from several starts at once (a multi-start search
     for its lowest local optimum), compiled whole.
 
-    Each iteration solves ``(JᵀJ + λ·diag(JᵀJ))·δ = −Jᵀr`` (Marquardt's scaling) for every
-    start in the box coordinates and keeps a start's step only if it lowers its ``|r|²``; λ
-    shrinks after a kept step and grows after a refused one. A parameter on a bound is held
+    Each iteration solves ``(JᵀJ + λ·D)·δ = −Jᵀr``, ``D`` Marquardt's scaling ``diag(JᵀJ)``
+    floored (:func:`~handeye_jax.optim._lm.marquardt_scaling`), for every start in the box
+    coordinates and keeps a start's step only if it lowers its ``|r|²``; λ shrinks after a
+    kept step and grows after a refused one. A parameter on a bound is held
     there while the cost pushes it outward (an active set), so an optimum on a bound is
     reached, not stalled before. All starts stop together, once
     none has lowered its cost by more than ``rtol·cost + atol`` for 10 iterations, or after
