@@ -65,7 +65,14 @@ from handeye_jax import (
     vectorise_small_loops,
 )
 from handeye_jax.calibration import fitted_stages, noise_part, prior_information
-from handeye_jax.problem import Stage1Objective, Targets, command_error, error_statistics, fitness
+from handeye_jax.problem import (
+    Stage1Objective,
+    StagePoint,
+    Targets,
+    command_error,
+    error_statistics,
+    fitness,
+)
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from twin_study import write_section  # noqa: E402
@@ -172,9 +179,9 @@ def _predicted(result, twin, stage: int):
     noise = result.stage1.noise.noise
     # NumPy float64 in; command_error computes in float64 (JAX's default float32 would not:
     # its pseudo-inverse dropped weak directions, the predictions 15-33 % small).
-    e = command_error(noise_part(one.objective), np.asarray(one.x, float), _targets(result, twin),
-                      noise, prior1=P1, objective2=noise_part(two.objective),
-                      x2=np.asarray(two.x, float), prior2=P2, stage=stage)  # fmt: skip
+    e = command_error(StagePoint(noise_part(one.objective), np.asarray(one.x, float), P1),
+                      _targets(result, twin), noise, stage=stage,
+                      stage2=StagePoint(noise_part(two.objective), np.asarray(two.x, float), P2))
     return float(e.mean_mm), float(e.p95_mm), np.asarray(e.covariance_mm2)
 
 

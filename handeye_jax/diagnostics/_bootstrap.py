@@ -54,7 +54,14 @@ from ..calibration import (
 )
 from ..data import Capture, Dataset, centre_landmark
 from ..models import hand_command
-from ..problem import Targets, error_statistics, get_noise_model, uncertainty, workspace_targets
+from ..problem import (
+    StagePoint,
+    Targets,
+    error_statistics,
+    get_noise_model,
+    uncertainty,
+    workspace_targets,
+)
 from ._verdict import VERDICT_ANGLES, stage_noise
 
 #: Grid points along each side of the workspace error map.
@@ -311,15 +318,15 @@ def _predicted(result: CalibrationResult, parts: list[Targets], stage: int):
     noise = stage_noise(result.stage1) or get_noise_model(result.settings.noise)
     P1, P2 = prior_information(one.space), prior_information(two.space)
     j = lambda P: None if P is None else jnp.asarray(P)  # noqa: E731
-    args = dict(prior1=j(P1), objective2=noise_part(two.objective), x2=jnp.asarray(two.x),
-                prior2=j(P2), stage=stage)  # fmt: skip
-    o1, x1 = noise_part(one.objective), jnp.asarray(one.x)
+    point1 = StagePoint(noise_part(one.objective), jnp.asarray(one.x), j(P1))
+    args = dict(stage2=StagePoint(noise_part(two.objective), jnp.asarray(two.x), j(P2)),
+                stage=stage)  # fmt: skip
     targets = _joined(parts)
     # Targets measured exactly (no picture noise): the fit's part of the error alone.
     exact = replace(noise, view_scale=0.0)
-    fit_part = np.asarray(uncertainty(o1, x1, targets, exact, **args)[2].covariance_mm2)
+    fit_part = np.asarray(uncertainty(point1, targets, exact, **args)[2].covariance_mm2)
     # All targets again (one compiled program for both calls); the first part's kept.
-    touching = np.asarray(uncertainty(o1, x1, targets, noise, **args)[2].covariance_mm2)
+    touching = np.asarray(uncertainty(point1, targets, noise, **args)[2].covariance_mm2)
     touching = touching[: parts[0].k]
     out = []
     for piece in [touching] + np.split(fit_part, np.cumsum([p.k for p in parts])[:-1]):

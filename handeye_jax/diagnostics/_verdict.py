@@ -27,6 +27,7 @@ from ..calibration import (
 from ..data import Observations
 from ..problem import (
     NoiseModel,
+    StagePoint,
     std_of_precision,
     uncertainty,
     workspace_targets,
@@ -85,8 +86,8 @@ def ml_verdict(
     P1, P2 = prior_information(one.space), prior_information(two.space)
     x1, x2 = jnp.asarray(one.x), jnp.asarray(two.x)
     targets = workspace_targets(obs, VERDICT_ANGLES)
-    cov, infos, e = uncertainty(o1, x1, targets, noise, prior1=_j(P1), objective2=o2, x2=x2,
-                                prior2=_j(P2), stage=stage)  # fmt: skip
+    cov, infos, e = uncertainty(StagePoint(o1, x1, _j(P1)), targets, noise,
+                                stage2=StagePoint(o2, x2, _j(P2)), stage=stage)  # fmt: skip
     cov = np.asarray(cov)
     d1 = len(x1)
     found = {}

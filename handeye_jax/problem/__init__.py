@@ -23,8 +23,8 @@ _EXPORTS = {
     "_predict": (
         "command_error", "error_statistics", "ErrorPrediction", "fisher_information",
         "noise_to_parameters",
-        "parameter_covariance", "predict_command_error", "Targets", "traced_command_error",
-        "uncertainty",
+        "parameter_covariance", "predict_command_error", "StagePoint", "Targets",
+        "traced_command_error", "uncertainty",
         "workspace_targets",
     ),
     "_losses": ("AbstractLoss", "CauchyLoss", "get_loss", "HuberLoss", "L1Loss", "LOSS_NAMES"),

@@ -102,38 +102,43 @@ def _noise_map_product(
     return jnp.concatenate([views, touches], axis=1)
 
 
-@in_float64
-def noise_to_parameters(
-    objective1: NoiseObjective,
-    x1: Float[Array, " d1"],
-    prior1: Float[Array, "d1 d1"] | None = None,
-    objective2: NoiseObjective | None = None,
-    x2: Float[Array, " d2"] | None = None,
-    prior2: Float[Array, "d2 d2"] | None = None,
-) -> tuple[Float[Array, "d1 r"], Float[Array, "d2 r"] | None]:
-    """``(G₁, G₂)``: how each stage's parameters move with stage 1's whitened noise ``ε``
-    (unit normal), ``δθ = G ε``; ``cov(θ₁, θ₂) = [G₁; G₂][G₁; G₂]ᵀ``. ``prior1``, ``prior2``:
-    the information a prior adds on each stage's free parameters, or ``None``."""
-    return _gains(_fit(objective1, x1, prior1), _fit(objective2, x2, prior2))[:2]
+class StagePoint(NamedTuple):
+    """One stage at a point of its parameters, as the predictions read it.
 
-
-class _StageFit(NamedTuple):
-    """One stage's objective, its optimum and its prior's information (or ``None``)."""
+    Attributes:
+        objective: the stage's objective under the noise model.
+        x: the point (its optimum), the free parameters in their units.
+        prior: the information a prior adds on the free parameters (``JᵀJ``'s units), or
+            ``None``.
+    """
 
     objective: NoiseObjective
-    x: Array
-    prior: Array | None
+    x: Float[Array, " d"]
+    prior: Float[Array, "d d"] | None = None
 
 
-def _fit(objective, x, prior) -> _StageFit | None:
-    return None if objective is None else _StageFit(objective, x, prior)
+def _point(stage: StagePoint | None) -> StagePoint | None:
+    """``stage`` with its arrays as JAX float64 arrays (NumPy ones are accepted)."""
+    if stage is None:
+        return None
+    prior = None if stage.prior is None else jnp.asarray(stage.prior, dtype=float)
+    return StagePoint(stage.objective, jnp.asarray(stage.x, dtype=float), prior)
 
 
-def _gains(one: _StageFit, two: _StageFit | None):
-    objective1, x1, prior1 = one
-    objective2, x2, prior2 = (None, None, None) if two is None else two
+@in_float64
+def noise_to_parameters(
+    stage1: StagePoint, stage2: StagePoint | None = None
+) -> tuple[Float[Array, "d1 r"], Float[Array, "d2 r"] | None]:
+    """``(G₁, G₂)``: how each stage's parameters move with stage 1's whitened noise ``ε``
+    (unit normal), ``δθ = G ε``; ``cov(θ₁, θ₂) = [G₁; G₂][G₁; G₂]ᵀ``."""
+    return _gains(_point(stage1), _point(stage2))[:2]
+
+
+def _gains(one: StagePoint, two: StagePoint | None):
     """``(G₁, G₂, A₁, A₂)``: :func:`noise_to_parameters`' gains and each stage's information
     (its prior's included; ``None`` for a stage not given)."""
+    objective1, x1, prior1 = one
+    objective2, x2, prior2 = (None, None, None) if two is None else two
     J1 = jax.jacfwd(objective1.whitened)(x1)
     A1 = J1.T @ J1 if prior1 is None else J1.T @ J1 + prior1
     G1 = -_pinv(A1) @ J1.T
@@ -154,17 +159,11 @@ def _gains(one: _StageFit, two: _StageFit | None):
 
 @in_float64
 def parameter_covariance(
-    objective1: NoiseObjective,
-    x1: Float[Array, " d1"],
-    prior1: Float[Array, "d1 d1"] | None = None,
-    objective2: NoiseObjective | None = None,
-    x2: Float[Array, " d2"] | None = None,
-    prior2: Float[Array, "d2 d2"] | None = None,
+    stage1: StagePoint, stage2: StagePoint | None = None
 ) -> Float[Array, "d d"]:
     """The fit's covariance: stage 1's free parameters, then stage 2's when given (their
     units², as ordered in each objective's ``free``)."""
-    fits = _fit(objective1, x1, prior1), _fit(objective2, x2, prior2)
-    return _uncertainty(*fits, None, None, 1)[0]
+    return _uncertainty(_point(stage1), _point(stage2), None, None, 1)[0]
 
 
 @in_float64
@@ -265,67 +264,55 @@ def error_statistics(covariance_mm2: Float[Array, "k 2 2"]) -> tuple[Array, Arra
 
 @in_float64
 def command_error(
-    objective1: NoiseObjective,
-    x1: Float[Array, " d1"],
+    stage1: StagePoint,
     targets: Targets,
     noise: NoiseModel,
     *,
-    prior1: Float[Array, "d1 d1"] | None = None,
-    objective2: NoiseObjective | None = None,
-    x2: Float[Array, " d2"] | None = None,
-    prior2: Float[Array, "d2 d2"] | None = None,
+    stage2: StagePoint | None = None,
     stage: int = 1,
 ) -> ErrorPrediction:
-    """The hand-command error ``stage`` (1: eq. 8; 2: eq. 25, which needs ``objective2`` and
-    ``x2``) makes for ``targets``: the fit's uncertainty (the noise through both stages, see
-    the module) plus each target's own measurement (``noise``'s target σ and depth σ)."""
-    return uncertainty(objective1, x1, targets, noise, prior1=prior1, objective2=objective2,
-                       x2=x2, prior2=prior2, stage=stage)[2]  # fmt: skip
+    """The hand-command error ``stage`` (1: eq. 8; 2: eq. 25, which needs ``stage2``) makes
+    for ``targets``: the fit's uncertainty (the noise through both stages, see the module)
+    plus each target's own measurement (``noise``'s target σ and depth σ)."""
+    return uncertainty(stage1, targets, noise, stage2=stage2, stage=stage)[2]
 
 
 @in_float64
 def uncertainty(
-    objective1: NoiseObjective,
-    x1: Float[Array, " d1"],
+    stage1: StagePoint,
     targets: Targets,
     noise: NoiseModel,
     *,
-    prior1: Float[Array, "d1 d1"] | None = None,
-    objective2: NoiseObjective | None = None,
-    x2: Float[Array, " d2"] | None = None,
-    prior2: Float[Array, "d2 d2"] | None = None,
+    stage2: StagePoint | None = None,
     stage: int = 1,
 ) -> tuple[Float[Array, "d d"], tuple[Array, Array | None], ErrorPrediction]:
-    """:func:`parameter_covariance` (both stages' when ``objective2`` is given), each stage's
+    """:func:`parameter_covariance` (both stages' when ``stage2`` is given), each stage's
     information (``(A₁, A₂)``, a prior's included; ``A₂`` ``None`` without stage 2) and
     :func:`command_error` of ``stage``, at once: one compiled program."""
     if stage not in (1, 2):
         raise ValueError(f"stage must be 1 or 2 (got {stage})")
-    if stage == 2 and objective2 is None:
+    if stage == 2 and stage2 is None:
         raise ValueError("stage 2's error needs stage 2's objective and optimum")
     var_px, var_depth = noise.target_variances()
     variances = np.array([var_px, var_px, var_depth])
-    fits = _fit(objective1, x1, prior1), _fit(objective2, x2, prior2)
-    return _uncertainty(*fits, targets, variances, stage)
+    return _uncertainty(_point(stage1), _point(stage2), targets, variances, stage)
 
 
 def traced_command_error(
-    objective1: NoiseObjective,
-    x1: Float[Array, " d1"],
-    targets: Targets,
-    noise: NoiseModel,
+    stage1: StagePoint, targets: Targets, noise: NoiseModel
 ) -> ErrorPrediction:
     """Stage 1's :func:`command_error` as a plain JAX function, not compiled on its own: for
     use inside the caller's ``jax.grad`` or ``jax.jit`` (a compiled program with its own
     compiler options cannot be nested), e.g. to differentiate the error with respect to the
-    observations' layout."""
+    observations' layout. ``stage1.prior`` is not used."""
     var_px, var_depth = noise.target_variances()
     variances = np.array([var_px, var_px, var_depth])
-    return _uncertainty.__wrapped__(_fit(objective1, x1, None), None, targets, variances, 1)[2]
+    one = StagePoint(stage1.objective, stage1.x)
+    return _uncertainty.__wrapped__(one, None, targets, variances, 1)[2]
 
 
 @fast_compile
-def _uncertainty(one: _StageFit, two: _StageFit | None, targets, variances, stage: int):
+def _uncertainty(one: StagePoint, two: StagePoint | None, targets, variances, stage: int):
     G1, G2, A1, A2 = _gains(one, two)
     objective1, x1 = one.objective, one.x
     G = G1 if G2 is None else jnp.concatenate([G1, G2], axis=0)
@@ -397,8 +384,9 @@ def predict_command_error(
         x2 = jnp.stack([jnp.asarray(getattr(correction, n), dtype=float) for n in free2])
         base2 = Stage2Objective(correction, chain_points(model, obs), obs.centre_index, free2)
         objective2 = noise_objective(base2, noise, model, obs)
-    return command_error(objective1, x1, targets, noise, prior1=prior1, objective2=objective2,
-                         x2=x2, prior2=prior2, stage=stage)  # fmt: skip
+    two = None if objective2 is None else StagePoint(objective2, x2, prior2)
+    return command_error(StagePoint(objective1, x1, prior1), targets, noise, stage2=two,
+                         stage=stage)  # fmt: skip
 
 
 @in_float64

@@ -39,6 +39,7 @@ from ..models import HTMModel, Rig
 from ..problem import (
     NoiseModel,
     Stage1Objective,
+    StagePoint,
     Targets,
     closed_form_estimate,
     command_error,
@@ -556,7 +557,7 @@ def optimise_layout(
     def loss(design: _Design, nobj):
         obs = _traced_observations(truth, rows, nobj.base.obs, design)
         o = eqx.tree_at(lambda t: t.base.obs, nobj, obs)
-        return traced_command_error(o, x1, targets, noise).mean_mm
+        return traced_command_error(StagePoint(o, x1), targets, noise).mean_mm
 
     grad = eqx.filter_jit(jax.value_and_grad(loss))
     acq = acquisition
@@ -567,7 +568,7 @@ def optimise_layout(
         _, g = grad(design, nobj)
         trial = _layout_step(truth, acq, design, g, scale, search)
         tobj, _ = objective_at(trial)
-        tv = float(command_error(tobj, x1, targets, noise).mean_mm)
+        tv = float(command_error(StagePoint(tobj, x1), targets, noise).mean_mm)
         if tv < history[-1]:
             acq, nobj = trial, tobj
             history.append(tv)
