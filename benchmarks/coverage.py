@@ -126,9 +126,7 @@ def draw(seed: int, model: str, captures: int):
     dh = dh_truth(truth)
     with float64():  # the DH chain holds the twin exactly
         exact = synthesize_dataset(truth.htm(), truth.rig(), truth.landmarks_tablet_px,
-                                   truth.landmarks_hand_angle_deg, ppi=truth.ppi,
-                                   scale=truth.scale, tablet_height_mm=truth.tablet_height_mm,
-                                   camera_z_mm=truth.camera_z_mm)  # fmt: skip
+                                   truth.landmarks_hand_angle_deg, scene=truth.scene())
         obj = Stage1Objective(DHModel, exact.observations())
         F = float(obj(DHModel.from_dict(dh).to_vector()))
     if not F < 1e-9:

@@ -36,6 +36,7 @@ from handeye_jax import (
     PRESETS,
     Heldout,
     Rig,
+    Scene,
     Settings,
     calibrate,
     draw_truth,
@@ -43,7 +44,7 @@ from handeye_jax import (
     get_model,
     simulate,
     snake_grid_px,
-    synthesize_captures,
+    synthesize_dataset,
     vectorise_small_loops,
 )
 from handeye_jax.twin import heldout_targets, seen_from, true_command
@@ -92,8 +93,8 @@ def noise_free_dh(zero: float, sign: int, settings: Settings) -> dict:
     a0 = -zero * sign
     poses = [([320.0, -70.0, 290.0], a0), ([330.0, -80.0, 335.0], a0 + 15.0),
              ([310.0, -50.0, 380.0], a0 - 20.0)]  # fmt: skip
-    ds = synthesize_captures(truth, rig, snake_grid_px(), 22.5 * np.arange(9), poses,
-                             pen_z_mm=95.0, camera_z_mm=3.0)  # fmt: skip
+    ds = synthesize_dataset(truth, rig, snake_grid_px(), 22.5 * np.arange(9), captures=poses,
+                            scene=Scene(pen_z_mm=95.0, camera_z_mm=3.0))  # fmt: skip
     r = calibrate(ds, replace(settings, model="dh", seed=1))
     rng = np.random.default_rng(0)
     with handeye_jax.float64():

@@ -74,7 +74,7 @@ def noisy_landmarks(n: int, seed: int = 0):
     rng = np.random.default_rng(seed)
     touch_px = rng.normal(0.0, 0.45, (n, 2)) / geo.mm_per_tablet_px(267.0, 2.0)
     ds = synthesize_dataset(HTMModel.from_dict(TRUTH), RIG, grid, np.linspace(0.0, 180.0, n),
-                            touch_error_px=touch_px, name=f"grid-{n}")  # fmt: skip
+                            touch_error_px=touch_px).replace(name=f"grid-{n}")  # fmt: skip
     return ds.replace(
         image_px=ds.image_px + rng.normal(0.0, 0.15, (n, 2)),
         hand_xy_mm=np.round(ds.hand_xy_mm), touch_error_px=np.round(touch_px),

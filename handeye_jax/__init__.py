@@ -147,7 +147,7 @@ _EXPORTS = {
     "StageErrors": "problem",
     "StageFit": "calibration",
     "StageResult": "calibration",
-    "synthesize_captures": "twin",
+    "Scene": "twin",
     "store_programs": "_jax",
     "synthesize_dataset": "twin",
     "TouchingError": "twin",
@@ -332,7 +332,7 @@ if TYPE_CHECKING:
     )
     from .twin._poses import tool_poses
     from .twin._simulate import PRESETS, NoisePreset, Twin, simulate, simulate_captures, write_twin
-    from .twin._synthetic import synthesize_captures, synthesize_dataset
+    from .twin._synthetic import Scene, synthesize_dataset
     from .twin._truth import REALSENSE_LIKE, TwinTruth, change_truth, draw_truth, load_truth
     from .twin._wide import WIDE_RANGES, draw_wide_truth
     from .vision._captures import PlannedView, plan_captures, planned_view
@@ -480,7 +480,7 @@ __all__ = [
     "HeightOffsets",
     "PointErrors",
     "simulate_captures",
-    "synthesize_captures",
+    "Scene",
     "closed_form_estimate",
     "ClosedFormEstimate",
     "RigEstimate",

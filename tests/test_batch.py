@@ -39,8 +39,8 @@ def batch_twins():
         truth = draw_truth(seed)
         px = snake_grid_px(tuple(np.linspace(400.0, 1040.0, nx)),
                            tuple(np.linspace(150.0, 550.0, ny)))
-        out.append(synthesize_dataset(truth.htm(), truth.rig(), px, 22.5 * np.arange(len(px)),
-                                      name=f"twin{seed}"))  # fmt: skip
+        ds = synthesize_dataset(truth.htm(), truth.rig(), px, 22.5 * np.arange(len(px)))
+        out.append(ds.replace(name=f"twin{seed}"))
     return out
 
 
@@ -107,7 +107,7 @@ def test_a_bad_dataset_is_returned_in_its_place(twins, single):
 
     twice = snake_grid_px()[[0, 0, 1, 2, 3, 4, 5, 6, 7]]  # landmark 0 twice: refused
     few = synthesize_dataset(draw_truth(7).htm(), draw_truth(7).rig(), twice,
-                             22.5 * np.arange(9), name="twice")  # fmt: skip
+                             22.5 * np.arange(9)).replace(name="twice")  # fmt: skip
     out = calibrate_batch([twins[0], few], seeds(2), errors="return")
     assert isinstance(out[1], InputError)
     assert_same(numbers(out[:1]), single[:1])

@@ -42,8 +42,8 @@ def twin(seed: int = 3):
     """A noise-free twin: 3 × 3 landmarks, hand angles 22.5° apart."""
     truth = draw_truth(seed)
     px = snake_grid_px((400.0, 720.0, 1040.0), (150.0, 350.0, 550.0))
-    return synthesize_dataset(truth.htm(), truth.rig(), px, 22.5 * np.arange(len(px)),
-                              name=f"twin{seed}")  # fmt: skip
+    return synthesize_dataset(truth.htm(), truth.rig(), px,
+                              22.5 * np.arange(len(px))).replace(name=f"twin{seed}")
 
 
 def noisy(ds, scale: float, seed: int = 7):

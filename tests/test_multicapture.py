@@ -13,6 +13,7 @@ from handeye_jax import (
     InputError,
     Predictor,
     Rig,
+    Scene,
     Settings,
     Stage1Objective,
     calibrate,
@@ -21,7 +22,6 @@ from handeye_jax import (
     load_result,
     save_result,
     snake_grid_px,
-    synthesize_captures,
     synthesize_dataset,
 )
 from handeye_jax.data import read_capture_columns, read_points_csv
@@ -48,12 +48,11 @@ def _poses(zero, sign):
             ([310.0, -50.0, 390.0], a0 - 20.0)]  # fmt: skip
 
 
-def _dataset(model, zero, sign, pen_z=PEN_Z_MM, **kw):
+def _dataset(model, zero, sign, pen_z=PEN_Z_MM):
     rig = Rig(617.7, 617.7, 316.5, 242.3, [320.0, -70.0, 290.0], zero, sign)
-    ds = synthesize_captures(
-        _truth(model), rig, snake_grid_px(), 22.5 * np.arange(9), _poses(zero, sign),
-        pen_z_mm=pen_z, camera_z_mm=CAMERA_Z_MM, tablet_height_mm=TABLET_Z_MM, **kw,
-    )  # fmt: skip
+    scene = Scene(camera_z_mm=CAMERA_Z_MM, tablet_height_mm=TABLET_Z_MM, pen_z_mm=pen_z)
+    ds = synthesize_dataset(_truth(model), rig, snake_grid_px(), 22.5 * np.arange(9),
+                            captures=_poses(zero, sign), scene=scene)  # fmt: skip
     return rig, ds
 
 

@@ -398,10 +398,7 @@ def _exact_twin():
     t = draw_truth(8)
 
     def exact(tablet_px, angles_deg):
-        return synthesize_dataset(
-            t.htm(), t.rig(), tablet_px, angles_deg, ppi=t.ppi, scale=t.scale,
-            tablet_height_mm=t.tablet_height_mm, camera_z_mm=t.camera_z_mm,
-        )  # fmt: skip
+        return synthesize_dataset(t.htm(), t.rig(), tablet_px, angles_deg, scene=t.scene())
 
     held = exact(np.random.default_rng(0).uniform(*t.landmark_area_px(), (12, 2)),
                  np.random.default_rng(1).uniform(0.0, 180.0, 12))  # fmt: skip

@@ -32,7 +32,6 @@ from handeye_jax import (
     moved_base,
     save_result,
     simulate,
-    synthesize_captures,
     synthesize_dataset,
 )
 from handeye_jax.calibration import CONVENTIONS, HALF_WIDTH, POLISH, plan_search
@@ -82,16 +81,15 @@ def _noise_free(seed: int, model: str, convention: tuple[float, int], captures: 
                                     hand_angle_sign=int(convention[1]))  # fmt: skip
         angle = upright_angle(truth)
         truth = truth.at_capture(aimed_position(truth, angle, 190.0), angle)
-    common = dict(ppi=truth.ppi, scale=truth.scale, tablet_height_mm=truth.tablet_height_mm,
-                  camera_z_mm=truth.camera_z_mm)  # fmt: skip
     layout, angles = truth.landmarks_tablet_px, truth.landmarks_hand_angle_deg
     if captures == 1:
-        return truth, synthesize_dataset(truth.htm(), truth.rig(), layout, angles, **common)
+        return truth, synthesize_dataset(truth.htm(), truth.rig(), layout, angles,
+                                         scene=truth.scene())  # fmt: skip
     poses = [(np.asarray(truth.capture_position_mm), angle)]
     for rise, turn in ((40.0, 20.0), (80.0, -25.0)):
         poses.append((aimed_position(truth, angle + turn, 190.0 + rise), angle + turn))
-    data = synthesize_captures(truth.htm(), truth.rig(), layout, angles, poses, pen_z_mm=3.0,
-                               **common)  # fmt: skip
+    data = synthesize_dataset(truth.htm(), truth.rig(), layout, angles, captures=poses,
+                              scene=truth.scene(pen_z_mm=3.0))  # fmt: skip
     return truth, data
 
 

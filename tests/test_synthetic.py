@@ -7,6 +7,7 @@ import pytest
 from handeye_jax import (
     HTMModel,
     Rig,
+    Scene,
     Settings,
     calibrate,
     get_model,
@@ -88,3 +89,25 @@ def test_touch_errors_are_compensated_by_eq20():
             assert abs(r.stage1.params[k] - v) < 1e-3, k
     assert abs(abs(r.stage1.params["alpha_t"]) - 2.0) < 1e-3
     assert jnp.isfinite(r.stage2.F)
+
+
+@pytest.mark.parametrize("convention", CONVENTIONS)
+def test_one_capture_given_as_a_pose_is_the_rigs_own_capture(convention):
+    """``captures=[the rig's capture pose]`` (version 2) sees and touches what the rig's own
+    capture does (version 1); the scene's heights need captures, and say so."""
+    zero, sign = convention
+    rig = Rig(617.7, 617.7, 316.5, 242.3, [320.0, -70.0, 290.0], zero, sign)
+    truth = get_model("htm").from_dict(TRUTH["htm"])
+    px, angles = snake_grid_px(), 22.5 * np.arange(9)
+    scene = Scene(ppi=264.0, scale=2.0, tablet_height_mm=110.0, camera_z_mm=4.0)
+    one = synthesize_dataset(truth, rig, px, angles, scene=scene)
+    pose = (np.array(rig.capture_position_mm), -zero * sign)  # the capture at φ = 0
+    two = synthesize_dataset(truth, rig, px, angles, scene=scene, captures=[pose])
+    assert one.version == 1 and two.version == 2 and two.n_rows == one.n_rows == 9
+    (cap,) = two.captures
+    np.testing.assert_allclose(cap.image_px, one.image_px, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(cap.depth_mm, one.depth_mm, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(two.hand_xy_mm, one.hand_xy_mm)
+    assert one.mm_per_tablet_px == pytest.approx(25.4 / 264.0 * 2.0)
+    with pytest.raises(ValueError, match="pen_z_mm"):
+        synthesize_dataset(truth, rig, px, angles, scene=Scene(pen_z_mm=5.0))

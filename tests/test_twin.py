@@ -18,6 +18,7 @@ from handeye_jax import (
     Heldout,
     HTMModel,
     InputError,
+    Scene,
     Settings,
     Stage1Objective,
     draw_truth,
@@ -119,8 +120,8 @@ def test_pen_lands_where_the_true_chain_says(x, y, angle, touch):
     truth = _truth()
     target = np.array([[x, y]])
     ds = synthesize_dataset(
-        truth.htm(), truth.rig(), target, np.array([angle]), ppi=truth.ppi, scale=truth.scale,
-        touch_error_px=np.array([touch]),
+        truth.htm(), truth.rig(), target, np.array([angle]),
+        scene=Scene(ppi=truth.ppi, scale=truth.scale), touch_error_px=np.array([touch]),
     )  # fmt: skip
     landed = landing_tablet_px(truth, ds.hand_xy_mm, np.array([angle]))
     np.testing.assert_allclose(landed - target, [touch], atol=1e-9)

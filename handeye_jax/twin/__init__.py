@@ -27,7 +27,7 @@ _EXPORTS = {
         "check_twin_folder", "encode_png", "heldout_targets", "NoisePreset", "PRESETS", "simulate",
         "simulate_captures", "Twin", "write_twin",
     ),
-    "_synthetic": ("seen_from", "synthesize_captures", "synthesize_dataset", "true_command"),
+    "_synthetic": ("Scene", "seen_from", "synthesize_dataset", "true_command"),
     "_poses": ("tool_poses",),
     "_truth": ("change_truth", "draw_truth", "load_truth", "REALSENSE_LIKE", "TwinTruth"),
     "_wide": ("aimed_position", "draw_wide_truth", "upright_angle", "WIDE_DOT_PX", "WIDE_RANGES"),

@@ -50,7 +50,7 @@ from ..problem import (
 )
 from ._evaluate import Heldout, evaluate_points
 from ._simulate import draw_capture_poses
-from ._synthetic import capture_rig, synthesize_captures, synthesize_dataset
+from ._synthetic import capture_rig, synthesize_dataset
 from ._truth import TwinTruth
 
 #: The paper's hand angles span this, deg (``22.5·m`` for its nine touches).
@@ -315,13 +315,11 @@ def exact_dataset(truth: TwinTruth, acq: Acquisition, touch_error_px=None,
                   name: str = "plan") -> Dataset:  # fmt: skip
     """The noise-free dataset of ``acq`` on ``truth`` (``touch_error_px``: where the pen
     touched off each landmark, tablet px, recorded exactly)."""
-    kw = dict(ppi=truth.ppi, scale=truth.scale, touch_error_px=touch_error_px,
-              tablet_height_mm=truth.tablet_height_mm, camera_z_mm=truth.camera_z_mm, name=name)
-    if _single(truth, acq):
-        return synthesize_dataset(truth.htm(), truth.rig(), acq.tablet_px, acq.hand_angle_deg,
-                                  **kw)  # fmt: skip
-    return synthesize_captures(truth.htm(), truth.rig(), acq.tablet_px, acq.hand_angle_deg,
-                               list(acq.capture_poses), **kw)  # fmt: skip
+    captures = None if _single(truth, acq) else list(acq.capture_poses)
+    ds = synthesize_dataset(truth.htm(), truth.rig(), acq.tablet_px, acq.hand_angle_deg,
+                            captures=captures, scene=truth.scene(),
+                            touch_error_px=touch_error_px)  # fmt: skip
+    return ds.replace(name=name)
 
 
 # -- linearised ----------------------------------------------------------------------------

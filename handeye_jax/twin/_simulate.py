@@ -245,10 +245,8 @@ def _touched(truth: TwinTruth, preset: NoisePreset, seed: int,
     touch_px = rng.normal(0.0, preset.touch_sigma_mm, (n, 2)) / mm
     exact = synthesize_dataset(
         model, rig, truth.landmarks_tablet_px, truth.landmarks_hand_angle_deg,
-        ppi=truth.ppi, scale=truth.scale, touch_error_px=touch_px,
-        tablet_height_mm=truth.tablet_height_mm, camera_z_mm=truth.camera_z_mm,
-        name=f"twin-seed{seed}-{preset.name}",
-    )  # fmt: skip
+        scene=truth.scene(), touch_error_px=touch_px,
+    ).replace(name=f"twin-seed{seed}-{preset.name}")  # fmt: skip
     return exact, touch_px
 
 

@@ -8,6 +8,9 @@ fits it with F = 0; the tests use this to check that calibration recovers the tr
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
+
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
@@ -18,131 +21,100 @@ from ..data import Camera, Capture, Dataset
 from ..models import AbstractModel, Rig
 
 
+@dataclass(frozen=True)
+class Scene:
+    """What the data depend on but the twelve-parameter chain leaves out.
+
+    Attributes:
+        ppi, scale: the tablet's pixel density and display scale; one tablet px is
+            ``25.4 / ppi * scale`` mm (eq. 9).
+        tablet_height_mm: height of the tablet surface in the base frame, mm. It does not
+            enter the objective (x-y only) but sets the depths the camera sees.
+        camera_z_mm: the camera's offset along the hand's z axis, mm (``zc``; the models
+            leave it out because it never enters x-y).
+        pen_z_mm: the pen tip's offset along the hand's z axis, ``zp``, mm. Given, each touch
+            of a dataset with captures records the hand's height (the pen tip on the tablet
+            surface); else none does.
+    """
+
+    ppi: float = 267.0
+    scale: float = 2.0
+    tablet_height_mm: float = 120.0
+    camera_z_mm: float = 0.0
+    pen_z_mm: float | None = None
+
+
 @in_float64
 def synthesize_dataset(
     truth: AbstractModel,
     rig: Rig,
-    tablet_px: np.ndarray,
-    hand_angle_deg: np.ndarray,
+    tablet_px: Float[ArrayLike, "n 2"],
+    hand_angle_deg: Float[ArrayLike, " n"],
     *,
-    ppi: float = 267.0,
-    scale: float = 2.0,
-    touch_error_px: np.ndarray | None = None,
-    tablet_height_mm: float = 120.0,
-    camera_z_mm: float = 0.0,
-    name: str = "synthetic",
-    search: dict[str, tuple[float, float]] | None = None,
+    captures: Sequence[tuple[Float[ArrayLike, "3"], float]] | None = None,
+    scene: Scene = Scene(),
+    touch_error_px: Float[ArrayLike, "n 2"] | None = None,
 ) -> Dataset:
-    """A noise-free dataset that ``truth`` explains exactly.
+    """A noise-free dataset that ``truth`` explains exactly, named ``synthetic`` (give it
+    another name, or ``[search]`` overrides, with :meth:`~handeye_jax.Dataset.replace`).
 
     Args:
         truth: the model whose parameters generate the data.
         rig: intrinsics, capture position (mm) and hand-angle convention.
         tablet_px: where the landmarks are drawn, tablet px, shape (n, 2).
         hand_angle_deg: the hand angle θh of each touch, deg, shape (n,).
-        ppi, scale: the tablet's pixel density and display scale (eq. 9).
+        captures: ``None``: one capture, from the rig's capture pose (a version-1 dataset).
+            Else each capture's hand position (mm, ``(3,)``) and hand angle θc (deg), the hand
+            pointing down turned by ``φc = zero + sign·θc``; every capture sees every
+            landmark, and every landmark is touched once, in order (version 2).
+        scene: what the chain leaves out (:class:`Scene`); its ``pen_z_mm`` needs
+            ``captures``.
         touch_error_px: where the pen touched relative to each landmark, tablet px; the hand
             positions include it, and the dataset records it, so F stays 0.
-        tablet_height_mm: height of the tablet surface in the base frame, mm. It does not
-            enter the objective (x-y only) but sets the depths the camera sees.
-        camera_z_mm: the camera's offset along the hand's z axis, mm (``zc``; the models
-            leave it out because it never enters x-y).
-        name: the dataset's name.
-        search: ``[search]`` overrides to record in the dataset.
     """
     tablet_px = np.asarray(tablet_px, dtype=float)
     n = tablet_px.shape[0]
     touch_px = np.zeros((n, 2)) if touch_error_px is None else np.asarray(touch_error_px, float)
-    mm = geo.mm_per_tablet_px(ppi, scale)
-
-    p_camera = tablet_to_camera(
-        truth, rig, tablet_px * mm, tablet_height_mm=tablet_height_mm, camera_z_mm=camera_z_mm
-    )
-    image_px, depth_mm = geo.project(p_camera, rig.fx_px, rig.fy_px, rig.cx_px, rig.cy_px)
-
-    touched = truth.tablet_to_base(jnp.asarray((tablet_px + touch_px) * mm))[:, :2]
-    offset = truth.pen_offset(rig.phi_deg(jnp.asarray(hand_angle_deg, dtype=float)))[:, :2]
-    hand_xy = touched - offset
-
-    angle = rig.capture_hand_angle_deg  # None: the paper's capture, at φ = 0
-    return Dataset(
-        name=name,
-        camera=Camera(float(rig.fx_px), float(rig.fy_px), float(rig.cx_px), float(rig.cy_px)),
-        capture_position_mm=np.asarray(rig.capture_position_mm, dtype=float),
-        capture_hand_angle_deg=None if angle is None else float(angle),
-        tablet_ppi=float(ppi),
-        tablet_scale=float(scale),
-        hand_angle_zero_deg=float(rig.angle_zero_deg),
-        hand_angle_sign=int(rig.angle_sign),
-        search=dict(search or {}),
-        tablet_px=tablet_px,
-        image_px=np.asarray(image_px, dtype=float),
-        depth_mm=np.asarray(depth_mm, dtype=float),
-        hand_xy_mm=np.asarray(hand_xy, dtype=float),
-        hand_angle_deg=np.asarray(hand_angle_deg, dtype=float),
-        touch_error_px=touch_px,
-    )
-
-
-@in_float64
-def synthesize_captures(
-    truth: AbstractModel,
-    rig: Rig,
-    tablet_px: np.ndarray,
-    hand_angle_deg: np.ndarray,
-    capture_poses: list[tuple[np.ndarray, float]],
-    *,
-    ppi: float = 267.0,
-    scale: float = 2.0,
-    touch_error_px: np.ndarray | None = None,
-    tablet_height_mm: float = 120.0,
-    camera_z_mm: float = 0.0,
-    pen_z_mm: float | None = None,
-    name: str = "synthetic",
-    search: dict[str, tuple[float, float]] | None = None,
-) -> Dataset:
-    """A noise-free dataset from several captures that ``truth`` explains exactly (version 2).
-
-    Every capture sees every landmark; every landmark is touched once, in order.
-
-    Args:
-        truth, rig, tablet_px, hand_angle_deg, ppi, scale, touch_error_px, tablet_height_mm,
-            camera_z_mm, name, search: as for :func:`synthesize_dataset` (the rig's capture
-            pose is not used: ``capture_poses`` gives them).
-        capture_poses: each capture's hand position (mm, ``(3,)``) and hand angle θc (deg);
-            the hand points down turned by ``φc = zero + sign·θc``.
-        pen_z_mm: the pen tip's offset along the hand's z axis, ``zp``, mm; given, each touch
-            records the hand's height (the pen tip on the tablet surface), else none does.
-    """
-    tablet_px = np.asarray(tablet_px, dtype=float)
-    n = tablet_px.shape[0]
-    touch_px = np.zeros((n, 2)) if touch_error_px is None else np.asarray(touch_error_px, float)
-    mm = geo.mm_per_tablet_px(ppi, scale)
-    captures = []
-    for position, angle in capture_poses:
-        rig_c = capture_rig(rig, position, angle)
-        p_camera = tablet_to_camera(
-            truth, rig_c, tablet_px * mm, tablet_height_mm=tablet_height_mm, camera_z_mm=camera_z_mm
-        )
-        image_px, depth_mm = geo.project(p_camera, rig.fx_px, rig.fy_px, rig.cx_px, rig.cy_px)
-        captures.append(Capture(np.asarray(position, float), float(angle), np.arange(n),
-                                np.asarray(image_px), np.asarray(depth_mm)))  # fmt: skip
+    mm = geo.mm_per_tablet_px(scene.ppi, scene.scale)
     touched = truth.tablet_to_base(jnp.asarray((tablet_px + touch_px) * mm))
     offset = truth.pen_offset(rig.phi_deg(jnp.asarray(hand_angle_deg, dtype=float)))[:, :2]
-    hand_xy = touched[:, :2] - offset
-    hand_z = np.full(n, np.nan)
-    if pen_z_mm is not None:  # the pen tip, zp below the hand, on the display surface
-        hand_z = np.asarray(touched[:, 2]) + tablet_height_mm + float(pen_z_mm)
-    return Dataset(
-        name=name,
+    common = dict(
+        name="synthetic",
         camera=Camera(float(rig.fx_px), float(rig.fy_px), float(rig.cx_px), float(rig.cy_px)),
-        tablet_ppi=float(ppi), tablet_scale=float(scale),
+        tablet_ppi=float(scene.ppi), tablet_scale=float(scene.scale),
         hand_angle_zero_deg=float(rig.angle_zero_deg), hand_angle_sign=int(rig.angle_sign),
-        search=dict(search or {}), tablet_px=tablet_px, captures=captures,
-        hand_xy_mm=np.asarray(hand_xy, dtype=float), hand_z_mm=hand_z,
+        search={}, tablet_px=tablet_px,
+        hand_xy_mm=np.asarray(touched[:, :2] - offset, dtype=float),
         hand_angle_deg=np.asarray(hand_angle_deg, dtype=float), touch_error_px=touch_px,
-        version=2,
     )  # fmt: skip
+    if captures is None:
+        if scene.pen_z_mm is not None:
+            raise ValueError("pen_z_mm records the hand's heights, which need captures")
+        image_px, depth_mm = _seen(truth, rig, tablet_px * mm, scene)
+        angle = rig.capture_hand_angle_deg  # None: the paper's capture, at φ = 0
+        return Dataset(
+            capture_position_mm=np.asarray(rig.capture_position_mm, dtype=float),
+            capture_hand_angle_deg=None if angle is None else float(angle),
+            image_px=image_px, depth_mm=depth_mm, **common,
+        )  # fmt: skip
+    shots = []
+    for position, angle in captures:
+        image_px, depth_mm = _seen(truth, capture_rig(rig, position, angle), tablet_px * mm, scene)
+        shots.append(Capture(np.asarray(position, float), float(angle), np.arange(n), image_px,
+                             depth_mm))  # fmt: skip
+    hand_z = np.full(n, np.nan)
+    if scene.pen_z_mm is not None:  # the pen tip, zp below the hand, on the display surface
+        hand_z = np.asarray(touched[:, 2]) + scene.tablet_height_mm + float(scene.pen_z_mm)
+    return Dataset(captures=shots, hand_z_mm=hand_z, version=2, **common)
+
+
+def _seen(truth: AbstractModel, rig: Rig, tablet_mm, scene: Scene) -> tuple[np.ndarray, ...]:
+    """What the camera at ``rig``'s capture pose sees of tablet points (mm): image px and
+    depths, mm."""
+    p_camera = tablet_to_camera(truth, rig, tablet_mm, tablet_height_mm=scene.tablet_height_mm,
+                                camera_z_mm=scene.camera_z_mm)  # fmt: skip
+    image_px, depth_mm = geo.project(p_camera, rig.fx_px, rig.fy_px, rig.cx_px, rig.cy_px)
+    return np.asarray(image_px, dtype=float), np.asarray(depth_mm, dtype=float)
 
 
 def capture_rig(rig: Rig, position_mm: np.ndarray, hand_angle_deg: float) -> Rig:

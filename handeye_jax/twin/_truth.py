@@ -37,7 +37,7 @@ from .._core import (
 from .._jax import in_float64
 from ..data import Camera, check_tablet_px, distort_px, snake_grid_px, undistort_px
 from ..models import HTMModel, Rig
-from ._synthetic import tablet_to_camera
+from ._synthetic import Scene, tablet_to_camera
 
 FORMAT = "handeye-jax.twin-truth/1"
 
@@ -129,6 +129,11 @@ class TwinTruth:
     @property
     def mm_per_tablet_px(self) -> float:
         return geo.mm_per_tablet_px(self.ppi, self.scale)
+
+    def scene(self, pen_z_mm: float | None = None) -> Scene:
+        """What the data depend on besides :meth:`htm` and :meth:`rig` (``pen_z_mm``: record
+        the hand's heights, a pen tip that far along the hand's z axis, mm)."""
+        return Scene(self.ppi, self.scale, self.tablet_height_mm, self.camera_z_mm, pen_z_mm)
 
     @in_float64
     def rig(self) -> Rig:
