@@ -54,6 +54,23 @@ def marquardt_scaling(diag: Float[Array, "*b d"]) -> Float[Array, "*b d"]:
     return xp.maximum(diag, _SCALE_FLOOR * xp.max(diag, axis=-1, keepdims=True)) + 1e-12
 
 
+def damped_normal_matrix(
+    H: Float[Array, "*b d d"], g: Float[Array, "*b d"], z: Float[Array, "*b d"],
+    lam: Float[Array, "*b"],
+) -> Float[Array, "*b d d"]:
+    """The matrix of one LM step's equations, ``(H + λ·D)·δ = −g``, in box coordinates ``z``:
+    ``H = JᵀJ`` without the couplings of the coordinates a bound holds (:func:`._box.held`),
+    plus λ times :func:`marquardt_scaling` on its diagonal. Both batch LMs solve with it."""
+    xp = _box._xp(H, g, z, lam)
+    d = H.shape[-1]
+    diag = xp.diagonal(H, axis1=-2, axis2=-1)
+    damping = lam[..., None] * marquardt_scaling(diag)
+    held = _box.held(z, g, diag + damping)
+    H = xp.where((held[..., :, None] | held[..., None, :]) & ~xp.eye(d, dtype=bool), 0.0, H)
+    # H + λ·(diag H + ε) is positive definite for λ > 0: the solve cannot fail.
+    return H + damping[..., :, None] * xp.eye(d)
+
+
 class LevenbergMarquardt(AbstractSolver[LMSolution]):
     """Levenberg–Marquardt on ``fn.residuals`` inside the box, from ``x0``.
 
@@ -159,19 +176,12 @@ def minimise_batch(
 
     r, J, cost = evaluate(z)
     lam = np.full(z.shape[0], _LAMBDA0)
-    eye = np.eye(z.shape[1])
     quiet = steps = 0
     for steps in range(1, solver.max_steps + 1):  # noqa: B007 (steps is reported)
         Jt = J.transpose(0, 2, 1)
         H = Jt @ J
         g = (Jt @ r[..., None])[..., 0]
-        diag = np.diagonal(H, axis1=1, axis2=2)
-        damping = lam[:, None] * marquardt_scaling(diag)
-        held = _box.held(z, g, diag + damping)
-        H = np.where((held[:, :, None] | held[:, None, :]) & ~eye.astype(bool), 0.0, H)
-        damping = damping[:, None, :] * eye
-        # H + λ·(diag H + ε) is positive definite for λ > 0: the solve cannot fail.
-        dz = -np.linalg.solve(H + damping, g[..., None])[..., 0]
+        dz = -np.linalg.solve(damped_normal_matrix(H, g, z, lam), g[..., None])[..., 0]
         dz = np.where(np.isfinite(dz), dz, 0.0)
         z_t = _box.step(z, dz)
         r_t, J_t, cost_t = evaluate(z_t)

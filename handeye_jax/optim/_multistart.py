@@ -36,7 +36,7 @@ from ._lm import (
     _QUIET_ITERATIONS,
     _SHRINK,
     LevenbergMarquardt,
-    marquardt_scaling,
+    damped_normal_matrix,
     residuals_and_jacobian,
 )
 from ._solvers import BatchSolution, Problem
@@ -103,14 +103,7 @@ def _step(fn: Problem, lower, upper, lm: LevenbergMarquardt, st: _State) -> _Sta
     m = r.shape[1]
     H = _rows_sum(lambda k: J[:, k, :, None] * J[:, k, None, :], m)
     g = _rows_sum(lambda k: J[:, k] * r[:, k, None], m)
-    d = H.shape[-1]
-    diag = jnp.diagonal(H, axis1=1, axis2=2)
-    damping = st.lam[:, None] * marquardt_scaling(diag)
-    held = _box.held(st.z, g, diag + damping)
-    H = jnp.where((held[:, :, None] | held[:, None, :]) & ~jnp.eye(d, dtype=bool), 0.0, H)
-    # H + λ·(diag H + ε): positive definite for λ > 0, so the factorisation cannot fail.
-    damped = H + damping[:, :, None] * jnp.eye(d)
-    dz = -_cholesky_solve(damped, g)
+    dz = -_cholesky_solve(damped_normal_matrix(H, g, st.z, st.lam), g)
     dz = jnp.where(jnp.isfinite(dz), dz, 0.0)
     z_t = _box.step(st.z, dz)
     r_t, J_t, cost_t = _evaluate(fn, z_t, lower, upper)
@@ -177,11 +170,11 @@ def minimise_starts(
     for its lowest local optimum), compiled whole.
 
     Each iteration solves ``(JᵀJ + λ·D)·δ = −Jᵀr``, ``D`` Marquardt's scaling ``diag(JᵀJ)``
-    floored (:func:`~handeye_jax.optim._lm.marquardt_scaling`), for every start in the box
+    floored (:func:`~handeye_jax.optim._lm.damped_normal_matrix`), for every start in the box
     coordinates and keeps a start's step only if it lowers its ``|r|²``; λ shrinks after a
-    kept step and grows after a refused one. A parameter on a bound is held
-    there while the cost pushes it outward (an active set), so an optimum on a bound is
-    reached, not stalled before. All starts stop together, once
+    kept step and grows after a refused one. A parameter on a bound is held there while the
+    cost pushes it outward (an active set), so an optimum on a bound is reached, not stalled
+    before. All starts stop together, once
     none has lowered its cost by more than ``rtol·cost + atol`` for 10 iterations, or after
     ``max_steps``.
 
