@@ -20,7 +20,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from handeye_jax import AffinePair, HTMModel, Predictor, Rig, compute_frames, hand_command
+from handeye_jax import (
+    AffinePair,
+    HTMModel,
+    Predictor,
+    Rig,
+    Targets,
+    compute_frames,
+    hand_command,
+)
 
 TARGET_US = 20.0
 PARAMS = {"xc": -2.05, "yc": 34.09, "alpha_c": 0.49, "beta_c": 0.48, "gamma_c": -0.73,
@@ -49,7 +57,7 @@ def main(argv: list[str] | None = None) -> None:
         depth = rng.uniform(150.0, 190.0, n)
         angle = rng.uniform(-180.0, 180.0, n)
         jitted = jax.jit(hand_command)
-        args_jax = (model, rig, jnp.asarray(uv), jnp.asarray(depth), jnp.asarray(angle))
+        args_jax = (model, rig, Targets(jnp.asarray(uv), jnp.asarray(depth), jnp.asarray(angle)))
         stage2 = {"correction": correction, "centres_mm": jnp.asarray(CENTRES_MM)}
         calls = {
             "numpy Predictor": lambda: predictor.hand_command(uv, depth, angle),

@@ -150,6 +150,7 @@ _EXPORTS = {
     "Scene": "twin",
     "store_programs": "_jax",
     "synthesize_dataset": "twin",
+    "Targets": "models",
     "TouchingError": "twin",
     "Twin": "twin",
     "TwinTruth": "twin",
@@ -271,6 +272,7 @@ if TYPE_CHECKING:
         DHModel,
         HTMModel,
         Rig,
+        Targets,
         get_model,
         hand_command,
     )
@@ -405,6 +407,7 @@ __all__ = [
     "StageErrors",
     "StageFit",
     "StageResult",
+    "Targets",
     "TouchingError",
     "Twin",
     "TwinTruth",

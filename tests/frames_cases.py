@@ -24,6 +24,7 @@ from handeye_jax import (
     Rig,
     Settings,
     StageResult,
+    Targets,
     compute_frames,
     get_model,
     hand_command,
@@ -105,9 +106,9 @@ def points(draw, n: int = N_POINTS):
 @jax.jit
 def _jax_hand_command(model, rig, correction, centres, uv, depth, angle):
     # Both stages in one program: one compilation per model class.
-    return (hand_command(model, rig, uv, depth, angle),
-            hand_command(model, rig, uv, depth, angle, correction=correction,
-                         centres_mm=centres))  # fmt: skip
+    targets = Targets(uv, depth, angle)
+    return (hand_command(model, rig, targets),
+            hand_command(model, rig, targets, correction=correction, centres_mm=centres))
 
 
 def jax_reference_of(model, rig, correction, centres_mm, uv, depth, angle, stage: int):

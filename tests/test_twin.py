@@ -141,11 +141,11 @@ class _Perfect:
         self.truth = truth
 
     def predict(self, image_px, depth_mm, hand_angle_deg, stage=2):
-        from handeye_jax import hand_command
+        from handeye_jax import Targets, hand_command
 
         t = self.truth
-        args = (jnp.asarray(image_px), jnp.asarray(depth_mm), jnp.asarray(hand_angle_deg))
-        return np.asarray(hand_command(t.htm(), t.rig(), *args))
+        targets = Targets(jnp.asarray(image_px), jnp.asarray(depth_mm), jnp.asarray(hand_angle_deg))
+        return np.asarray(hand_command(t.htm(), t.rig(), targets))
 
 
 def test_evaluate_gives_zero_for_the_truth_on_exact_observations():
@@ -163,10 +163,11 @@ def test_evaluate_gives_zero_for_the_truth_on_exact_observations():
 
     class _Off(_Perfect):
         def predict(self, image_px, depth_mm, hand_angle_deg, stage=2):
-            from handeye_jax import hand_command
+            from handeye_jax import Targets, hand_command
 
-            return np.asarray(hand_command(wrong, truth.rig(), jnp.asarray(image_px),
-                              jnp.asarray(depth_mm), jnp.asarray(hand_angle_deg)))  # fmt: skip
+            targets = Targets(jnp.asarray(image_px), jnp.asarray(depth_mm),
+                              jnp.asarray(hand_angle_deg))  # fmt: skip
+            return np.asarray(hand_command(wrong, truth.rig(), targets))
 
     off = evaluate(_Off(truth), truth, held)[0]
     assert 0.99 < off.mean_mm < 1.01 and abs(off.mean_px * off.mm_per_px - off.mean_mm) < 1e-12

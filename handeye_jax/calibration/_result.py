@@ -18,7 +18,7 @@ from jaxtyping import Array, Float
 from .._core import InputError, Stages, bounded, each, length, spec
 from .._jax import fast_compile, in_float64
 from ..data import Dataset
-from ..models import AbstractCorrection, AbstractModel, Rig, hand_command
+from ..models import AbstractCorrection, AbstractModel, Rig, Targets, hand_command
 from ..problem import (
     FIXED,
     FREE,
@@ -220,16 +220,14 @@ class CalibrationResult:
         f = lambda a: None if a is None else jnp.asarray(a, dtype=float)  # noqa: E731
         if self.distortion is not None:  # the chain back-projects through a pinhole
             image_px = self.data.camera.undistort(image_px)
+        targets = Targets(f(image_px), f(depth_mm), f(hand_angle_deg), f(capture_position_mm),
+                          f(capture_hand_angle_deg))  # fmt: skip
         out = _hand_command(
             self.model,
             self.rig,
-            jnp.asarray(image_px, dtype=float),
-            jnp.asarray(depth_mm, dtype=float),
-            jnp.asarray(hand_angle_deg, dtype=float),
+            targets,
             correction=self.correction if stage == 2 else None,
             centres_mm=jnp.asarray(self.centres_mm, dtype=float),
-            capture_position_mm=f(capture_position_mm),
-            capture_hand_angle_deg=f(capture_hand_angle_deg),
             pen_minus_camera_mm=f(self.heights.pen_minus_camera_mm) if axes == "xyz" else None,
         )  # fmt: skip
         return np.asarray(out)

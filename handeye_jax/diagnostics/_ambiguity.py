@@ -33,7 +33,7 @@ from .. import geometry as geo
 from .._jax import fast_compile
 from ..calibration import Ambiguity, FittedStage, StageDiagnostics, polish
 from ..data import Observations
-from ..models import AbstractModel, hand_command
+from ..models import AbstractModel, Targets, hand_command
 from ..optim import Box
 from ..problem import (
     NULL_RATIO,
@@ -309,9 +309,9 @@ def _shifts(a: AbstractModel, b: AbstractModel, obs: Observations, rows, positio
 
     def commands(model, uv, depth, where, turn, angle):
         k = uv.shape[0]
-        return hand_command(model, rig, uv, depth, jnp.full(k, angle),
-                            capture_position_mm=jnp.broadcast_to(where, (k, 3)),
-                            capture_hand_angle_deg=jnp.broadcast_to(turn, (k,)))  # fmt: skip
+        targets = Targets(uv, depth, jnp.full(k, angle), jnp.broadcast_to(where, (k, 3)),
+                          jnp.broadcast_to(turn, (k,)))
+        return hand_command(model, rig, targets)
 
     def here(angle):
         ca = commands(a, obs.image_px, obs.depth_mm, pos, theta_c, angle)

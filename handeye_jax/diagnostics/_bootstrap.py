@@ -298,10 +298,8 @@ def _commands(models, corrections, centres, rig, targets: Targets, stage: int):
     """Every refit's hand commands ``(x, y)`` for the targets, mm: ``(refits, k, 2)``."""
 
     def one(model, correction, c):
-        out = hand_command(model, rig, targets.image_px, targets.depth_mm, targets.hand_angle_deg,
-                           correction=correction if stage == 2 else None, centres_mm=c,
-                           capture_position_mm=targets.capture_position_mm,
-                           capture_hand_angle_deg=targets.capture_hand_angle_deg)  # fmt: skip
+        out = hand_command(model, rig, targets, correction=correction if stage == 2 else None,
+                           centres_mm=c)
         return out[:, :2]
 
     return eqx.filter_vmap(one)(models, corrections, centres)

@@ -17,7 +17,7 @@ import numpy as np
 
 from .._jax import fast_compile, in_float64
 from ..calibration import CalibrationResult, Scope
-from ..models import hand_command
+from ..models import Targets, hand_command
 from ..problem import FIXED, Heights, WeakDirection, put
 
 #: The capture height changes, mm, at which :func:`capture_scope` gives the expected error.
@@ -112,9 +112,8 @@ def _command_jacobian(model, free: tuple[str, ...], rig, seen_from, views):
     x0 = jnp.stack([jnp.asarray(getattr(model, n)) for n in free])
 
     def command(x):
-        return hand_command(put(model, free, x), rig, uv, depth, theta,
-                            capture_position_mm=position,
-                            capture_hand_angle_deg=capture_angle).reshape(-1)  # fmt: skip
+        targets = Targets(uv, depth, theta, position, capture_angle)
+        return hand_command(put(model, free, x), rig, targets).reshape(-1)
 
     return jax.jacfwd(command)(x0)
 

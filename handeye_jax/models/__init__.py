@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from ._affine import AffinePair
 from ._base import AbstractCorrection, AbstractModel, AbstractParametric
-from ._command import hand_command
+from ._command import Targets, hand_command
 from ._dh import DHModel
 from ._htm import HTMModel
 from ._rig import Rig
@@ -42,6 +42,7 @@ __all__ = [
     "DHModel",
     "HTMModel",
     "Rig",
+    "Targets",
     "get_model",
     "hand_command",
     "model_registry",

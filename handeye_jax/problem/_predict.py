@@ -27,7 +27,7 @@ from jaxtyping import Array, Float
 
 from .._jax import fast_compile, in_float64
 from ..data import Observations
-from ..models import AbstractCorrection, AbstractModel, AffinePair, Rig, hand_command
+from ..models import AbstractModel, AffinePair, Rig, Targets, hand_command
 from ._noise import NoiseModel, NoiseObjective, noise_objective
 from ._objective import Stage1Objective, Stage2Objective, chain_points, stage2_errors
 
@@ -35,22 +35,6 @@ from ._objective import Stage1Objective, Stage2Objective, chain_points, stage2_e
 CIRCLE_POINTS = 64
 #: The quantile of the touching error reported beside its mean.
 QUANTILE = 0.95
-
-
-class Targets(eqx.Module):
-    """Points to touch, as seen: image point (px), depth (mm), the hand angle to touch with
-    (deg), and the capture pose each was seen from (hand position mm ``(k, 3)``, hand angle
-    deg ``(k,)``)."""
-
-    image_px: Float[Array, "k 2"]
-    depth_mm: Float[Array, " k"]
-    hand_angle_deg: Float[Array, " k"]
-    capture_position_mm: Float[Array, "k 3"]
-    capture_hand_angle_deg: Float[Array, " k"]
-
-    @property
-    def k(self) -> int:
-        return self.image_px.shape[0]
 
 
 class ErrorPrediction(eqx.Module):
@@ -203,10 +187,7 @@ def _capture_angle(rig: Rig) -> float:
 
 
 def _commands(model: AbstractModel, rig: Rig, targets: Targets, correction=None, centres=None):
-    return hand_command(model, rig, targets.image_px, targets.depth_mm, targets.hand_angle_deg,
-                        correction=correction, centres_mm=centres,
-                        capture_position_mm=targets.capture_position_mm,
-                        capture_hand_angle_deg=targets.capture_hand_angle_deg)  # fmt: skip
+    return hand_command(model, rig, targets, correction=correction, centres_mm=centres)
 
 
 def _target_covariance(model, rig, targets: Targets, variances, correction=None,
@@ -355,12 +336,11 @@ def predict_command_error(
     targets: Targets,
     *,
     stage: int = 1,
-    correction: AbstractCorrection | None = None,
-    free2: Sequence[str] | None = None,
-    prior1: Float[Array, "d1 d1"] | None = None,
-    prior2: Float[Array, "d2 d2"] | None = None,
 ) -> ErrorPrediction:
     """The touching error an acquisition gives, before it is taken (or after, at its fit).
+
+    A fit with a prior, or stage 2 at other values or parameters, is :func:`command_error`
+    of each stage's :class:`StagePoint`.
 
     Args:
         model: the stage-1 model the Jacobians are taken at (an approximate rig will do).
@@ -369,24 +349,19 @@ def predict_command_error(
             touches (hand angles); their measured values do not matter, only where they are.
         noise: the noise model.
         targets: the points to predict for.
-        stage: 1, or 2 with the affine correction (``correction``: at which values; default
-            the identity).
-        free2: stage 2's free parameters (default: all ten).
-        prior1, prior2: a prior's information on each stage's free parameters, or ``None``.
+        stage: 1, or 2 with the affine correction at the identity, all ten parameters free.
     """
     free = tuple(free)
     x1 = jnp.stack([jnp.asarray(getattr(model, n), dtype=float) for n in free])
-    objective1 = noise_objective(Stage1Objective(model, obs, free), noise, model)
-    objective2 = x2 = None
+    one = StagePoint(noise_objective(Stage1Objective(model, obs, free), noise, model), x1)
+    two = None
     if stage == 2:
-        correction = AffinePair.nominal() if correction is None else correction
-        free2 = tuple(type(correction).param_names if free2 is None else free2)
+        correction = AffinePair.nominal()
+        free2 = type(correction).param_names
         x2 = jnp.stack([jnp.asarray(getattr(correction, n), dtype=float) for n in free2])
         base2 = Stage2Objective(correction, chain_points(model, obs), obs.centre_index, free2)
-        objective2 = noise_objective(base2, noise, model, obs)
-    two = None if objective2 is None else StagePoint(objective2, x2, prior2)
-    return command_error(StagePoint(objective1, x1, prior1), targets, noise, stage2=two,
-                         stage=stage)  # fmt: skip
+        two = StagePoint(noise_objective(base2, noise, model, obs), x2)
+    return command_error(one, targets, noise, stage2=two, stage=stage)
 
 
 @in_float64

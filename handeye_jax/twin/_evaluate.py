@@ -23,7 +23,7 @@ from .._core import MAX_DEG, MAX_MM, MAX_PX, InputError
 from .._jax import in_float64
 from ..calibration import CalibrationResult, Settings, fit_correction, load_result
 from ..data import Dataset, csv_number, load_dataset, read_points_csv
-from ..models import AbstractModel, hand_command
+from ..models import AbstractModel, Targets, hand_command
 from ._truth import TwinTruth, load_truth
 
 
@@ -167,11 +167,12 @@ def evaluate(
         rows.append((label, result.predict(image_px, depth_mm, angle_deg, stage)))
     model, rig = truth.htm(), truth.rig()
     ideal_px = jnp.asarray(truth.undistort(heldout.image_px))  # the truth knows its lens
-    rows.append(("oracle", hand_command(model, rig, ideal_px, depth_mm, angle_deg)))
+    targets = Targets(ideal_px, depth_mm, angle_deg)
+    rows.append(("oracle", hand_command(model, rig, targets)))
     if dataset is not None:
         correction, centres = fit_correction(dataset, model, oracle_settings(result))
-        cmd = hand_command(model, rig, ideal_px, depth_mm, angle_deg, correction=correction,
-                           centres_mm=jnp.asarray(centres))  # fmt: skip
+        cmd = hand_command(model, rig, targets, correction=correction,
+                           centres_mm=jnp.asarray(centres))
         rows.append(("oracle + stage 2", cmd))
     return [
         TouchingError(
@@ -233,16 +234,15 @@ def evaluate_points(
     rows = [(label, result.predict(image_px, depth_mm, angle, stage, axes=axes, **pose))
             for label, stage in (("stage 1", 1), ("stage 2", 2))]  # fmt: skip
     model, rig = truth.htm(), truth.rig()
-    jpose = {k: jnp.asarray(v) for k, v in pose.items()}
     dz = jnp.asarray(truth.pen_z_mm - truth.camera_z_mm)
     ideal_px = jnp.asarray(truth.undistort(heldout.image_px))  # the truth knows its lens
-    rows.append(("oracle", hand_command(model, rig, ideal_px, depth_mm, angle, **jpose,
-                                        pen_minus_camera_mm=dz)))  # fmt: skip
+    targets = Targets(ideal_px, depth_mm, angle, *(jnp.asarray(v) for v in pose.values()))
+    rows.append(("oracle", hand_command(model, rig, targets, pen_minus_camera_mm=dz)))
     if dataset is not None:
         correction, centres = fit_correction(dataset, model, oracle_settings(result))
         rows.append(("oracle + stage 2", hand_command(
-            model, rig, ideal_px, depth_mm, angle, correction=correction,
-            centres_mm=jnp.asarray(centres), **jpose, pen_minus_camera_mm=dz)))  # fmt: skip
+            model, rig, targets, correction=correction, centres_mm=jnp.asarray(centres),
+            pen_minus_camera_mm=dz)))  # fmt: skip
     want = truth.true_command(heldout.true_mm, heldout.hand_angle_deg)
     rise = heldout.capture_position_mm[:, 2] - truth.capture_position_mm[2]
     out = []
