@@ -16,7 +16,7 @@ class Sphere(eqx.Module):
 def test_early_stop_closes_a_complete_bar(capsys):
     de = DifferentialEvolution(population=30, generations=5000, tol=1e-3)
     r = minimise(Sphere(), de, Box([-1.0] * 3, [1.0] * 3), key=jax.random.PRNGKey(0),
-                 progress=True, desc="test DE")  # fmt: skip
+                 progress="test DE")  # fmt: skip
     assert r.converged and r.steps < 5000
     err = capsys.readouterr().err
     last = err.replace("\r", "\n").strip().splitlines()[-1]

@@ -203,8 +203,8 @@ def _de_searches(batch: _Batch, builds, search, settings: Settings, keys,
         bases.append(base)
     de = minimise_many(
         stack(objectives), settings.de(), _boxes(subs),
-        keys=np.stack([np.asarray(k) for k in keys]), mesh=batch.mesh, progress=progress,
-        desc=batch.tasks[0].label,
+        keys=np.stack([np.asarray(k) for k in keys]), mesh=batch.mesh,
+        progress=batch.tasks[0].label if progress else False,
     )  # fmt: skip
     return [DESearch(s, o, b, take(de, i)) for i, (s, o, b) in
             enumerate(zip(subs, objectives, bases, strict=True))]  # fmt: skip

@@ -243,7 +243,7 @@ class DifferentialEvolution(AbstractSolver[DESolution]):
             raise ValueError(f"population must be at least 4 for DE/rand/1 (got {self.population})")
 
     @in_float64
-    def run(self, fn, box, *, x0, key, progress, desc) -> DESolution:
+    def run(self, fn, box, *, x0, key, progress) -> DESolution:
         """Minimise ``fn`` (a JAX-traceable function of one parameter vector; pass an equinox
         Module so repeated calls reuse the compiled code) over ``box``, from a Latin hypercube
         (``x0`` is not used). The same ``key`` gives the same run bit for bit; float64."""
@@ -258,17 +258,22 @@ class DifferentialEvolution(AbstractSolver[DESolution]):
         step = _Step(lower, upper, np.asarray(self.crossover), np.asarray(self.mutation))
         stop = _Stop(np.asarray(self.generations), np.asarray(self.tol), np.asarray(self.atol),
                      np.asarray(self.early_stop))  # fmt: skip
-        state, best, median = _generations(fn, state, step, stop,
-                                           (self.generations, desc or "DE", progress))  # fmt: skip
+        state, best, median = _generations(fn, state, step, stop, (self.generations, progress))
         return _solution(state, best, median, self.population)
+
+
+def bar_label(progress: bool | str) -> str:
+    """A DE progress bar's label: ``progress`` when it is one, else ``"DE"``."""
+    return progress if isinstance(progress, str) and progress else "DE"
 
 
 def _generations(fn, state: DEState, step: _Step, stop: _Stop, bar: tuple):
     """Chunks of generations until the run converges or reaches its limit; the best value of
-    every generation and the median after every chunk. ``bar``: (total, label, shown)."""
-    total, desc, shown = bar
+    every generation and the median after every chunk. ``bar``: (total, shown or its label)."""
+    total, shown = bar
     best, median = [], []
-    with progress_bar(total=total, desc=desc, enabled=shown, unit="gen") as bar:
+    with progress_bar(total=total, desc=bar_label(shown), enabled=bool(shown),
+                      unit="gen") as bar:  # fmt: skip
         while True:
             state, (b, active) = _chunk(fn, state, step, stop)
             active = np.asarray(active)

@@ -85,8 +85,8 @@ class LevenbergMarquardt(AbstractSolver[LMSolution]):
     atol: float = 1e-12
     max_steps: int = 1000
 
-    def run(self, fn, box, *, x0, key, progress, desc) -> LMSolution:
-        del key, progress, desc  # deterministic, and quick enough to need no progress bar
+    def run(self, fn, box, *, x0, key, progress) -> LMSolution:
+        del key, progress  # deterministic, and quick enough to need no progress bar
         if x0 is None:
             raise ValueError("Levenberg-Marquardt needs a start point x0")
         x0 = np.clip(np.asarray(x0, dtype=float), box.lower, box.upper)

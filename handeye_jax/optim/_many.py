@@ -69,7 +69,8 @@ def _de_chunk(block, stop):
     return jax.vmap(_de._chunk_scan, in_axes=(0, 0, 0, None))(fns, state, step, stop)
 
 
-def _de_many(fns, de: DifferentialEvolution, lower, upper, keys, *, mesh, progress, desc):
+def _de_many(fns, de: DifferentialEvolution, box: Box, keys, *, mesh, progress: bool | str):
+    lower, upper = _bounds(box)
     b = lower.shape[0]
     init = per_device(_de_init, Blocks.of((keys, lower, upper), mesh), de.population)
     step = _de._Step(lower, upper, np.full(b, de.crossover), np.full(b, de.mutation))
@@ -80,7 +81,7 @@ def _de_many(fns, de: DifferentialEvolution, lower, upper, keys, *, mesh, progre
     best: list[list[np.ndarray]] = [[] for _ in range(b)]
     median: list[list[tuple[int, float]]] = [[] for _ in range(b)]
     going = np.ones(b, bool)
-    with progress_bar(total=de.generations, desc=desc or "DE", enabled=progress,
+    with progress_bar(total=de.generations, desc=_de.bar_label(progress), enabled=bool(progress),
                       unit="gen") as bar:  # fmt: skip
         while going.any():
             joined = Blocks(mesh, [(p[0], s, p[1]) for p, s in
@@ -158,7 +159,8 @@ def _polish(block, lm):
     return jax.lax.map(one, block)
 
 
-def _lm_many(fns, lm: LevenbergMarquardt, lower, upper, x0, *, run, mesh) -> LMSolution:
+def _lm_many(fns, lm: LevenbergMarquardt, box: Box, x0, *, run, mesh) -> LMSolution:
+    lower, upper = _bounds(box)
     x0 = np.clip(np.asarray(x0, float), lower, upper)
     block = Blocks.of((fns, x0, lower, upper, _padded_run(run, mesh)), mesh, LOOPED)
     x, steps, ok = per_device(_polish, block, lm).gather()
@@ -229,8 +231,7 @@ def minimise_many(
     keys: PRNGKeyArray | None = None,
     run: Bool[ArrayLike, " b"] | None = None,
     mesh: Mesh | None = None,
-    progress: bool = False,
-    desc: str = "",
+    progress: bool | str = False,
 ) -> Solution:
     """Minimise ``b`` problems with ``solver``, each inside its own box: what ``b`` calls of
     :func:`~handeye_jax.optim.minimise` return, in one :class:`Solution` whose fields have a
@@ -247,17 +248,17 @@ def minimise_many(
         run: which problems LM runs (default: all); the others keep their start.
         mesh: the devices the problems are split over (default: this process's); ``b`` must
             be a multiple of its size.
-        progress, desc: a progress bar of DE's generations on stderr, and its label.
+        progress: a progress bar of DE's generations on stderr (a string: with that label).
     """
     mesh = problem_mesh() if mesh is None else mesh
-    lower, upper = _bounds(box)
+    b = _bounds(box)[0].shape[0]
     if isinstance(solver, DifferentialEvolution):
         if keys is None:
             raise ValueError("differential evolution needs a PRNG key per problem")
-        return _de_many(fns, solver, lower, upper, keys, mesh=mesh, progress=progress, desc=desc)
+        return _de_many(fns, solver, box, keys, mesh=mesh, progress=progress)
     if isinstance(solver, LevenbergMarquardt):
         if x0 is None:
             raise ValueError("Levenberg-Marquardt needs a start point per problem")
-        run = np.ones(lower.shape[0], bool) if run is None else np.asarray(run, bool)
-        return _lm_many(fns, solver, lower, upper, x0, run=run, mesh=mesh)
+        run = np.ones(b, bool) if run is None else np.asarray(run, bool)
+        return _lm_many(fns, solver, box, x0, run=run, mesh=mesh)
     raise TypeError(f"no batched run for {type(solver).__name__}")

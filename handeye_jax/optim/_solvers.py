@@ -95,8 +95,7 @@ class AbstractSolver(eqx.Module, Generic[S]):
         *,
         x0: Float[ArrayLike, " d"] | None,
         key: PRNGKeyArray | None,
-        progress: bool,
-        desc: str,
+        progress: bool | str,
     ) -> S:
         """Minimise ``fn`` in ``box``; see :func:`minimise`."""
 
@@ -108,8 +107,7 @@ def minimise(
     *,
     x0: Float[ArrayLike, " d"] | None = None,
     key: PRNGKeyArray | None = None,
-    progress: bool = False,
-    desc: str = "",
+    progress: bool | str = False,
 ) -> S:
     """Minimise ``fn`` inside ``box`` with ``solver``: its :class:`Solution`.
 
@@ -120,9 +118,8 @@ def minimise(
         box: the search box.
         x0: the start (Levenberg–Marquardt needs one; DE ignores it).
         key: a JAX PRNG key (DE needs one; the same key gives the same run bit for bit).
-        progress: show a progress bar on stderr.
-        desc: the progress bar's label.
+        progress: show a progress bar on stderr (a string: with that label).
     """
     if np.ndim(box.lower) != 1:
         raise ValueError("one problem needs one box: bounds of shape (d,), not a batch")
-    return solver.run(fn, box, x0=x0, key=key, progress=progress, desc=desc)
+    return solver.run(fn, box, x0=x0, key=key, progress=progress)
