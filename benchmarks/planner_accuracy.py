@@ -38,7 +38,6 @@ from handeye_jax import (
     Settings,
     calibrate_batch,
     simulate,
-    simulate_captures,
     vectorise_small_loops,
 )
 from handeye_jax.problem import get_noise_model
@@ -68,7 +67,7 @@ LIN_TOL, MC_TOL = 0.20, 0.15
 def measured(truth, acq, fresh: int, workspace, noise, settings, seed0: int):
     """The acquisition on ``fresh`` rendered twins: simulate → calibrate_batch → evaluate.
     Several pictures are taken from the acquisition's capture poses
-    (``simulate_captures(poses=...)``) with 2-px dots (one-pixel dots vanish from the higher
+    (``simulate(captures=poses)``) with 2-px dots (one-pixel dots vanish from the higher
     captures, as in benchmarks/multicapture.py); a twin whose detector misses a dot is
     replaced by the next seed's. Returns the errors and how many twins were replaced."""
     rig = replace(truth, landmarks_tablet_px=acq.tablet_px,
@@ -80,8 +79,8 @@ def measured(truth, acq, fresh: int, workspace, noise, settings, seed0: int):
             if acq.pictures == 1:
                 twins.append(simulate(rig, PRESETS["paper"], s, n_heldout=1))
             else:
-                twins.append(simulate_captures(rig, PRESETS["paper"], s, n_heldout=1,
-                                               poses=list(acq.capture_poses)))  # fmt: skip
+                twins.append(simulate(rig, PRESETS["paper"], s, n_heldout=1,
+                                      captures=list(acq.capture_poses)))  # fmt: skip
         except BlobCountError:
             missed += 1
             continue

@@ -139,7 +139,6 @@ _EXPORTS = {
     "save_result": "calibration",
     "Settings": "calibration",
     "simulate": "twin",
-    "simulate_captures": "twin",
     "snake_grid_px": "data",
     "SquaresBlock": "problem",
     "Stage1Objective": "problem",
@@ -333,7 +332,7 @@ if TYPE_CHECKING:
         recommend,
     )
     from .twin._poses import tool_poses
-    from .twin._simulate import PRESETS, NoisePreset, Twin, simulate, simulate_captures, write_twin
+    from .twin._simulate import PRESETS, NoisePreset, Twin, simulate, write_twin
     from .twin._synthetic import Scene, synthesize_dataset
     from .twin._truth import REALSENSE_LIKE, TwinTruth, change_truth, draw_truth, load_truth
     from .twin._wide import WIDE_RANGES, draw_wide_truth
@@ -482,7 +481,6 @@ __all__ = [
     "evaluate_points",
     "HeightOffsets",
     "PointErrors",
-    "simulate_captures",
     "Scene",
     "closed_form_estimate",
     "ClosedFormEstimate",

@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Literal
 
 import jax
@@ -38,6 +38,7 @@ from ._settings import Settings
 from ._stage import with_prior
 from ._stage_result import finished_stage
 from ._tasks import (
+    Job,
     Run,
     assemble,
     checked,
@@ -153,18 +154,11 @@ def fit_batch(
         for members in _groups(runs, plans).values():
             for start in range(0, len(members), per_wave):
                 part = members[start : start + per_wave]
-                problems = [_Problem(datasets[i], plans[i], runs[i]) for i in part]
+                problems = [Job(datasets[i], plans[i], runs[i]) for i in part]
                 for i, result in zip(part, _wave(problems, mesh), strict=True):
                     out[i] = result
                 bar.update(len(part))
     return out
-
-
-@dataclass(frozen=True)
-class _Problem:
-    dataset: Dataset
-    plan: Plan
-    run: Run
 
 
 def _groups(runs: dict[int, Run], plans: Sequence[Plan]) -> dict[tuple, list[int]]:
@@ -184,7 +178,7 @@ def _groups(runs: dict[int, Run], plans: Sequence[Plan]) -> dict[tuple, list[int
     return groups
 
 
-def _wave(problems: list[_Problem], mesh: Mesh) -> list[CalibrationResult | InputError]:
+def _wave(problems: list[Job], mesh: Mesh) -> list[CalibrationResult | InputError]:
     """Both stages of one wave's problems (of one structure and padded size)."""
     t_start = time.perf_counter()
     real = len(problems)
@@ -229,11 +223,11 @@ def _wave(problems: list[_Problem], mesh: Mesh) -> list[CalibrationResult | Inpu
             continue
         centres = np.asarray(rotation_centres(fit2.model(), points[j], p.run.obs.centre_index))
         fits, stages = Stages(fits1[j], fit2), Stages(stages1[j], stage2)
-        out.append(assemble(p.dataset, p.plan, p.run, fits, stages, centres=centres, total_s=share))
+        out.append(assemble(p, fits, stages, centres=centres, total_s=share))
     return out
 
 
-def _finish(fit, name: str, problem: _Problem, noise):
+def _finish(fit, name: str, problem: Job, noise):
     try:
         return replace(finished_stage(fit, name, problem.dataset.source), noise=noise)
     except InputError as e:

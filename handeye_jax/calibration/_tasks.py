@@ -150,10 +150,17 @@ def stage1_task(run: Run, plan: Plan, obs: Observations | None = None) -> StageT
                      labels1)  # fmt: skip
 
 
+@dataclass(frozen=True)
+class Job:
+    """One calibration to fit: its dataset, plan and run."""
+
+    dataset: Dataset
+    plan: Plan
+    run: Run
+
+
 def assemble(
-    dataset: Dataset,
-    plan: Plan,
-    run: Run,
+    job: Job,
     fits: Stages[StageFit],
     stages: Stages[StageResult],
     *,
@@ -161,6 +168,7 @@ def assemble(
     total_s: float,
 ) -> CalibrationResult:
     """The result of both stages' fits (``total_s``: the seconds the whole fit took)."""
+    dataset, plan, run = job.dataset, job.plan, job.run
     fit1, fit2 = fits.stage1, fits.stage2
     timings = {
         "stage1_de": fit1.timings["de"], "stage1_polish": fit1.timings["polish"],

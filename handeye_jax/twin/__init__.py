@@ -25,7 +25,7 @@ _EXPORTS = {
     "_render": ("render_capture", "render_depth"),
     "_simulate": (
         "check_twin_folder", "encode_png", "heldout_targets", "NoisePreset", "PRESETS", "simulate",
-        "simulate_captures", "Twin", "write_twin",
+        "Twin", "write_twin",
     ),
     "_synthetic": ("Scene", "seen_from", "synthesize_dataset", "true_command"),
     "_poses": ("tool_poses",),

@@ -22,11 +22,14 @@ nothing stale is left beside the new twin.
 from __future__ import annotations
 
 import io
+import numbers
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .._core import (
     BOOTSTRAP_FIGURE,
@@ -157,27 +160,34 @@ def simulate(
     preset: NoisePreset,
     seed: int,
     *,
+    captures: int | Sequence[tuple[ArrayLike, float]] = 1,
     exact: bool = False,
     n_heldout: int = 20,
     detect_settings: DetectSettings | None = None,
-    captures: int = 1,
     aim: bool = False,
 ) -> Twin:
     """Run the twin once.
 
-    With ``captures > 1`` (:func:`simulate_captures`) the acquisition holds several pictures,
-    from capture poses at other heights, positions and hand angles, and the touches record
-    the hand's height.
+    With ``captures > 1``, or capture poses, the acquisition holds several pictures from
+    capture poses at other heights, positions and hand angles; the touches record the hand's
+    height (rounded as the hand's x-y), and ``n_heldout`` held-out targets are drawn for each
+    capture rise of :data:`HELDOUT_RISES_MM` and each height of :data:`HELDOUT_ABOVE_MM` above
+    the display. A held-out target above the display is the top of an object standing there,
+    parallel to the display; its depth image is rendered with the object's top as the surface.
 
     Args:
         truth: the rig truth.
         preset: the noise preset.
         seed: seeds every random draw here (noise, touches, held-out targets).
-        exact: take ``image_px`` and depth from the truth instead of detecting them.
-        n_heldout: how many held-out targets (1 to 10,000), uniform over the landmarks' area
-            on the display with hand angles uniform in [0, 180) deg.
+        captures: how many pictures (1 to 8; the further ones from the poses of
+            :func:`draw_capture_poses`), or their poses: (hand position mm, hand angle deg)
+            each.
+        exact: take ``image_px`` and depth from the truth instead of detecting them (the
+            held-out targets' too).
+        n_heldout: how many held-out targets (1 to 10,000; of each rise and height with
+            several captures), uniform over the landmarks' area on the display with hand
+            angles uniform in [0, 180) deg.
         detect_settings: how to detect the landmarks.
-        captures: how many pictures (1 to 8).
         aim: point the further captures' cameras at the landmarks (a wide rig's; see
             :func:`draw_capture_poses`).
 
@@ -188,12 +198,13 @@ def simulate(
     check_seed(seed)
     if not 1 <= n_heldout <= MAX_HELDOUT:
         raise ValueError(f"n_heldout must be 1 to {MAX_HELDOUT:,} (got {n_heldout})")
-    if not 1 <= captures <= MAX_CAPTURES:
-        raise ValueError(f"captures must be 1 to {MAX_CAPTURES} (got {captures})")
-    detect_settings = detect_settings or DetectSettings()
-    if captures > 1:
-        return simulate_captures(truth, preset, seed, captures, exact=exact, n_heldout=n_heldout,
-                                 detect_settings=detect_settings, aim=aim)  # fmt: skip
+    count = int(captures) if isinstance(captures, numbers.Integral) else len(captures)
+    if not 1 <= count <= MAX_CAPTURES:
+        raise ValueError(f"captures must be 1 to {MAX_CAPTURES} (got {count})")
+    draw = _Draw(exact, n_heldout, detect_settings or DetectSettings(), aim)
+    if count > 1 or not isinstance(captures, numbers.Integral):
+        return _simulate_captures(truth, preset, seed, captures, draw)
+    detect_settings = draw.settings
     rng_image, rng_depth, rng_touch, rng_held = np.random.default_rng(seed).spawn(4)
     capture = render_capture(truth, preset.imaging, rng_image)
     depth = render_depth(truth, preset.depth, rng_depth)
@@ -314,35 +325,25 @@ def _pictures(
     return picture, depth, *_detected(truth_c, picture, depth, settings)
 
 
-def simulate_captures(
-    truth: TwinTruth,
-    preset: NoisePreset,
-    seed: int,
-    captures: int = 3,
-    *,
-    exact: bool = False,
-    n_heldout: int = 20,
-    detect_settings: DetectSettings | None = None,
-    aim: bool = False,
-    poses: list[tuple[np.ndarray, float]] | None = None,
-) -> Twin:
-    """A multi-capture twin (see :func:`simulate`): ``captures`` pictures from the poses of
-    :func:`draw_capture_poses` (aimed at the landmarks with ``aim``), or from ``poses`` (hand
-    position mm, hand angle deg; ``captures`` is then their number), the touches with the
-    hand's height (rounded as the hand's x-y), and ``n_heldout`` held-out targets for each
-    capture rise of :data:`HELDOUT_RISES_MM` and each height of :data:`HELDOUT_ABOVE_MM`
-    above the display.
+@dataclass(frozen=True)
+class _Draw:
+    """How a twin's pictures are read and its held-out targets drawn (see :func:`simulate`)."""
 
-    A held-out target above the display is the top of an object standing there, parallel to
-    the display; the depth image of such a target is rendered with the object's top as the
-    surface. With ``exact`` the held-out targets' image points and depths are the truth's too.
-    """
-    settings = detect_settings or DetectSettings()
+    exact: bool
+    n_heldout: int
+    settings: DetectSettings
+    aim: bool
+
+
+def _simulate_captures(truth: TwinTruth, preset: NoisePreset, seed: int,
+                       captures: int | Sequence[tuple[ArrayLike, float]], draw: _Draw) -> Twin:  # fmt: skip
+    """:func:`simulate` of several captures (a count, or their poses)."""
+    exact, settings = draw.exact, draw.settings
     rng_pose, rng_image, rng_touch, rng_held = np.random.default_rng(seed).spawn(4)
-    if poses is None:
-        poses = draw_capture_poses(truth, captures, rng_pose, aim=aim)
+    if isinstance(captures, numbers.Integral):
+        poses = draw_capture_poses(truth, int(captures), rng_pose, aim=draw.aim)
     else:
-        poses, captures = [(np.asarray(p, float), float(a)) for p, a in poses], len(poses)
+        poses, captures = [(np.asarray(p, float), float(a)) for p, a in captures], len(captures)
     shots = [_pictures(truth.at_capture(p, a), preset, rng_image, exact, settings)
              for p, a in poses]  # fmt: skip
     mm = truth.mm_per_tablet_px
@@ -363,8 +364,8 @@ def simulate_captures(
         hand_angle_deg=truth.landmarks_hand_angle_deg, touch_error_px=np.round(touch_px),
         version=2,
     )  # fmt: skip
-    held = heldout_targets(truth, preset, rng_held, n_heldout, exact=exact, settings=settings,
-                           aim=aim)  # fmt: skip
+    held = heldout_targets(truth, preset, rng_held, draw.n_heldout, exact=exact,
+                           settings=settings, aim=draw.aim)  # fmt: skip
     first_px, first_depth = truth.project(truth.landmarks_tablet_px)
     return Twin(
         truth=truth, preset=preset, dataset=dataset, capture=shots[0][0], depth=shots[0][1],
