@@ -257,6 +257,31 @@ def test_twin_draws_captures_at_several_heights_and_hand_angles(exact_twin):
     assert set(np.round(rises, 9)) == {0.0, 60.0} and set(twin.heldout_above_mm) == {0.0, 50.0}
 
 
+def test_captures_given_as_poses_make_the_twin_their_count_draws():
+    """``captures=[poses]`` takes those poses, and every other draw is the count's: the twin
+    of the poses that ``captures=3`` drew is that twin, picture for picture."""
+    from handeye_jax import PRESETS, draw_truth, simulate
+
+    truth = draw_truth(1, dot_px=2.0)
+    twin = simulate(truth, PRESETS["paper"], 7, n_heldout=3, captures=3)
+    poses = [(c.hand_position_mm, c.hand_angle_deg) for c in twin.dataset.captures]
+    again = simulate(truth, PRESETS["paper"], 7, n_heldout=3, captures=poses)
+    for a, b in zip(again.dataset.captures, twin.dataset.captures, strict=True):
+        np.testing.assert_array_equal(a.hand_position_mm, b.hand_position_mm)
+        np.testing.assert_array_equal(a.image_px, b.image_px)
+        np.testing.assert_array_equal(a.depth_mm, b.depth_mm)
+    np.testing.assert_array_equal(again.capture, twin.capture)
+    np.testing.assert_array_equal(again.dataset.hand_xy_mm, twin.dataset.hand_xy_mm)
+    np.testing.assert_array_equal(again.heldout_image_px, twin.heldout_image_px)
+    moved = [(p + [0.0, 0.0, 5.0], a + 1.0) for p, a in poses]
+    other = simulate(truth, PRESETS["none"], 7, exact=True, n_heldout=3, captures=moved)
+    for c, (p, a) in zip(other.dataset.captures, moved, strict=True):
+        np.testing.assert_array_equal(c.hand_position_mm, p)
+        assert c.hand_angle_deg == a
+    with pytest.raises(ValueError, match="captures must be 1 to"):
+        simulate(truth, PRESETS["none"], 1, captures=poses * 3)
+
+
 def test_exact_twin_is_recovered_from_any_capture_pose(exact_twin):
     """The renderer (a rotation matrix per capture) and the fit (eq. 1 turned by φc) agree
     under the twin's hand-angle convention: F < 1e-6 mm, and x-y and z commands to 1e-6 mm
