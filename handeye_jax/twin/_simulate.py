@@ -26,6 +26,7 @@ import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -335,8 +336,13 @@ class _Draw:
     aim: bool
 
 
-def _simulate_captures(truth: TwinTruth, preset: NoisePreset, seed: int,
-                       captures: int | Sequence[tuple[ArrayLike, float]], draw: _Draw) -> Twin:  # fmt: skip
+def _simulate_captures(
+    truth: TwinTruth,
+    preset: NoisePreset,
+    seed: int,
+    captures: int | Sequence[tuple[ArrayLike, float]],
+    draw: _Draw,
+) -> Twin:
     """:func:`simulate` of several captures (a count, or their poses)."""
     exact, settings = draw.exact, draw.settings
     rng_pose, rng_image, rng_touch, rng_held = np.random.default_rng(seed).spawn(4)
@@ -392,57 +398,68 @@ def heldout_targets(
     ``n_each`` of each, uniform over the landmarks' area where the picture sees them; as
     :class:`Twin`'s ``heldout_*`` fields. With ``aim`` (or when the picture from the new pose
     sees too little) the new pose points the camera at the landmarks (:func:`aimed_position`)."""
-    settings = settings or DetectSettings()
-    lo, hi = truth.landmark_area_px()
-    first = np.asarray(truth.capture_position_mm, dtype=float)
-    out: dict[str, list] = {k: [] for k in ("tablet_px", "angle", "image_px", "depth", "position",
-                                            "cap_angle", "true", "above")}  # fmt: skip
+    draw = _Draw(exact, n_each, settings or DetectSettings(), aim)
+    groups = []
     for rise in rises_mm:
-        position, angle = first, truth.capture_angle_deg
-        aimed = None
-        if rise:
-            shift = rng.uniform(-15.0, 15.0, 2)
-            position = first + [*shift, rise]
-            angle = angle + rng.choice([-1.0, 1.0]) * rng.uniform(10.0, 30.0)
-            # A wide rig's camera swings away as the hand turns: pointed at the landmarks.
-            aimed = aimed_position(truth, angle, capture_distance_mm(truth) + rise,
-                                   (shift[0], shift[1]))  # fmt: skip
-            position = aimed if aim else position
+        pose = _heldout_pose(truth, rng, rise, aim)
         for above in above_mm:
-            seen = replace(truth.at_capture(position, angle),
-                           tablet_height_mm=truth.tablet_height_mm + above)  # fmt: skip
-            depth_image = None if exact else render_depth(seen, preset.depth, rng)
-            tab = _seen_targets(seen, lo, hi, n_each, rng)
-            if tab is None and aimed is not None and position is not aimed:
-                position = aimed
-                seen = replace(truth.at_capture(position, angle),
-                               tablet_height_mm=truth.tablet_height_mm + above)  # fmt: skip
-                depth_image = None if exact else render_depth(seen, preset.depth, rng)
-                tab = _seen_targets(seen, lo, hi, n_each, rng)
-            if tab is None:
-                raise ValueError("the picture sees too little of the landmarks' area")
-            true_px, true_depth = seen.project(tab)
-            image_px = true_px + rng.normal(0.0, 1.0, true_px.shape) * preset.target_sigma_px
-            depth = true_depth if exact else depth_at(depth_image, image_px,
-                                                      settings.depth_window_px)  # fmt: skip
-            if exact:
-                image_px = true_px
-            k = len(tab)
-            out["tablet_px"].append(tab)
-            out["angle"].append(rng.uniform(0.0, 180.0, k))
-            out["image_px"].append(image_px)
-            out["depth"].append(depth)
-            out["position"].append(np.tile(position, (k, 1)))
-            out["cap_angle"].append(np.full(k, float(angle)))
-            out["true"].append(truth.surface_points(tab, above))
-            out["above"].append(np.full(k, float(above)))
-    cat = {k: np.concatenate(v) for k, v in out.items()}
-    return dict(
-        heldout_tablet_px=cat["tablet_px"], heldout_hand_angle_deg=cat["angle"],
-        heldout_image_px=cat["image_px"], heldout_depth_mm=cat["depth"],
-        heldout_capture_position_mm=cat["position"], heldout_capture_angle_deg=cat["cap_angle"],
-        heldout_true_mm=cat["true"], heldout_above_mm=cat["above"],
-    )  # fmt: skip
+            pose, group = _heldout_group(truth, preset, rng, pose, above, draw)
+            groups.append(group)
+    cat = [np.concatenate(column) for column in zip(*groups, strict=True)]
+    names = ("tablet_px", "hand_angle_deg", "image_px", "depth_mm", "capture_position_mm",
+             "capture_angle_deg", "true_mm", "above_mm")  # fmt: skip
+    return {f"heldout_{n}": c for n, c in zip(names, cat, strict=True)}
+
+
+class _Pose(NamedTuple):
+    position: np.ndarray  # hand position, mm
+    angle: float  # hand angle, deg
+    aimed: np.ndarray | None  # the position pointing the camera at the landmarks, mm
+
+
+def _heldout_pose(truth: TwinTruth, rng: np.random.Generator, rise: float, aim: bool) -> _Pose:
+    """The pose held-out targets are seen from, ``rise`` mm above the truth's capture (0:
+    that capture; any other: a new position and hand angle, or with ``aim`` the one pointing
+    the camera at the landmarks)."""
+    first = np.asarray(truth.capture_position_mm, dtype=float)
+    if not rise:
+        return _Pose(first, truth.capture_angle_deg, None)
+    shift = rng.uniform(-15.0, 15.0, 2)
+    angle = truth.capture_angle_deg + rng.choice([-1.0, 1.0]) * rng.uniform(10.0, 30.0)
+    # A wide rig's camera swings away as the hand turns: pointed at the landmarks.
+    aimed = aimed_position(truth, angle, capture_distance_mm(truth) + rise, (shift[0], shift[1]))
+    return _Pose(aimed if aim else first + [*shift, rise], angle, aimed)
+
+
+def _heldout_group(truth: TwinTruth, preset: NoisePreset, rng: np.random.Generator,
+                   pose: _Pose, above: float, draw: _Draw) -> tuple[_Pose, tuple]:  # fmt: skip
+    """``draw.n_heldout`` targets ``above`` mm above the display seen from ``pose`` (from its
+    aimed position if the picture sees too little): the pose used, and the targets' tablet px,
+    hand angles, image points, depths, capture positions and angles, true points and heights."""
+    lo, hi = truth.landmark_area_px()
+
+    def look(position):
+        seen = replace(truth.at_capture(position, pose.angle),
+                       tablet_height_mm=truth.tablet_height_mm + above)  # fmt: skip
+        depth_image = None if draw.exact else render_depth(seen, preset.depth, rng)
+        return seen, depth_image, _seen_targets(seen, lo, hi, draw.n_heldout, rng)
+
+    seen, depth_image, tab = look(pose.position)
+    if tab is None and pose.aimed is not None and pose.position is not pose.aimed:
+        pose = pose._replace(position=pose.aimed)
+        seen, depth_image, tab = look(pose.position)
+    if tab is None:
+        raise ValueError("the picture sees too little of the landmarks' area")
+    true_px, true_depth = seen.project(tab)
+    image_px = true_px + rng.normal(0.0, 1.0, true_px.shape) * preset.target_sigma_px
+    depth = true_depth if draw.exact else depth_at(depth_image, image_px,
+                                                   draw.settings.depth_window_px)  # fmt: skip
+    if draw.exact:
+        image_px = true_px
+    k = len(tab)
+    return pose, (tab, rng.uniform(0.0, 180.0, k), image_px, depth,
+                  np.tile(pose.position, (k, 1)), np.full(k, float(pose.angle)),
+                  truth.surface_points(tab, above), np.full(k, float(above)))  # fmt: skip
 
 
 def _seen_targets(seen: TwinTruth, lo, hi, n: int, rng: np.random.Generator) -> np.ndarray | None:
