@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from handeye_jax import (
@@ -154,6 +154,29 @@ def test_paper_fit_reports_the_shift_tilt_valley(paper_result):
     # The valley shows in the numbers: xc is known far worse than the tablet's xt.
     assert d.std["xc"] > 10 * d.std["xt"]
     assert paper_result.diagnostics.stage2.weak_directions == ()
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.dictionaries(st.sampled_from(["xt", "yt", "gamma_t", "xp", "yp"]),
+                       st.floats(-3.0, 3.0), min_size=1))  # fmt: skip
+def test_an_alternative_fit_takes_the_sigma_only_of_what_it_moves_by_half_a_sigma(
+    paper_result, shifts_in_sigma
+):
+    """A parameter an indistinguishable alternative moves by less than half its σ keeps its
+    σ (its interval would still cover a truth at the alternative 92 % of the time); by more,
+    or by exactly 0 (the sign twin's fold, where the size is unknown), it loses it."""
+    from handeye_jax.calibration import Ambiguity
+    from handeye_jax.diagnostics._mount import AMBIGUOUS_SHIFT_SIGMA, weak_parameters
+
+    diag = paper_result.diagnostics.stage1
+    differs = {p: k * diag.std[p] for p, k in shifts_in_sigma.items()}
+    alternative = Ambiguity(kind="test", differs=differs, delta_F_mm=0.0, here_mm=0.0,
+                            elsewhere_mm=(0.0, 0.0))  # fmt: skip
+    valley = weak_parameters(diag, [])
+    weak = weak_parameters(diag, [alternative]) - valley
+    assume(all(abs(abs(k) - AMBIGUOUS_SHIFT_SIGMA) > 1e-9 for k in shifts_in_sigma.values()))
+    expected = {p for p, k in shifts_in_sigma.items() if k == 0.0 or abs(k) > 0.5}
+    assert weak == expected - valley
 
 
 # -- optima, bounds ----------------------------------------------------------------------

@@ -525,9 +525,9 @@ class Diagnostics:
     outlier threshold (mm), each stage's diagnostics, the convention check, the scope, the
     touching error to expect from the stage to deploy, the fits the data cannot tell from
     the result's, the camera and pen on the flange, and the stage-1 parameters whose σ is not
-    their error (``weak_params``: in a weak direction or an alternative fit; no σ is given
-    for them); and the repeatability over resamples of the data (``bootstrap``, when asked
-    for: :func:`handeye_jax.bootstrap`)."""
+    their error (``weak_params``: in a weak direction, or moved half their σ or more by an
+    alternative fit; no σ is given for them); and the repeatability over resamples of the
+    data (``bootstrap``, when asked for: :func:`handeye_jax.bootstrap`)."""
 
     loss: LossInfo | None = spec(omit="none", default=None)
     outlier_threshold_mm: float | None = spec(omit="none", default=None)
