@@ -186,10 +186,6 @@ def _capture_angle(rig: Rig) -> float:
     return float(-float(rig.angle_zero_deg) * float(rig.angle_sign)) + 0.0
 
 
-def _commands(model: AbstractModel, rig: Rig, targets: Targets, correction=None, centres=None):
-    return hand_command(model, rig, targets, correction=correction, centres_mm=centres)
-
-
 def _target_covariance(model, rig, targets: Targets, variances, correction=None,
                        centres=None) -> Float[Array, "k 2 2"]:  # fmt: skip
     """Each command's covariance from its target's own measurement (image point, depth;
@@ -202,7 +198,7 @@ def _target_covariance(model, rig, targets: Targets, variances, correction=None,
         def cmd(q):
             t2 = Targets(q[None, :2], q[2:], t.hand_angle_deg, t.capture_position_mm,
                          t.capture_hand_angle_deg)  # fmt: skip
-            return _commands(model, rig, t2, correction, centres)[0, :2]
+            return hand_command(model, rig, t2, correction=correction, centres_mm=centres)[0, :2]
 
         return jax.jacfwd(cmd)(jnp.concatenate([uv, d[None]]))
 
@@ -303,7 +299,7 @@ def _uncertainty(one: StagePoint, two: StagePoint | None, targets, variances, st
     base1: Stage1Objective = objective1.base
     rig = base1.obs.rig
     if stage == 1:
-        J = jax.jacfwd(lambda a: _commands(base1.model(a), rig, targets)[:, :2])(x1)
+        J = jax.jacfwd(lambda a: hand_command(base1.model(a), rig, targets)[:, :2])(x1)
         A = jnp.einsum("kid,dr->kir", J, G1)
         T = _target_covariance(base1.model(x1), rig, targets, variances)
     else:
@@ -316,7 +312,8 @@ def _uncertainty(one: StagePoint, two: StagePoint | None, targets, variances, st
             correction = base2.model(z[d1:])
             _, centres = stage2_errors(correction, chain_points(model, base1.obs),
                                        base2.centre_index)  # fmt: skip
-            return _commands(model, rig, targets, correction, centres)[:, :2], centres
+            return hand_command(model, rig, targets, correction=correction,
+                                centres_mm=centres)[:, :2], centres
 
         J, centres = jax.jacfwd(cmd, has_aux=True)(jnp.concatenate([x1, x2]))
         A = jnp.einsum("kid,dr->kir", J, G)

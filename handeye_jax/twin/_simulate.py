@@ -205,7 +205,6 @@ def simulate(
     draw = _Draw(exact, n_heldout, detect_settings or DetectSettings(), aim)
     if count > 1 or not isinstance(captures, numbers.Integral):
         return _simulate_captures(truth, preset, seed, captures, draw)
-    detect_settings = draw.settings
     rng_image, rng_depth, rng_touch, rng_held = np.random.default_rng(seed).spawn(4)
     capture = render_capture(truth, preset.imaging, rng_image)
     depth = render_depth(truth, preset.depth, rng_depth)
@@ -219,12 +218,12 @@ def simulate(
     if exact:
         image_px, depth_mm = exact_ds.image_px, exact_ds.depth_mm
     else:
-        image_px, depth_mm = _detected(truth, capture, depth, detect_settings)
+        image_px, depth_mm = _detected(truth, capture, depth, draw.settings)
     dataset = exact_ds.replace(
         image_px=image_px, depth_mm=depth_mm, hand_xy_mm=hand_xy,
         touch_error_px=np.round(touch_px),  # the tablet reports whole px
     )  # fmt: skip
-    held = _heldout(truth, preset.target_sigma_px, (depth, detect_settings), rng_held, n_heldout)
+    held = _heldout(truth, preset.target_sigma_px, (depth, draw.settings), rng_held, n_heldout)
     return Twin(
         truth=truth, preset=preset, dataset=dataset, capture=capture, depth=depth,
         landmarks_image_px=exact_ds.image_px, landmarks_depth_mm=exact_ds.depth_mm,
