@@ -156,26 +156,54 @@ def test_paper_fit_reports_the_shift_tilt_valley(paper_result):
     assert paper_result.diagnostics.stage2.weak_directions == ()
 
 
+def test_a_valley_is_walked_past_its_quadratic_to_what_the_data_still_allow(paper_result):
+    """One picture at one depth: each shift/tilt valley is reported at its far end, walked on
+    its profile. The data cannot exclude it (−2 log L within 4 of the fit's), though the
+    quadratic about the fit puts it far outside (the valleys are flatter than their
+    quadratic), and commands from elsewhere move by millimetres there."""
+    from handeye_jax.diagnostics._ambiguity import SEPARATE_CHI2
+
+    d = paper_result.diagnostics.stage1
+    P, free = np.asarray(d.precision), list(d.free)
+    valleys = [a for a in paper_result.diagnostics.ambiguities if "trade off" in a.kind]
+    assert len(valleys) == len(d.weak_directions) == 2
+    for a in valleys:
+        assert a.edge is True
+        assert 0.0 <= a.delta_chi2 < SEPARATE_CHI2
+        v = np.array([a.differs.get(n, 0.0) for n in free])
+        assert v @ P @ v > 10 * SEPARATE_CHI2, a.kind  # the quadratic's reach is its Δ = 4
+        assert a.elsewhere_mm[1] > 1.0
+    others = [a for a in paper_result.diagnostics.ambiguities if a not in valleys]
+    assert all(a.edge is None for a in others)
+
+
 @settings(max_examples=40, deadline=None)
 @given(st.dictionaries(st.sampled_from(["xt", "yt", "gamma_t", "xp", "yp"]),
-                       st.floats(-3.0, 3.0), min_size=1))  # fmt: skip
+                       st.floats(-3.0, 3.0), min_size=1), st.booleans())  # fmt: skip
 def test_an_alternative_fit_takes_the_sigma_only_of_what_it_moves_by_half_a_sigma(
-    paper_result, shifts_in_sigma
+    paper_result, shifts_in_sigma, edge
 ):
     """A parameter an indistinguishable alternative moves by less than half its σ keeps its
     σ (its interval would still cover a truth at the alternative 92 % of the time); by more,
-    or by exactly 0 (the sign twin's fold, where the size is unknown), it loses it."""
+    or by exactly 0 (the sign twin's fold, where the size is unknown), it loses it. The far
+    end of a weak valley (``edge``) takes it from a whole σ."""
     from handeye_jax.calibration import Ambiguity
-    from handeye_jax.diagnostics._mount import AMBIGUOUS_SHIFT_SIGMA, weak_parameters
+    from handeye_jax.diagnostics._mount import (
+        AMBIGUOUS_SHIFT_SIGMA,
+        EDGE_SHIFT_SIGMA,
+        weak_parameters,
+    )
 
     diag = paper_result.diagnostics.stage1
     differs = {p: k * diag.std[p] for p, k in shifts_in_sigma.items()}
     alternative = Ambiguity(kind="test", differs=differs, delta_F_mm=0.0, here_mm=0.0,
-                            elsewhere_mm=(0.0, 0.0))  # fmt: skip
+                            elsewhere_mm=(0.0, 0.0), edge=edge or None)  # fmt: skip
     valley = weak_parameters(diag, [])
     weak = weak_parameters(diag, [alternative]) - valley
-    assume(all(abs(abs(k) - AMBIGUOUS_SHIFT_SIGMA) > 1e-9 for k in shifts_in_sigma.values()))
-    expected = {p for p, k in shifts_in_sigma.items() if k == 0.0 or abs(k) > 0.5}
+    limit = 1.0 if edge else 0.5
+    assert limit == (EDGE_SHIFT_SIGMA if edge else AMBIGUOUS_SHIFT_SIGMA)
+    assume(all(abs(abs(k) - limit) > 1e-9 for k in shifts_in_sigma.values()))
+    expected = {p for p, k in shifts_in_sigma.items() if k == 0.0 or abs(k) > limit}
     assert weak == expected - valley
 
 

@@ -471,6 +471,8 @@ class Ambiguity:
             ``elsewhere``, mm.
         elsewhere: where those views are taken from, in words.
         separate_by: what would tell the two apart.
+        edge: ``True`` for the far end of a weak direction's valley, as far as the data allow
+            (not a second optimum); ``None`` otherwise.
     """
 
     kind: str
@@ -481,6 +483,7 @@ class Ambiguity:
     elsewhere: str = ""
     separate_by: str = ""
     delta_chi2: float | None = spec(omit="none", default=None)
+    edge: bool | None = spec(omit="none", default=None)
 
 
 @dataclass(frozen=True)
@@ -525,9 +528,13 @@ class Diagnostics:
     outlier threshold (mm), each stage's diagnostics, the convention check, the scope, the
     touching error to expect from the stage to deploy, the fits the data cannot tell from
     the result's, the camera and pen on the flange, and the stage-1 parameters whose σ is not
-    their error (``weak_params``: in a weak direction, or moved half their σ or more by an
-    alternative fit; no σ is given for them); and the repeatability over resamples of the
-    data (``bootstrap``, when asked for: :func:`handeye_jax.bootstrap`)."""
+    their error (``weak_params``: in a weak direction, moved half their σ or more by an
+    alternative fit, or a whole σ by a weak valley's far end; no σ is given for them); the
+    stage-1 parameters a recalibration from this result does not test against its prior
+    (``untested_params``: as ``weak_params`` but for the valleys' far ends, which the prior
+    check's own benchmark does not need withheld; ``None`` in files written before it, whose
+    ``weak_params`` are that set); and the repeatability over resamples of the data
+    (``bootstrap``, when asked for: :func:`handeye_jax.bootstrap`)."""
 
     loss: LossInfo | None = spec(omit="none", default=None)
     outlier_threshold_mm: float | None = spec(omit="none", default=None)
@@ -539,4 +546,5 @@ class Diagnostics:
     ambiguities: tuple[Ambiguity, ...] = ()
     mount: Mount | None = spec(omit="none", default=None)
     weak_params: tuple[str, ...] = ()
+    untested_params: tuple[str, ...] | None = spec(omit="none", default=None)
     bootstrap: Bootstrap | None = spec(omit="none", default=None)

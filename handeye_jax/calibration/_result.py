@@ -261,8 +261,11 @@ class CalibrationResult:
                 P, sigma = diag.precision, diag.sigma_mm
         if P is None:
             P, sigma = self._posterior_precision(stage, free)
-        untested = () if self.diagnostics is None or stage != "stage1" else tuple(
-            n for n in self.diagnostics.weak_params if n in free)  # fmt: skip
+        untested: tuple[str, ...] = ()
+        if self.diagnostics is not None and stage == "stage1":
+            d = self.diagnostics
+            names = d.weak_params if d.untested_params is None else d.untested_params
+            untested = tuple(n for n in names if n in free)
         return Prior(free, [s.params[n] for n in free], np.asarray(P, dtype=float),
                      source or f"previous result ({self.dataset_name})",
                      max(s.F, 1e-6) / 4.0, sigma if sigma else None, untested)  # fmt: skip

@@ -13,8 +13,8 @@ the preset's noise, is a fit the data cannot exclude):
   ``x_bi`` keeps its x-y and the fit its F. Points off that plane, or seen from another
   height or hand angle, move: commands from there differ;
 * **directions the data do not determine** (the DH model's θc1 + γc): exact, continuous;
-* **weak directions** (one picture at one depth: a camera shift against a tilt): moving along
-  one as far as the data cannot exclude.
+* **weak directions** (one picture at one depth: a camera shift against a tilt): the far end
+  of the valley, walked on its profile as far as the data cannot exclude (``Ambiguity.edge``).
 
 Commands are compared for the calibration's own views and for the same points seen from a
 pose :data:`ELSEWHERE_RISE_MM` higher with the hand turned by :data:`ELSEWHERE_TURN_DEG`.
@@ -63,6 +63,10 @@ SEPARATE_MIRROR = ("a second picture from another height (e.g. 40 mm higher) wit
                    "turned, or the hand's heights at the touches (hand_z)")  # fmt: skip
 SEPARATE_TWIN = ("the hand's heights at the touches (hand_z), which pin the tablet's tilt; "
                  "hand commands do not depend on it")  # fmt: skip
+#: How far a weak direction's valley is walked, in steps of its quadratic's reach.
+VALLEY_REACH = 128.0
+#: The half-width of the box that holds a coordinate while the valley is walked.
+HELD = 1e-9
 SEPARATE_WEAK = ("pictures from other heights and hand angles (handeye-jax plan adds them), "
                  "or landmarks at other depths")  # fmt: skip
 
@@ -185,9 +189,40 @@ def _along(ctx: _Context, w) -> Ambiguity | None:
         return _judged(ctx, w.determined or kind, ctx.x + step,
                        "nothing: commands do not depend on it", refine=False)  # fmt: skip
     scale = float(np.sqrt(SEPARATE_CHI2 / curvature))
-    x_alt = np.clip(ctx.x + 0.999 * scale * step, ctx.space.lower, ctx.space.upper)
-    return _judged(ctx, f"{' and '.join(w.params)} trade off", x_alt, SEPARATE_WEAK,
-                   refine=False)  # fmt: skip
+    x_alt = _valley_end(ctx, step, scale)
+    if x_alt is None:  # the valley is steeper than its quadratic: the linear end
+        x_alt = np.clip(ctx.x + 0.999 * scale * step, ctx.space.lower, ctx.space.upper)
+    found = _judged(ctx, f"{' and '.join(w.params)} trade off", x_alt, SEPARATE_WEAK,
+                    refine=False)  # fmt: skip
+    return None if found is None else dataclasses.replace(found, edge=True)
+
+
+def _valley_end(ctx: _Context, step: np.ndarray, scale: float) -> np.ndarray | None:
+    """The farthest point along a weak direction that the data cannot exclude, walked on the
+    valley's profile: the direction's largest component is held and the others refitted by LM,
+    starting at the quadratic's end (``scale`` steps) and doubling out to
+    :data:`VALLEY_REACH` of it on each side, while −2 log L stays within
+    :data:`SEPARATE_CHI2` of the result's. ``None`` if even the first point is excluded.
+
+    One picture's valleys are far flatter than their quadratic (on the one-capture coverage
+    twins the walk reaches a median 16 times its reach: benchmarks/RESULTS.md), so the
+    quadratic's end would understate what the data allow."""
+    i = int(np.argmax(np.abs(step)))
+    chi2_0 = _chi2(ctx, ctx.x)
+    end, reach = None, 0.0
+    for sign in (1.0, -1.0):
+        t = 1.0
+        while t <= VALLEY_REACH:
+            start = np.clip(ctx.x + sign * t * scale * step, ctx.space.lower, ctx.space.upper)
+            lower, upper = ctx.space.lower.copy(), ctx.space.upper.copy()
+            lower[i], upper[i] = start[i] - HELD, start[i] + HELD
+            x = polish(ctx.objective, Box(lower, upper), start)
+            if not _chi2(ctx, x) - chi2_0 < SEPARATE_CHI2:
+                break
+            if t > reach:
+                end, reach = x, t
+            t *= 2.0
+    return end
 
 
 # -- the mirror camera mount -------------------------------------------------------------------

@@ -58,10 +58,12 @@ def diagnose(result: CalibrationResult, *, search: dict | None = None) -> Calibr
     diagnostics, expected, cov1 = ml_verdict(stages, diagnostics, deploy.stage, noise, obs)
     found = ambiguities(stages.stage1, diagnostics.stage1, noise, obs)
     weak = weak_parameters(diagnostics.stage1, found)
+    untested = weak_parameters(diagnostics.stage1, [a for a in found if not a.edge])
     mount = mount_report(result.model, stages.stage1.space.free, cov1, weak,
                          _why_not(diagnostics.stage1, found, weak))  # fmt: skip
     diagnostics = replace(diagnostics, expected=expected, ambiguities=found, mount=mount,
-                          weak_params=tuple(sorted(weak)))  # fmt: skip
+                          weak_params=tuple(sorted(weak)),
+                          untested_params=tuple(sorted(untested)))  # fmt: skip
     result = replace(result, diagnostics=diagnostics, deploy=deploy)
     result = replace(result, diagnostics=replace(diagnostics, scope=capture_scope(result)))
     timings = {**result.timings_s, "diagnostics": time.perf_counter() - t0}

@@ -31,6 +31,12 @@ MOVES_COMMANDS_MM = 0.1
 #: it moves it by less than this many σ: were the truth at the alternative, the interval about
 #: the fit would still cover it 92 % of the time (95 % at the fit), 93.6 % on average.
 AMBIGUOUS_SHIFT_SIGMA = 0.5
+#: The far end of a weak direction's valley (:attr:`Ambiguity.edge`) is the edge of what the
+#: data allow, not a second optimum: it takes the σ of a parameter it moves by this many σ or
+#: more. Set by the one-capture coverage twins, where a parameter riding the valley farther
+#: than this is the one whose interval misses (benchmarks/RESULTS.md: 0.5 withholds two
+#: thirds of the σ, 1.5 and above let the misses back in).
+EDGE_SHIFT_SIGMA = 1.0
 
 
 @fast_compile
@@ -57,13 +63,15 @@ def weak_parameters(diag: StageDiagnostics, ambiguities: Sequence[Ambiguity]) ->
     """The parameters whose σ is not their error: in a weak or undetermined direction, or
     moved by at least :data:`AMBIGUOUS_SHIFT_SIGMA` of their σ by an alternative fit the data
     cannot exclude (the tablet's sign twin, a mirror camera mount), where the linearised σ
-    describes one of several fits. A shift of exactly 0 marks a fit at the sign twin's fold,
-    where the tilts' size is not known."""
+    describes one of several fits, or by :data:`EDGE_SHIFT_SIGMA` by the far end of a weak
+    direction's valley. A shift of exactly 0 marks a fit at the sign twin's fold, where the
+    tilts' size is not known."""
     weak = {p for w in diag.weak_directions for p in w.params}
     for a in ambiguities:
+        limit = EDGE_SHIFT_SIGMA if a.edge else AMBIGUOUS_SHIFT_SIGMA
         for p, shift in a.differs.items():
             sd = diag.std.get(p)
-            if sd is None or shift == 0.0 or not abs(shift) < AMBIGUOUS_SHIFT_SIGMA * sd:
+            if sd is None or shift == 0.0 or not abs(shift) < limit * sd:
                 weak.add(p)
     return weak
 
