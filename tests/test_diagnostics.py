@@ -177,6 +177,25 @@ def test_a_valley_is_walked_past_its_quadratic_to_what_the_data_still_allow(pape
     assert all(a.edge is None for a in others)
 
 
+def test_a_valleys_far_end_withholds_sigma_but_leaves_the_prior_check_its_tests(paper_result):
+    """The parameters riding a valley to its far end lose their σ in the summary, but a
+    recalibration from the result still tests them against its prior (the pull test's own
+    benchmark: no flags on a right prior, the moved parameter named first); the other
+    alternatives and the weak directions withhold both."""
+    from handeye_jax.diagnostics._mount import weak_parameters
+
+    d = paper_result.diagnostics
+    riders = set(d.weak_params) - set(d.untested_params)
+    assert {"xt", "xp", "yp"} <= riders
+    others = [a for a in d.ambiguities if not a.edge]
+    assert set(d.untested_params) == weak_parameters(d.stage1, others)
+    assert set(paper_result.posterior("stage1").untested) == set(d.untested_params)
+    # A file written before the field: its weak parameters are the prior's untested ones.
+    old = dataclasses.replace(paper_result,
+                              diagnostics=dataclasses.replace(d, untested_params=None))
+    assert set(old.posterior("stage1").untested) == set(d.weak_params)
+
+
 @settings(max_examples=40, deadline=None)
 @given(st.dictionaries(st.sampled_from(["xt", "yt", "gamma_t", "xp", "yp"]),
                        st.floats(-3.0, 3.0), min_size=1), st.booleans())  # fmt: skip
