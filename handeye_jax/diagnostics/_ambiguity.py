@@ -211,9 +211,12 @@ def _valley_end(ctx: _Context, step: np.ndarray, scale: float) -> np.ndarray | N
     chi2_0 = _chi2(ctx, ctx.x)
     end, reach = None, 0.0
     for sign in (1.0, -1.0):
-        t = 1.0
+        t, last = 1.0, None
         while t <= VALLEY_REACH:
             start = np.clip(ctx.x + sign * t * scale * step, ctx.space.lower, ctx.space.upper)
+            if last is not None and np.array_equal(start, last):
+                break  # the box stops the walk: LM from the same start ends where it did
+            last = start
             lower, upper = ctx.space.lower.copy(), ctx.space.upper.copy()
             lower[i], upper[i] = start[i] - HELD, start[i] + HELD
             x = polish(ctx.objective, Box(lower, upper), start)
