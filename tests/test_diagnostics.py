@@ -198,14 +198,14 @@ def test_a_valleys_far_end_withholds_sigma_but_leaves_the_prior_check_its_tests(
 
 @settings(max_examples=40, deadline=None)
 @given(st.dictionaries(st.sampled_from(["xt", "yt", "gamma_t", "xp", "yp"]),
-                       st.floats(-3.0, 3.0), min_size=1), st.booleans())  # fmt: skip
+                       st.floats(-3.0, 3.0), min_size=1), st.booleans(), st.booleans())  # fmt: skip
 def test_an_alternative_fit_takes_the_sigma_only_of_what_it_moves_by_half_a_sigma(
-    paper_result, shifts_in_sigma, edge
+    paper_result, shifts_in_sigma, edge, fold
 ):
     """A parameter an indistinguishable alternative moves by less than half its σ keeps its
     σ (its interval would still cover a truth at the alternative 92 % of the time); by more,
-    or by exactly 0 (the sign twin's fold, where the size is unknown), it loses it. The far
-    end of a weak valley (``edge``) takes it from a whole σ."""
+    it loses it. The far end of a weak valley (``edge``) takes it from a whole σ; the sign
+    twin at its fold (``fold``, where the tilts' size is unknown) takes every one it names."""
     from handeye_jax.calibration import Ambiguity
     from handeye_jax.diagnostics._mount import (
         AMBIGUOUS_SHIFT_SIGMA,
@@ -216,13 +216,14 @@ def test_an_alternative_fit_takes_the_sigma_only_of_what_it_moves_by_half_a_sigm
     diag = paper_result.diagnostics.stage1
     differs = {p: k * diag.std[p] for p, k in shifts_in_sigma.items()}
     alternative = Ambiguity(kind="test", differs=differs, delta_F_mm=0.0, here_mm=0.0,
-                            elsewhere_mm=(0.0, 0.0), edge=edge or None)  # fmt: skip
+                            elsewhere_mm=(0.0, 0.0), edge=edge or None,
+                            fold=fold or None)  # fmt: skip
     valley = weak_parameters(diag, [])
     weak = weak_parameters(diag, [alternative]) - valley
     limit = 1.0 if edge else 0.5
     assert limit == (EDGE_SHIFT_SIGMA if edge else AMBIGUOUS_SHIFT_SIGMA)
     assume(all(abs(abs(k) - limit) > 1e-9 for k in shifts_in_sigma.values()))
-    expected = {p for p, k in shifts_in_sigma.items() if k == 0.0 or abs(k) > limit}
+    expected = {p for p, k in shifts_in_sigma.items() if fold or abs(k) > limit}
     assert weak == expected - valley
 
 
@@ -429,6 +430,7 @@ def test_a_fit_at_the_sign_twins_fold_is_reported_and_its_tilts_get_no_sigma():
     assert abs(truth.model["alpha_t"]) > 1.0 and abs(truth.model["beta_t"]) > 1.0
     kinds = [a.kind for a in r.diagnostics.ambiguities]
     assert any(k.startswith("tablet sign twin, at its fold") for k in kinds), kinds
+    assert [a.fold for a in r.diagnostics.ambiguities if a.kind.startswith("tablet sign")] == [True]
     assert {"alpha_t", "beta_t"} <= set(r.diagnostics.weak_params)
     assert "at its fold" in format_summary(r)
 

@@ -473,6 +473,9 @@ class Ambiguity:
         separate_by: what would tell the two apart.
         edge: ``True`` for the far end of a weak direction's valley, as far as the data allow
             (not a second optimum); ``None`` otherwise.
+        fold: ``True`` for the sign twin met at its fold (the fit's tablet tilts both 0): the
+            tilts' size is not known, so they have no σ; ``None`` otherwise (files written
+            before it mark the fold by shifts of exactly 0).
     """
 
     kind: str
@@ -484,6 +487,7 @@ class Ambiguity:
     separate_by: str = ""
     delta_chi2: float | None = spec(omit="none", default=None)
     edge: bool | None = spec(omit="none", default=None)
+    fold: bool | None = spec(omit="none", default=None)
 
 
 @dataclass(frozen=True)

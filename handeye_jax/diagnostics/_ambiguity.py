@@ -161,7 +161,7 @@ def _sign_twin(ctx: _Context) -> Ambiguity | None:
         return Ambiguity(kind="tablet sign twin, at its fold (both tilts 0, where the two "
                          "fits meet)", differs={n: 0.0 for n in names}, delta_F_mm=0.0,
                          here_mm=0.0, elsewhere_mm=(0.0, 0.0), elsewhere=ELSEWHERE,
-                         separate_by=SEPARATE_TWIN, delta_chi2=0.0)  # fmt: skip
+                         separate_by=SEPARATE_TWIN, delta_chi2=0.0, fold=True)  # fmt: skip
     return _judged(ctx, "tablet sign twin", x_alt, SEPARATE_TWIN)
 
 

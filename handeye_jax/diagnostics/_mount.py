@@ -64,14 +64,14 @@ def weak_parameters(diag: StageDiagnostics, ambiguities: Sequence[Ambiguity]) ->
     moved by at least :data:`AMBIGUOUS_SHIFT_SIGMA` of their σ by an alternative fit the data
     cannot exclude (the tablet's sign twin, a mirror camera mount), where the linearised σ
     describes one of several fits, or by :data:`EDGE_SHIFT_SIGMA` by the far end of a weak
-    direction's valley. A shift of exactly 0 marks a fit at the sign twin's fold, where the
-    tilts' size is not known."""
+    direction's valley; and the tilts of a fit at the sign twin's fold (``Ambiguity.fold``),
+    where their size is not known."""
     weak = {p for w in diag.weak_directions for p in w.params}
     for a in ambiguities:
         limit = EDGE_SHIFT_SIGMA if a.edge else AMBIGUOUS_SHIFT_SIGMA
         for p, shift in a.differs.items():
             sd = diag.std.get(p)
-            if sd is None or shift == 0.0 or not abs(shift) < limit * sd:
+            if sd is None or a.fold or not abs(shift) < limit * sd:
                 weak.add(p)
     return weak
 
