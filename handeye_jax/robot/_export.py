@@ -83,9 +83,13 @@ def carried_stage(frames: Frames, fmt: str, stage: int | None = None) -> int:
 def _stage_line(frames: Frames, stage: int) -> str:
     what = ("stage 2, eq. (25): the frames with the affine correction A1, A2" if stage == 2
             else "stage 1, eq. (8): the frames alone, no affine correction")  # fmt: skip
-    chose = ("the stage the calibration chose to deploy" if stage == frames.deploy_stage
-             else f"not the stage the calibration chose to deploy (stage {frames.deploy_stage})")
+    chose = (
+        "the stage the calibration chose to deploy"
+        if stage == frames.deploy_stage
+        else f"not the stage the calibration chose to deploy (stage {frames.deploy_stage})"
+    )
     return f"Carries {what}; {chose}."
+
 
 MM_PER_M = 1000.0
 
@@ -163,17 +167,23 @@ def _undetermined_lines(frames: Frames, fmt: str) -> list[str]:
     *_, relative = filled_translations_mm(frames)
     lines = []
     if frames.given:
-        lines.append("GIVEN by the user, not determined by the calibration data (mm): " + ", ".join(
-            f"{c} = {getattr(frames, c.split('.')[0])[2]:.3f}" for c in frames.given))
+        lines.append(
+            "GIVEN by the user, not determined by the calibration data (mm): "
+            + ", ".join(f"{c} = {getattr(frames, c.split('.')[0])[2]:.3f}" for c in frames.given)
+        )
     if relative and fmt != "easy_handeye":
-        lines.append(f"t_hand_pen_mm.z is written as t_hand_camera_mm.z + (z_pen - z_camera) = "
-                     f"0 + {frames.pen_minus_camera_z_mm:.3f} mm: only the difference is "
-                     "determined (from the hand's heights), so the pen sits right relative to "
-                     "the camera; give export --camera-z-mm to place both on the flange.")
+        lines.append(
+            f"t_hand_pen_mm.z is written as t_hand_camera_mm.z + (z_pen - z_camera) = "
+            f"0 + {frames.pen_minus_camera_z_mm:.3f} mm: only the difference is "
+            "determined (from the hand's heights), so the pen sits right relative to "
+            "the camera; give export --camera-z-mm to place both on the flange."
+        )
     if not zeros:
         return lines
-    lines.append("NOT DETERMINED by the calibration data, written as 0 here (do not trust them; "
-                 "export --camera-z-mm or --pen-z-mm gives them):")
+    lines.append(
+        "NOT DETERMINED by the calibration data, written as 0 here (do not trust them; "
+        "export --camera-z-mm or --pen-z-mm gives them):"
+    )
     lines += [f"  {c}: {REASONS.get(c, 'not determined by the data')}" for c in zeros]
     return lines
 
