@@ -191,8 +191,9 @@ def test_a_valleys_far_end_withholds_sigma_but_leaves_the_prior_check_its_tests(
     assert set(d.untested_params) == weak_parameters(d.stage1, others)
     assert set(paper_result.posterior("stage1").untested) == set(d.untested_params)
     # A file written before the field: its weak parameters are the prior's untested ones.
-    old = dataclasses.replace(paper_result,
-                              diagnostics=dataclasses.replace(d, untested_params=None))
+    old = dataclasses.replace(
+        paper_result, diagnostics=dataclasses.replace(d, untested_params=None)
+    )
     assert set(old.posterior("stage1").untested) == set(d.weak_params)
 
 
@@ -393,8 +394,9 @@ def test_many_landmarks_restart_on_a_subset_and_leave_one_out_by_one_newton_step
     assert ds.n_landmarks > max(EXACT_LOO_LANDMARKS, RESTART_LANDMARKS)
     # The paper's ranges and loss: the exact refits below search them too (the ML fit's subset is
     # checked apart).
-    r = diagnose(calibrate(ds, Settings(population=200, generations=400, search="paper",
-                                        loss="l1")))
+    r = diagnose(
+        calibrate(ds, Settings(population=200, generations=400, search="paper", loss="l1"))
+    )
     assert r.stage1.polish.restarts.landmarks == RESTART_LANDMARKS
     assert r.stage2.polish.restarts.landmarks - RESTART_LANDMARKS in (0, 1)  # + centre
     assert r.stage1.F <= _best_refit_F(r) + 1e-9

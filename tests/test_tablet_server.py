@@ -1327,8 +1327,11 @@ def test_a_label_that_is_not_printable_is_refused_and_an_old_one_never_breaks_a_
             "X-Handeye-Token": server.token, "Content-Type": "application/json"},
             body % (label, json.dumps(touch).encode()))  # fmt: skip
         assert status == 400 and json.loads(raw)["field"] == "label", (label, raw)
-    status, doc = server.api("POST", "/api/evaluation", {"run_id": "ok", "label": "stage 2",
-                                                         "targets": "grid", "touches": [touch]})
+    status, doc = server.api(
+        "POST",
+        "/api/evaluation",
+        {"run_id": "ok", "label": "stage 2", "targets": "grid", "touches": [touch]},
+    )
     assert status == 200, doc
     out = server.stop()
     assert server.proc.returncode == 0, out
