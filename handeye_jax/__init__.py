@@ -85,6 +85,7 @@ _EXPORTS = {
     "evaluate_points": "twin",
     "evaluate_twin": "twin",
     "export_text": "robot",
+    "FrameNames": "robot",
     "fill_capture": "vision",
     "fill_dataset": "vision",
     "fit": "calibration",
@@ -309,6 +310,7 @@ if TYPE_CHECKING:
     from .robot._export import export_text
     from .robot._frames import Frames
     from .robot._heights import with_heights
+    from .robot._names import FrameNames
     from .robot._predictor import Predictor
     from .twin._evaluate import (
         Heldout,
@@ -435,6 +437,7 @@ __all__ = [
     "evaluate",
     "evaluate_twin",
     "export_text",
+    "FrameNames",
     "fill_capture",
     "fill_dataset",
     "fit",

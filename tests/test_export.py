@@ -29,6 +29,7 @@ from handeye_jax.robot import (
     FORMATS,
     RIGID_ONLY_FORMATS,
     Affine,
+    FrameNames,
     export_text,
     zero_filled,
 )
@@ -42,8 +43,8 @@ def _export(frames: Frames, fmt: str, folder: Path) -> Path:
     path = folder / f"export{SUFFIX[fmt]}"
     # URDF and ROS 2 hold stage 1 alone; they refuse to stand for a stage-2 deployment.
     stage = 1 if fmt in RIGID_ONLY_FORMATS else None
-    text = export_text(frames, fmt, parent_link=NAMES["parent"], camera_frame=NAMES["camera"],
-                       pen_frame=NAMES["pen"], source="drawn.json", stage=stage)  # fmt: skip
+    names = FrameNames(NAMES["parent"], NAMES["camera"], NAMES["pen"])
+    text = export_text(frames, fmt, names=names, source="drawn.json", stage=stage)
     path.write_text(text, encoding="utf-8")
     return path
 
@@ -320,6 +321,21 @@ def test_cli_export_refuses_bad_names_and_edited_frames(case_file, tmp_path, cap
     again = Frames.from_dict(json.loads(out.read_text()))
     np.testing.assert_array_equal(again.R_hand_camera, Predictor.from_result(case_file)
                                   .frames.R_hand_camera)  # fmt: skip
+
+
+def test_frame_names_default_to_ros_names_and_refuse_bad_or_shared_ones():
+    assert FrameNames() == FrameNames("tool0", "camera_optical_frame", "pen_tip", "base_link")
+    for field, bad in (("parent_link", 'a"/><x'), ("camera_frame", "1cam"), ("pen_frame", ""),
+                       ("base_frame", "base link")):  # fmt: skip
+        with pytest.raises(ValueError, match=rf"^{field}: not a valid link or frame name"):
+            FrameNames(**{field: bad})
+    with pytest.raises(ValueError, match=r"^parent_link, camera_frame, pen_frame: need three"):
+        FrameNames(camera_frame="tool0")
+    FrameNames(base_frame="tool0")  # the base frame is in no URDF or ROS 2 file with them
+    urdf = export_text(_paper_case().frames(), "urdf", names=FrameNames(pen_frame="tcp"),
+                       stage=1)  # fmt: skip
+    assert [j.find("child").get("link") for j in ET.fromstring(urdf).iter("joint")] == [
+        "camera_optical_frame", "tcp"]  # fmt: skip
 
 
 def test_a_hostile_source_name_cannot_break_out_of_a_comment_or_string():

@@ -102,6 +102,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
         return 2
     from ..calibration import load_frames  # JAX: not imported for --help
     from ..robot import (
+        FrameNames,
         StageError,
         carried_stage,
         check_parses,
@@ -121,11 +122,8 @@ def _cmd_export(args: argparse.Namespace) -> int:
     except ValueError as e:
         flag = "--pen-z-mm" if args.camera_z_mm is None else "--camera-z-mm"
         raise InputError(args.result, flag, str(e)) from None
-    text = export_text(
-        frames, args.fmt, parent_link=args.parent_link, camera_frame=args.camera_frame,
-        pen_frame=args.pen_frame, base_frame=args.base_frame, source=str(args.result),
-        stage=stage,
-    )  # fmt: skip
+    names = FrameNames(args.parent_link, args.camera_frame, args.pen_frame, args.base_frame)
+    text = export_text(frames, args.fmt, names=names, source=str(args.result), stage=stage)
     check_parses(text, args.fmt)
     zeros = zero_filled(frames, args.fmt)
     if zeros:

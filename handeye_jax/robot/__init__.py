@@ -17,7 +17,7 @@ _EXPORTS = {
     "_frames": ("Affine", "Frames", "TRANSLATIONS"),
     "_names": (
         "DEFAULT_BASE_FRAME", "DEFAULT_CAMERA_FRAME", "DEFAULT_PARENT_LINK", "DEFAULT_PEN_FRAME",
-        "FORMATS", "NAME_PATTERN",
+        "FORMATS", "FrameNames", "NAME_PATTERN",
     ),
     "_heights": ("filled_translations_mm", "with_heights"),
     "_predictor": ("Predictor", "read_json", "result_reach", "stored_frames", "stored_result"),

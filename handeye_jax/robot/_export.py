@@ -44,14 +44,10 @@ from . import _npchain
 from ._frames import AXES, REASONS, Frames
 from ._heights import filled_translations_mm
 from ._names import (
-    DEFAULT_BASE_FRAME,
-    DEFAULT_CAMERA_FRAME,
-    DEFAULT_PARENT_LINK,
-    DEFAULT_PEN_FRAME,
     DEFAULT_TABLET_FRAME,
     FORMATS,
-    NAME_PATTERN,
     ZERO_FILLED_FORMATS,
+    FrameNames,
 )
 
 #: Formats that hold rigid transforms only: stage 1 (eq. 8), never stage 2's affine maps.
@@ -192,10 +188,7 @@ def export_text(
     frames: Frames,
     fmt: str,
     *,
-    parent_link: str = DEFAULT_PARENT_LINK,
-    camera_frame: str = DEFAULT_CAMERA_FRAME,
-    pen_frame: str = DEFAULT_PEN_FRAME,
-    base_frame: str = DEFAULT_BASE_FRAME,
+    names: FrameNames = FrameNames(),
     source: str = "",
     stage: int | None = None,
 ) -> str:
@@ -205,19 +198,13 @@ def export_text(
         frames: the fitted frames.
         fmt: ``json``, ``yaml``, ``urdf``, ``ros2``, ``opencv``, ``python`` or
             ``easy_handeye``.
-        parent_link: the URDF/tf2 name of the hand (flange) frame.
-        camera_frame, pen_frame: names of the camera's optical frame and of the pen tip.
-        base_frame: the robot's base frame (easy_handeye's ``robot_base_frame``).
+        names: the link and frame names the file writes (:class:`FrameNames`: the flange
+            link, the camera's optical frame, the pen tip's and the robot's base frame).
         source: where the frames came from (a file name), for the file's header.
         stage: the stage the file carries (default: the one the calibration deploys); URDF and
             ROS 2 and easy_handeye hold stage 1 only (:func:`carried_stage` raises
             :class:`StageError`).
     """
-    for name in (parent_link, camera_frame, pen_frame, base_frame):
-        if not NAME_PATTERN.fullmatch(name):
-            raise ValueError(f"not a valid link or frame name: {name!r} (letters, digits, _)")
-    if len({parent_link, camera_frame, pen_frame}) != 3:
-        raise ValueError("the parent link, camera frame and pen frame need three distinct names")
     if fmt not in FORMATS:
         raise ValueError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
     stage = carried_stage(frames, fmt, stage)
@@ -229,16 +216,17 @@ def export_text(
 
         head = "".join(f"# {line}\n" for line in _header_lines(frames, fmt, source, stage))
         return head + yaml.safe_dump(doc, sort_keys=False, allow_unicode=True, width=100)
+    parent, camera, pen = names.parent_link, names.camera_frame, names.pen_frame
     if fmt == "urdf":
-        return _urdf(frames, parent_link, camera_frame, pen_frame, source)
+        return _urdf(frames, parent, camera, pen, source)
     if fmt == "ros2":
-        return _ros2(frames, parent_link, camera_frame, pen_frame, source)
+        return _ros2(frames, parent, camera, pen, source)
     if fmt == "opencv":
         return _opencv(frames, source, stage)
     if fmt == "python":
         return _python(frames, source, stage)
     if fmt == "easy_handeye":
-        return _easy_handeye(frames, base_frame, parent_link, camera_frame, source)
+        return _easy_handeye(frames, names.base_frame, parent, camera, source)
     raise ValueError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
 
 
