@@ -53,7 +53,12 @@ from handeye_jax.calibration import (
     Population,
 )
 from handeye_jax.diagnostics._diagnostics import OUTLIER_FACTOR, population_modes
-from handeye_jax.diagnostics._refits import EXACT_LOO_LANDMARKS, refits
+from handeye_jax.diagnostics._refits import (
+    EXACT_LOO_LANDMARKS,
+    REFIT_LANDMARKS,
+    RefitBudget,
+    refits,
+)
 from handeye_jax.models import AffinePair
 from handeye_jax.optim import (
     Box,
@@ -100,7 +105,20 @@ def _refits(ds, x1, x2, **kw):
             FittedStage(ParameterSpace.all_free(HTMModel.nominal()), stage1, x1),
             FittedStage(ParameterSpace.all_free(AffinePair.nominal()), stage2, x2),
         )
-        return refits(stages, get_loss("l1"), 1, 2, 100, **kw)
+        return refits(stages, get_loss("l1"), RefitBudget(1, 2, 100, **kw))
+
+
+def test_a_refit_budget_keeps_the_landmark_limits_and_refuses_a_bad_field():
+    budget = RefitBudget(7, 2, 100)
+    assert (budget.exact_loo_landmarks, budget.refit_landmarks) == (EXACT_LOO_LANDMARKS,
+                                                                    REFIT_LANDMARKS)  # fmt: skip
+    RefitBudget(7, 2, 100, exact_loo_landmarks=0)  # one Newton step for every dataset
+    for bad, field in (({"starts": 0}, "starts"), ({"max_steps": 0}, "max_steps"),
+                       ({"refit_landmarks": 0}, "refit_landmarks"),
+                       ({"exact_loo_landmarks": -1}, "exact_loo_landmarks"),
+                       ({"exact_loo_landmarks": 65}, "exact_loo_landmarks")):  # fmt: skip
+        with pytest.raises(ValueError, match=rf"^{field}: must"):
+            RefitBudget(**{"seed": 7, "starts": 2, "max_steps": 100, **bad})
 
 
 # -- identifiability ---------------------------------------------------------------------

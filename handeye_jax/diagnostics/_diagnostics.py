@@ -41,7 +41,7 @@ from ..calibration import (
 from ..data import Observations
 from ..optim import MAX_MODES, Box, mode_leaders
 from ..problem import ParameterSpace, analyse_jacobian, closed_form_estimate, get_loss
-from ._refits import refits
+from ._refits import RefitBudget, refits
 
 #: A distinct optimum is reported when its best F is within this many mm of the best.
 MODE_F_MARGIN_MM = 0.5
@@ -226,7 +226,8 @@ def diagnostics_of(
     extra = None
     if report is not None and report.preset == "estimate":
         extra = convention_estimates(stages.stage1.space, obs)
-    out = refits(stages, loss, settings.seed, REFIT_STARTS, REFIT_STEPS, convention_starts=extra)
+    budget = RefitBudget(settings.seed, REFIT_STARTS, REFIT_STEPS)
+    out = refits(stages, loss, budget, convention_starts=extra)
     loo = Stages(_loo(out.loo1_image_vs_tablet, out.loo1_hand, results.stage1.F),
                  _loo(out.loo2_image_vs_tablet, out.loo2_hand, results.stage2.F))  # fmt: skip
     jacobians = Stages((out.errors1, out.jacobian1), (out.errors2, out.jacobian2))

@@ -71,6 +71,39 @@ LOO_REFITS = 16
 
 
 @dataclass(frozen=True)
+class RefitBudget:
+    """How much the refits of :func:`refits` may search, and the seed of their draws.
+
+    Attributes:
+        seed: seed of the convention multi-starts' uniform draws (NumPy's PCG64).
+        starts: random LM starts per convention, at least 1.
+        max_steps: most LM iterations of every refit, at least 1.
+        exact_loo_landmarks: up to this many landmarks leave-one-out refits exactly, above it
+            takes one Newton step (:func:`one_step_loo`); at most ``refit_landmarks``.
+        refit_landmarks: above this many landmarks the convention refits search on this many;
+            at least 1.
+    """
+
+    seed: int
+    starts: int
+    max_steps: int
+    exact_loo_landmarks: int = EXACT_LOO_LANDMARKS
+    refit_landmarks: int = REFIT_LANDMARKS
+
+    def __post_init__(self) -> None:
+        # exact_loo_landmarks = 0 is allowed: one Newton step for every dataset.
+        for name, least in (("starts", 1), ("max_steps", 1), ("exact_loo_landmarks", 0),
+                            ("refit_landmarks", 1)):  # fmt: skip
+            if not getattr(self, name) >= least:
+                raise ValueError(f"{name}: must be at least {least} (got {getattr(self, name)})")
+        if self.exact_loo_landmarks > self.refit_landmarks:
+            raise ValueError(
+                f"exact_loo_landmarks: must not exceed refit_landmarks "
+                f"({self.exact_loo_landmarks} > {self.refit_landmarks})"
+            )
+
+
+@dataclass(frozen=True)
 class _Pair:
     """Both stages as the refits take them: objectives without the loss (a prior kept), the
     loss, the fit's free parameters and each stage's box."""
@@ -327,12 +360,8 @@ def _group_mean(a: np.ndarray, groups: np.ndarray, k: int) -> np.ndarray:
 def refits(
     stages: Stages,
     loss: AbstractLoss,
-    seed: int,
-    starts: int,
-    max_steps: int,
+    budget: RefitBudget,
     *,
-    exact_loo_landmarks: int = EXACT_LOO_LANDMARKS,
-    refit_landmarks: int = REFIT_LANDMARKS,
     convention_starts: np.ndarray | None = None,
 ) -> Refits:
     """Leave-one-out refits of both stages and the convention refits of stage 1.
@@ -342,19 +371,13 @@ def refits(
             objective on its free parameters, a prior kept and the loss not, with the
             dataset's declared convention; its optimum ``x``; its ``space``'s box).
         loss: the loss the calibration used.
-        seed: seed of the convention multi-starts' uniform draws (NumPy's PCG64).
-        starts: random LM starts per convention.
-        max_steps: most LM iterations of every refit.
-        exact_loo_landmarks: up to this many landmarks leave-one-out refits exactly, above it
-            takes one Newton step (:func:`one_step_loo`); at most ``refit_landmarks``.
-        refit_landmarks: above this many landmarks the convention refits search on this
-            many.
+        budget: the seed, starts, LM iterations and landmark limits of the refits
+            (:class:`RefitBudget`).
         convention_starts: one more start per convention, ``(8, d)`` (a row of NaN: none),
             e.g. the closed-form estimate under each; the stage-1 refits' box is widened to
             hold them (the uniform starts are still drawn from the fit's box).
     """
-    if exact_loo_landmarks > refit_landmarks:
-        raise ValueError("exact_loo_landmarks must not exceed refit_landmarks")
+    seed, starts, max_steps = budget.seed, budget.starts, budget.max_steps
     one, two = stages.stage1, stages.stage2
     box1 = lm_box1 = one.space.box
     if convention_starts is not None:
@@ -365,8 +388,8 @@ def refits(
     pair = _Pair(one.objective, two.objective, loss, np.asarray(one.x, float),
                  np.asarray(two.x, float), box1, two.space.box, convention_starts,
                  lm_box1)  # fmt: skip
-    if _obs(pair.stage1).n_landmarks > exact_loo_landmarks:
-        return _refits_one_step(pair, seed, starts, max_steps, refit_landmarks)
+    if _obs(pair.stage1).n_landmarks > budget.exact_loo_landmarks:
+        return _refits_one_step(pair, seed, starts, max_steps, budget.refit_landmarks)
     return _refits_exact(pair, seed, starts, max_steps)
 
 
