@@ -47,7 +47,7 @@ from handeye_jax import (
     synthesize_dataset,
     vectorise_small_loops,
 )
-from handeye_jax.twin import heldout_targets, seen_from, true_command
+from handeye_jax.twin import HeldoutLevels, heldout_targets, seen_from, true_command
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from twin_study import write_section  # noqa: E402
@@ -137,9 +137,8 @@ def noisy(seed: int, captures: int, n_heldout: int, settings: Settings) -> dict:
     }
     # The figure: targets on the display seen from captures at more heights.
     rng = np.random.default_rng([seed, 18])
-    fig = Heldout(**{k: v for k, v in _fields(heldout_targets(
-        truth, PRESETS["paper"], rng, n_heldout, rises_mm=FIGURE_RISES_MM, above_mm=(0.0,)
-    )).items()})  # fmt: skip
+    levels = HeldoutLevels(n_heldout, rises_mm=FIGURE_RISES_MM, above_mm=(0.0,))
+    fig = Heldout(**_fields(heldout_targets(truth, PRESETS["paper"], rng, levels)))
     out["figure"] = {
         "many": {e.label: e for e in evaluate_points(many, truth, fig)},
         "one": {e.label: e for e in evaluate_points(one, truth, fig)},

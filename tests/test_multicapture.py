@@ -257,6 +257,27 @@ def test_twin_draws_captures_at_several_heights_and_hand_angles(exact_twin):
     assert set(np.round(rises, 9)) == {0.0, 60.0} and set(twin.heldout_above_mm) == {0.0, 50.0}
 
 
+def test_heldout_levels_draw_n_each_per_rise_and_height_and_refuse_a_bad_field(exact_twin):
+    from handeye_jax import PRESETS
+    from handeye_jax.twin import HeldoutLevels, heldout_targets
+
+    twin = exact_twin[0]
+    assert HeldoutLevels(5) == HeldoutLevels(5, (0.0, 60.0), (0.0, 50.0))  # the twin's own
+    levels = HeldoutLevels(2, rises_mm=[0, 30], above_mm=(0.0, 10.0, 20.0))
+    assert levels.rises_mm == (0.0, 30.0)  # a list becomes a tuple of floats
+    held = heldout_targets(twin.truth, PRESETS["none"], np.random.default_rng(3), levels,
+                           exact=True)  # fmt: skip
+    assert held["heldout_tablet_px"].shape == (2 * 2 * 3, 2)
+    assert list(held["heldout_above_mm"]) == [0.0] * 2 + [10.0] * 2 + [20.0] * 2 + \
+        [0.0] * 2 + [10.0] * 2 + [20.0] * 2  # fmt: skip
+    for bad, field in (({"n_each": 0}, "n_each"), ({"n_each": 10_001}, "n_each"),
+                       ({"n_each": 2.0}, "n_each"), ({"rises_mm": ()}, "rises_mm"),
+                       ({"above_mm": (0.0, float("nan"))}, "above_mm"),
+                       ({"above_mm": (-5.0,)}, "above_mm")):  # fmt: skip
+        with pytest.raises(ValueError, match=rf"^{field}: must"):
+            HeldoutLevels(**{"n_each": 3, **bad})
+
+
 def test_captures_given_as_poses_make_the_twin_their_count_draws():
     """``captures=[poses]`` takes those poses, and every other draw is the count's: the twin
     of the poses that ``captures=3`` drew is that twin, picture for picture."""

@@ -24,8 +24,8 @@ _EXPORTS = {
     ),
     "_render": ("render_capture", "render_depth"),
     "_simulate": (
-        "check_twin_folder", "encode_png", "heldout_targets", "NoisePreset", "PRESETS", "simulate",
-        "Twin", "write_twin",
+        "check_twin_folder", "encode_png", "heldout_targets", "HeldoutLevels", "NoisePreset",
+        "PRESETS", "simulate", "Twin", "write_twin",
     ),
     "_synthetic": ("Scene", "seen_from", "synthesize_dataset", "true_command"),
     "_poses": ("tool_poses",),

@@ -369,7 +369,7 @@ def _simulate_captures(
         hand_angle_deg=truth.landmarks_hand_angle_deg, touch_error_px=np.round(touch_px),
         version=2,
     )  # fmt: skip
-    held = heldout_targets(truth, preset, rng_held, draw.n_heldout, exact=exact,
+    held = heldout_targets(truth, preset, rng_held, HeldoutLevels(draw.n_heldout), exact=exact,
                            settings=settings, aim=draw.aim)  # fmt: skip
     first_px, first_depth = truth.project(truth.landmarks_tablet_px)
     return Twin(
@@ -380,28 +380,68 @@ def _simulate_captures(
     )  # fmt: skip
 
 
+@dataclass(frozen=True)
+class HeldoutLevels:
+    """Where a multi-capture twin's held-out targets are drawn: ``n_each`` targets for each
+    capture rise and each height above the display (every rise with every height).
+
+    Attributes:
+        n_each: targets of each rise and height, 1 to 10,000.
+        rises_mm: capture rises, mm above the truth's capture: 0 is that capture, any other
+            a new position and hand angle that much higher. Finite, at least one.
+        above_mm: heights above the display, mm: 0 is on it, any other the top of an object
+            standing there. Finite and >= 0, at least one.
+    """
+
+    n_each: int
+    rises_mm: tuple[float, ...] = HELDOUT_RISES_MM
+    above_mm: tuple[float, ...] = HELDOUT_ABOVE_MM
+
+    def __post_init__(self) -> None:
+        if isinstance(self.n_each, bool) or not isinstance(self.n_each, numbers.Integral) or \
+                not 1 <= self.n_each <= MAX_HELDOUT:  # fmt: skip
+            raise ValueError(f"n_each: must be a whole number 1 to {MAX_HELDOUT:,} "
+                             f"(got {self.n_each!r})")  # fmt: skip
+        for name in ("rises_mm", "above_mm"):
+            values = tuple(float(v) for v in np.atleast_1d(getattr(self, name)))
+            if not values or not np.isfinite(values).all():
+                raise ValueError(f"{name}: must be one or more finite numbers, mm (got "
+                                 f"{getattr(self, name)!r})")  # fmt: skip
+            object.__setattr__(self, name, values)
+        if min(self.above_mm) < 0:
+            raise ValueError(f"above_mm: must be >= 0 mm: below the display is inside the "
+                             f"tablet (got {self.above_mm})")  # fmt: skip
+
+
 def heldout_targets(
     truth: TwinTruth,
     preset: NoisePreset,
     rng: np.random.Generator,
-    n_each: int,
+    levels: HeldoutLevels,
     *,
     exact: bool = False,
     settings: DetectSettings | None = None,
-    rises_mm: tuple[float, ...] = HELDOUT_RISES_MM,
-    above_mm: tuple[float, ...] = HELDOUT_ABOVE_MM,
     aim: bool = False,
 ) -> dict[str, np.ndarray]:
-    """Held-out targets for each capture rise (mm above the truth's capture; 0 is that
-    capture, any other a new position and hand angle) and each height above the display (mm),
-    ``n_each`` of each, uniform over the landmarks' area where the picture sees them; as
-    :class:`Twin`'s ``heldout_*`` fields. With ``aim`` (or when the picture from the new pose
-    sees too little) the new pose points the camera at the landmarks (:func:`aimed_position`)."""
-    draw = _Draw(exact, n_each, settings or DetectSettings(), aim)
+    """Held-out targets for each capture rise and each height above the display of
+    ``levels``, ``levels.n_each`` of each, uniform over the landmarks' area where the picture
+    sees them; as :class:`Twin`'s ``heldout_*`` fields.
+
+    Args:
+        truth: the rig truth.
+        preset: the noise preset (the targets' image noise, the depth images').
+        rng: draws the new poses, the targets and their noise.
+        levels: how many targets, from which capture rises and at which heights, mm.
+        exact: take the targets' image points and depths from the truth.
+        settings: how depths are read from the depth image (its window).
+        aim: point the camera of a new pose at the landmarks (:func:`aimed_position`), as it
+            is anyway when the picture from the new pose sees too little.
+    """
+    draw = _Draw(exact, levels.n_each, settings or DetectSettings(), aim)
     groups = []
-    for rise in rises_mm:
+    for rise in levels.rises_mm:
         pose = _heldout_pose(truth, rng, rise, aim)
-        for above in above_mm:
+        for above in levels.above_mm:
             pose, group = _heldout_group(truth, preset, rng, pose, above, draw)
             groups.append(group)
     cat = [np.concatenate(column) for column in zip(*groups, strict=True)]
