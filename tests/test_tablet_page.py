@@ -23,7 +23,7 @@ from scipy import ndimage
 from test_tablet_server import ServerProcess
 
 from handeye_jax import Capture, load_dataset, save_dataset
-from handeye_jax.tablet import grid_targets, make_server
+from handeye_jax.tablet import Listen, grid_targets, make_server
 
 PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
 # Debian's Chromium (.ci/install-chromium), or another one named by the user (macOS, Fedora).
@@ -53,7 +53,7 @@ def tablet(tmp_path):
     """The server over a copy of the paper's dataset; yields (server, dataset path, bytes)."""
     ds = tmp_path / "rig.toml"
     shutil.copy(PAPER, ds)
-    server = make_server(ds, port=0, quiet=True)
+    server = make_server(ds, listen=Listen(port=0), quiet=True)
     threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True).start()
     yield server, ds, ds.read_bytes()
     server.shutdown()
@@ -282,14 +282,14 @@ class Restartable:
     with the same secret (as a script may give it), unless ``new_secret``."""
 
     def __init__(self, dataset):
-        self.server = make_server(dataset, port=0, quiet=True)
+        self.server = make_server(dataset, listen=Listen(port=0), quiet=True)
         self.port = self.server.server_address[1]
         threading.Thread(target=self.server.serve_forever, args=(0.05,), daemon=True).start()
 
     def restart(self, dataset, page=None, new_secret=False):
         token = None if new_secret else self.server.token
         self.stop()
-        self.server = make_server(dataset, port=self.port, quiet=True, token=token)
+        self.server = make_server(dataset, listen=Listen(port=self.port, token=token), quiet=True)
         threading.Thread(target=self.server.serve_forever, args=(0.05,), daemon=True).start()
         if page is not None:
             page.reload()
@@ -573,7 +573,7 @@ def test_a_recalibration_run_of_three_landmarks_is_taken_and_saved(browser, tmp_
     save_dataset(full.replace(name="pen3", **{f: getattr(full, f)[corners] for f in fields}),
                  ds_path)  # fmt: skip
     ds = load_dataset(ds_path)
-    server = make_server(ds_path, port=0, quiet=True)
+    server = make_server(ds_path, listen=Listen(port=0), quiet=True)
     threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True).start()
     page = open_page(browser, server.secret_url)
     try:
@@ -604,7 +604,7 @@ def test_pictures_show_every_landmark_alone_and_the_captures_are_listed(browser,
     path = tmp_path / "rig.toml"
     save_dataset(paper.replace(captures=[first, second]), path)
     before = path.read_bytes()
-    server = make_server(path, port=0, quiet=True)
+    server = make_server(path, listen=Listen(port=0), quiet=True)
     threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True).start()
     page = open_page(browser, server.secret_url)
     try:

@@ -36,9 +36,13 @@ from test_dataset import commented_paper_text, comments_of
 from handeye_jax import InputError, load_dataset, save_dataset
 from handeye_jax.cli import main
 from handeye_jax.tablet import (
+    DEFAULT_HOST,
+    DEFAULT_PORT,
     MAX_BODY_BYTES,
     MAX_TOUCHES,
     MAX_TRIALS,
+    EvaluationFiles,
+    Listen,
     apply_touch_errors,
     grid_targets,
     load_targets,
@@ -55,7 +59,7 @@ from handeye_jax.tablet._trials import format_summary, new_trials
 PAPER = Path(__file__).resolve().parents[1] / "data" / "paper2023.toml"
 REPO = Path(__file__).resolve().parents[1]
 BENCH = REPO / "benchmarks"
-# The in-process servers' secret (make_server's token=, as a script would give it).
+# The in-process servers' secret (Listen's token=, as a script would give it).
 TOKEN = "test-secret-0123456789-abcdefghijklmnopqrstuvwxyz"
 BACKUP_NAME = re.compile(r"^rig\.toml\.\d{4}-\d\d-\d\dT\d\d-\d\d-\d\d\.\d{3}Z(-\d+)?\.bak$")
 
@@ -67,9 +71,10 @@ def backups(folder):
     return found
 
 
-def start(ds, **kwargs):
-    """A running server over ``ds`` on a free port (unless ``port`` is given)."""
-    server = make_server(ds, **{"port": 0, "quiet": True, "token": TOKEN, **kwargs})
+def start(ds, request_timeout_s=server_mod.DEFAULT_REQUEST_TIMEOUT_S, **files):
+    """A running server over ``ds`` on a free port; ``files`` as for :class:`EvaluationFiles`."""
+    listen = Listen(port=0, token=TOKEN, request_timeout_s=request_timeout_s)
+    server = make_server(ds, listen=listen, files=EvaluationFiles(**files), quiet=True)
     threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True).start()
     return server
 
@@ -77,6 +82,11 @@ def start(ds, **kwargs):
 def stop(server):
     server.shutdown()
     server.server_close()
+
+
+def _trials(path):
+    """Evaluation mode's files with only the trials file given."""
+    return EvaluationFiles(trials=path)
 
 
 @pytest.fixture
@@ -348,7 +358,7 @@ def test_a_short_body_cannot_hold_a_thread(tmp_path):
 
 def test_bind_failures_name_the_option_to_change(tmp_path, monkeypatch):
     with pytest.raises(Exception, match=r"^--host: '192\.0\.2\.1' is not an address of this"):
-        make_server(PAPER, host="192.0.2.1", port=0, trials_path=tmp_path / "t.json")
+        make_server(PAPER, listen=Listen("192.0.2.1", 0), files=_trials(tmp_path / "t.json"))
     for number, option, text in [
         (errno.EACCES, "--port", "no permission to listen on 127.0.0.1:80"),
         (errno.EADDRINUSE, "--port", "127.0.0.1:80 is in use"),
@@ -360,7 +370,7 @@ def test_bind_failures_name_the_option_to_change(tmp_path, monkeypatch):
 
         monkeypatch.setattr(server_mod.TabletServer, "__init__", refuse)
         with pytest.raises(Exception, match=rf"^{option}: .*{text}") as e:
-            make_server(PAPER, port=80, trials_path=tmp_path / "t.json")
+            make_server(PAPER, listen=Listen(port=80), files=_trials(tmp_path / "t.json"))
         assert "\n" not in str(e.value)
 
     def unknown(*args, **kwargs):
@@ -368,7 +378,8 @@ def test_bind_failures_name_the_option_to_change(tmp_path, monkeypatch):
 
     monkeypatch.setattr(server_mod.TabletServer, "__init__", unknown)
     with pytest.raises(Exception, match=r"^--host: cannot use 'tablet-pc\.lan'"):
-        make_server(PAPER, host="tablet-pc.lan", port=80, trials_path=tmp_path / "t.json")
+        listen = Listen("tablet-pc.lan", 80)
+        make_server(PAPER, listen=listen, files=_trials(tmp_path / "t.json"))
     assert not (tmp_path / "t.json").exists()
 
 
@@ -404,8 +415,9 @@ def test_the_page_url_for_every_address_carries_the_secret_and_a_qr_code(
 
     monkeypatch.setattr(server_mod.TabletServer, "serve_forever", interrupted)
     trials = tmp_path / "t.json"
+    everywhere = Listen("0.0.0.0", 0)
     monkeypatch.setattr(server_mod, "lan_addresses", lambda: ["192.168.1.20", "10.0.0.7"])
-    assert serve(PAPER, host="0.0.0.0", port=0, quiet=True, trials_path=trials) == 0
+    assert serve(PAPER, listen=everywhere, quiet=True, files=_trials(trials)) == 0
     lines = capsys.readouterr().out.splitlines()
     url = lines[0].split()[2]
     assert re.fullmatch(r"http://192\.168\.1\.20:\d+/\?token=[\w-]{43}", url), lines[0]
@@ -417,21 +429,24 @@ def test_the_page_url_for_every_address_carries_the_secret_and_a_qr_code(
     wildcard = [line for line in lines if "every address of this PC (0.0.0.0)" in line]
     assert len(wildcard) == 1 and "firewall" in wildcard[0]
     # Each start makes a new secret.
-    assert serve(PAPER, host="0.0.0.0", port=0, quiet=True, trials_path=trials) == 0
+    assert serve(PAPER, listen=everywhere, quiet=True, files=_trials(trials)) == 0
     assert capsys.readouterr().out.split("token=")[1][:43] != secret
     monkeypatch.setattr(server_mod, "lan_addresses", lambda: [])
-    assert serve(PAPER, host="0.0.0.0", port=0, quiet=True, trials_path=trials) == 0
+    assert serve(PAPER, listen=everywhere, quiet=True, files=_trials(trials)) == 0
     first = capsys.readouterr().out.splitlines()[0]
     assert "http://THIS-PC:" in first and "no LAN address found" in first and "token=" in first
     # Only this PC can open a server on 127.0.0.1: its URL, without a QR code to scan.
-    assert serve(PAPER, port=0, quiet=True, trials_path=trials) == 0
+    assert serve(PAPER, listen=Listen(port=0), quiet=True, files=_trials(trials)) == 0
     out = capsys.readouterr().out
     assert out.startswith("tablet page: http://127.0.0.1:") and "█" not in out
 
 
 def test_the_secret_is_random_and_a_given_one_must_be_as_strong(tmp_path):
     trials = tmp_path / "t.json"
-    servers = [make_server(PAPER, port=0, quiet=True, trials_path=trials) for _ in range(2)]
+    servers = [
+        make_server(PAPER, listen=Listen(port=0), quiet=True, files=_trials(trials))
+        for _ in range(2)
+    ]
     try:
         tokens = [s.token for s in servers]
         assert tokens[0] != tokens[1] and all(re.fullmatch(r"[\w-]{43}", t) for t in tokens)
@@ -441,7 +456,21 @@ def test_the_secret_is_random_and_a_given_one_must_be_as_strong(tmp_path):
             s.server_close()
     for weak in ("", "short", "x" * 31, "a b" * 20, "é" * 40, "x" * 40 + "\n"):
         with pytest.raises(InputError, match=r"^token: must be at least 32 characters"):
-            make_server(PAPER, port=0, trials_path=trials, token=weak)
+            Listen(port=0, token=weak)
+
+
+def test_listen_defaults_to_this_pc_only_with_a_new_secret_and_refuses_a_bad_field():
+    listen = Listen()
+    assert (listen.host, listen.port, listen.token) == (DEFAULT_HOST, DEFAULT_PORT, None)
+    assert DEFAULT_HOST == "127.0.0.1" and listen.request_timeout_s == 10.0
+    assert TOKEN not in repr(Listen(token=TOKEN))  # the secret stays out of logs
+    for bad, field in (({"port": 65536}, "port"), ({"port": -1}, "port"),
+                       ({"request_timeout_s": 0.0}, "request_timeout_s"),
+                       ({"request_timeout_s": float("nan")}, "request_timeout_s"),
+                       ({"token": "short"}, "token")):  # fmt: skip
+        with pytest.raises(InputError, match=rf"^{field}: must"):
+            Listen(**bad)
+    assert EvaluationFiles() == EvaluationFiles(None, None, None)
 
 
 def test_the_trials_summary_gives_max_in_px_and_mm():
@@ -583,11 +612,13 @@ def paper_result(path, dataset_name="paper2023"):
 def test_the_result_being_evaluated_is_named_and_checked(tmp_path):
     trials = tmp_path / "trials.json"
     same = make_server(
-        PAPER, port=0, quiet=True, result=paper_result(tmp_path / "r.json"), trials_path=trials
-    )
+        PAPER, listen=Listen(port=0), quiet=True,
+        files=EvaluationFiles(result=paper_result(tmp_path / "r.json"), trials=trials),
+    )  # fmt: skip
     other = make_server(
-        PAPER, port=0, quiet=True, result=paper_result(tmp_path / "o.json", "another rig")
-    )
+        PAPER, listen=Listen(port=0), quiet=True,
+        files=EvaluationFiles(result=paper_result(tmp_path / "o.json", "another rig")),
+    )  # fmt: skip
     try:
         info = same.app.session()["result"]
         assert info["model"] == "htm" and info["seed"] == 1 and "note" not in info
@@ -640,7 +671,7 @@ def test_an_unwritable_default_trials_file_is_refused_before_serving(
     # The library checks a given trials file too (the command line checks it first).
     with pytest.raises(Exception, match=r"afile.t\.json: --trials: cannot write") as e:
         (tmp_path / "afile").write_text("a file, not a folder")
-        make_server(ds, port=0, trials_path=tmp_path / "afile" / "t.json")
+        make_server(ds, listen=Listen(port=0), files=_trials(tmp_path / "afile" / "t.json"))
     assert "default trials file" not in str(e.value)
 
 
@@ -669,7 +700,7 @@ def test_a_dataset_whose_folder_cannot_be_written_is_refused_before_serving(
                     "keeps previous versions as rig.toml.<UTC time>.bak")  # fmt: skip
     assert _listing(folder) == before and not trials.exists()
     monkeypatch.undo()  # the same files in a writable folder: the server starts
-    stop(start(ds, trials_path=trials))
+    stop(start(ds, trials=trials))
 
 
 def _failing_replace(monkeypatch, fails):
@@ -789,7 +820,7 @@ def test_runs_and_grids_are_bounded(served, tmp_path):
     )
     big.write_text(text + "\n" + extra)
     with pytest.raises(InputError, match=rf"big\.toml: landmarks: {MAX_TOUCHES + 9} landmarks"):
-        make_server(big, port=0, trials_path=tmp_path / "t.json")
+        make_server(big, listen=Listen(port=0), files=_trials(tmp_path / "t.json"))
 
 
 def test_an_oversized_trials_file_is_refused_before_serving(tmp_path):
@@ -799,7 +830,7 @@ def test_an_oversized_trials_file_is_refused_before_serving(tmp_path):
     path.write_text(" " * (trials_mod.MAX_FILE_BYTES + 1))
     message = r"t\.json: cannot read trials: is [\d,]+ bytes, larger than 16 MiB"
     with pytest.raises(InputError, match=message):
-        make_server(PAPER, port=0, trials_path=path)
+        make_server(PAPER, listen=Listen(port=0), files=_trials(path))
 
 
 def test_the_session_names_files_not_paths(tmp_path):

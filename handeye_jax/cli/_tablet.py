@@ -9,14 +9,13 @@ from ._types import output_path, port, positive_number
 
 
 def _cmd_tablet(args: argparse.Namespace) -> int:
-    from ..tablet import serve
+    from ..tablet import EvaluationFiles, Listen, serve
 
     # Trials are saved while serving: refuse an unwritable file now, not at the first save.
     output_path(args.trials, "--trials", [args.dataset, args.targets, args.result])
-    return serve(
-        args.dataset, host=args.host, port=args.port, targets=args.targets,
-        result=args.result, trials_path=args.trials, ppi=args.ppi, scale=args.scale,
-    )  # fmt: skip
+    listen = Listen(host=args.host, port=args.port)  # a new secret, the default deadline
+    files = EvaluationFiles(targets=args.targets, result=args.result, trials=args.trials)
+    return serve(args.dataset, listen=listen, files=files, ppi=args.ppi, scale=args.scale)
 
 
 def add_tablet_command(sub: argparse._SubParsersAction) -> None:

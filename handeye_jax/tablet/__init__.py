@@ -22,13 +22,23 @@ from ._posts import (
     parse_calibration,
     parse_evaluation,
 )
-from ._server import DEFAULT_HOST, DEFAULT_PORT, TabletServer, make_server, serve
+from ._server import (
+    DEFAULT_HOST,
+    DEFAULT_PORT,
+    EvaluationFiles,
+    Listen,
+    TabletServer,
+    make_server,
+    serve,
+)
 from ._targets import grid_targets, load_targets
 from ._trials import format_summary, load_trials, summarise
 
 __all__ = [
     "DEFAULT_HOST",
     "DEFAULT_PORT",
+    "EvaluationFiles",
+    "Listen",
     "MAX_BODY_BYTES",
     "MAX_TOUCHES",
     "MAX_TRIALS",

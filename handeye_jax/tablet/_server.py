@@ -11,7 +11,7 @@ server's address (DNS rebinding) or whose ``Origin`` is another site's page, get
 Posts are bounded: a body over ``MAX_BODY_BYTES`` is answered 413 at once (before it is
 read), a run holds at most ``MAX_TOUCHES`` touches and the trials file at most
 ``MAX_TRIALS`` trials. No client can stall it: connections are capped and each request must
-arrive whole within ``request_timeout_s`` (:mod:`._http`).
+arrive whole within :attr:`Listen.request_timeout_s` (:mod:`._http`).
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ import errno
 import ipaddress
 import socket
 import sys
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -51,6 +52,59 @@ _WILDCARD_HOSTS = ("", "0.0.0.0", "::")
 # address the PC would use to reach each private network: its LAN address(es).
 _PROBE_ADDRESSES = ("10.254.254.254", "172.31.254.254", "192.168.254.254")
 _BACKUPS = f"<UTC time>.bak beside it (the first and the last {MAX_BACKUPS})"
+
+
+@dataclass(frozen=True)
+class Listen:
+    """Where the tablet server listens, and the secret that lets a browser in.
+
+    Checked when made: ``InputError`` (a ``ValueError``) naming the field.
+
+    Attributes:
+        host: the address to listen on; ``127.0.0.1`` (this machine only) by default,
+            ``0.0.0.0`` to let a tablet on the LAN load the page.
+        port: the TCP port, 0 to 65535; 0 picks a free one (see ``server.url``).
+        token: the secret a browser or script must show (``server.secret_url`` carries it);
+            ``None``: a new random one (:func:`~.guard.new_token`) at each start. Give one only
+            for scripts: at least 32 URL-safe characters. Not shown by ``repr``.
+        request_timeout_s: the deadline, s, for each request's head and body together, from
+            the connection's start (or the previous answer): then the server answers 408, or
+            closes a connection that sent nothing. > 0.
+    """
+
+    host: str = DEFAULT_HOST
+    port: int = DEFAULT_PORT
+    token: str | None = field(default=None, repr=False)  # a secret: kept out of logs
+    request_timeout_s: float = DEFAULT_REQUEST_TIMEOUT_S
+
+    def __post_init__(self) -> None:
+        if self.token is not None:
+            try:
+                guard.check_token(self.token)
+            except ValueError as e:
+                raise InputError(None, "token", str(e)) from None
+        if not 0 <= self.port <= 65535:
+            raise InputError(None, "port", f"must be 0 to 65535 (got {self.port})")
+        if not self.request_timeout_s > 0:
+            raise InputError(None, "request_timeout_s",
+                             f"must be > 0 s (got {self.request_timeout_s})")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class EvaluationFiles:
+    """The files of evaluation mode: what the page offers to touch, the result it evaluates,
+    and where its trials go. Each is a path, or ``None``.
+
+    Attributes:
+        targets: evaluation targets, a targets JSON or a dataset TOML (tablet px).
+        result: the calibration result being evaluated (recorded with each trial).
+        trials: where evaluation trials are saved (JSON); ``None``:
+            ``DATASET_STEM.trials.json`` beside the dataset, or ``tablet-trials.json``.
+    """
+
+    targets: str | Path | None = None
+    result: str | Path | None = None
+    trials: str | Path | None = None
 
 
 class TabletServer(HTTPServer):
@@ -142,37 +196,22 @@ def page_urls(
 def make_server(
     dataset: str | Path | None = None,
     *,
-    host: str = DEFAULT_HOST,
-    port: int = DEFAULT_PORT,
-    targets: str | Path | None = None,
-    result: str | Path | None = None,
-    trials_path: str | Path | None = None,
+    listen: Listen = Listen(),
+    files: EvaluationFiles = EvaluationFiles(),
     ppi: float | None = None,
     scale: float | None = None,
     quiet: bool = False,
-    request_timeout_s: float = DEFAULT_REQUEST_TIMEOUT_S,
-    token: str | None = None,
 ) -> TabletServer:
     """Check the inputs and bind the tablet server; call ``serve_forever()`` on it to run.
 
     Args:
         dataset: the dataset (TOML) to draw and to write touch errors into; optional.
-        host: the address to listen on; ``127.0.0.1`` (this machine only) by default,
-            ``0.0.0.0`` to let a tablet on the LAN load the page.
-        port: the TCP port; 0 picks a free one (see ``server.url``).
-        targets: evaluation targets, a targets JSON or a dataset TOML (tablet px).
-        result: the calibration result being evaluated (recorded with each trial).
-        trials_path: where evaluation trials are saved (JSON); defaults to
-            ``DATASET_STEM.trials.json`` beside the dataset, or ``tablet-trials.json``.
+        listen: the address, port, secret and request deadline (:class:`Listen`; by default
+            ``127.0.0.1:8765``, this machine only, with a new random secret).
+        files: evaluation mode's targets, result and trials file (:class:`EvaluationFiles`).
         ppi, scale: the tablet's px per inch and display scale; taken from the dataset when
             not given, required without one.
         quiet: do not log requests to standard error.
-        request_timeout_s: the deadline, s, for each request's head and body together,
-            from the connection's start (or the previous answer): then the server answers
-            408, or closes a connection that sent nothing.
-        token: the secret a browser or script must show (``server.secret_url`` carries
-            it); a new random one (:func:`~.guard.new_token`) when not given. Give one only
-            for scripts: at least 32 URL-safe characters.
 
     Raises :class:`InputError` naming the file or option for bad input: ``--port`` for a port
     in use or not allowed, ``--host`` for an address that is not this PC's, ``--trials`` for a
@@ -181,15 +220,14 @@ def make_server(
     more landmarks than a run may touch. Every file a post writes is checked here, before the
     server is bound.
     """
-    try:
-        token = guard.new_token() if token is None else guard.check_token(token)
-    except ValueError as e:
-        raise InputError(None, "token", str(e)) from None
+    host, port = listen.host, listen.port
+    token = guard.new_token() if listen.token is None else listen.token
+    targets, result = files.targets, files.result
     ds_path = Path(dataset) if dataset is not None else None
     ds = _dataset(ds_path) if ds_path is not None else None
     ppi, scale = _tablet_scale(ds, ppi, scale)
-    default_trials = trials_path is None
-    trials_path = Path(_default_trials(ds_path) if default_trials else trials_path)
+    default_trials = files.trials is None
+    trials_path = Path(_default_trials(ds_path) if default_trials else files.trials)
     _check_outputs(ds_path, trials_path, default_trials, [targets, result])
     info = _result_info(result, ds) if result is not None else None
     app = TabletApp(
@@ -202,12 +240,8 @@ def make_server(
         result=info,
         trials_doc=trials.load_trials(trials_path, ppi, scale),
     )
-    if not 0 <= port <= 65535:
-        raise InputError(None, "--port", f"must be 0 to 65535 (got {port})")
-    if not request_timeout_s > 0:
-        raise InputError(None, "request_timeout_s", f"must be > 0 s (got {request_timeout_s})")
     try:
-        return TabletServer((host, port), app, token, quiet, request_timeout_s)
+        return TabletServer((host, port), app, token, quiet, listen.request_timeout_s)
     except socket.gaierror as e:
         raise InputError(None, "--host", f"cannot use {host!r}: {e.strerror}") from None
     except OSError as e:
@@ -304,15 +338,23 @@ def _result_info(path: str | Path, ds: Dataset | None) -> dict[str, Any]:
     return info
 
 
-def serve(dataset: str | Path | None = None, **kwargs: Any) -> int:
+def serve(
+    dataset: str | Path | None = None,
+    *,
+    listen: Listen = Listen(),
+    files: EvaluationFiles = EvaluationFiles(),
+    ppi: float | None = None,
+    scale: float | None = None,
+    quiet: bool = False,
+) -> int:
     """Run the tablet server until Ctrl-C; arguments as for :func:`make_server`. Returns 0.
 
     Prints the page's URL with its secret (one per LAN address when listening on every
     address) and, when another device is to open it, the first as a QR code to scan.
     """
-    server = make_server(dataset, **kwargs)
+    server = make_server(dataset, listen=listen, files=files, ppi=ppi, scale=scale, quiet=quiet)
     app = server.app
-    _announce(server, kwargs.get("host", DEFAULT_HOST))
+    _announce(server, listen.host)
     try:
         server.serve_forever()
     except KeyboardInterrupt:
