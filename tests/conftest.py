@@ -1,4 +1,4 @@
-"""The suite's shared fixtures: one calibration of the paper's data per test process,
+"""The suite's shared fixtures: one calibration of the paper's data per run of the suite,
 reused by every file that needs a result (``paper_result_file``, ``paper_result``)."""
 
 import os
@@ -68,12 +68,21 @@ def _float64():
 @pytest.fixture(scope="session")
 def paper_result_file(tmp_path_factory) -> Path:
     """The paper's data calibrated as the command line does it (the tests' budget, with
-    diagnostics), once per test process: the result file. Read it; do not change it."""
+    diagnostics), once per run of the suite: the first worker to need it writes it, the
+    others wait for it and read that file (pytest-xdist's recipe for a session fixture). The
+    result file. Read it; do not change it."""
+    from filelock import FileLock
+
     from handeye_jax.cli import main
     from tests.common import FAST, PAPER
 
-    out = tmp_path_factory.mktemp("session") / "paper.json"
-    assert main(["calibrate", str(PAPER), "--out", str(out), *FAST]) == 0
+    shared = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        shared = shared.parent  # the folder every worker of this run has its own beside
+    out = shared / "paper.json"
+    with FileLock(f"{out}.lock"):
+        if not out.is_file():  # the CLI writes atomically: a file there is a whole one
+            assert main(["calibrate", str(PAPER), "--out", str(out), *FAST]) == 0
     return out
 
 
