@@ -2,6 +2,8 @@
 reused by every file that needs a result (``paper_result_file``, ``paper_result``)."""
 
 import os
+import signal
+import threading
 from pathlib import Path
 
 import hypothesis
@@ -56,6 +58,17 @@ def pytest_collection_modifyitems(items):
         test._hypothesis_internal_use_settings = hypothesis.settings(
             own, max_examples=own.max_examples * EXPLORE_EXAMPLES
         )
+
+
+def pytest_sessionfinish(session):
+    """A pytest-xdist worker whose tests are done ignores SIGINT. execnet sends one to a worker
+    still busy 5 s after the controller ends the run (pytest's closing garbage collections of
+    a process holding JAX's programs can take that long), and it lands in whatever runs then:
+    hypothesis's gc callback, which printed an "Exception ignored ... KeyboardInterrupt"
+    traceback after the last test. (execnet still ends a worker busy 10 s more.)"""
+    main = threading.current_thread() is threading.main_thread()  # where handlers are set
+    if os.environ.get("PYTEST_XDIST_WORKER") and main:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 @pytest.fixture(autouse=True)
