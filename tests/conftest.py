@@ -82,8 +82,11 @@ def _float64():
 def paper_result_file(tmp_path_factory) -> Path:
     """The paper's data calibrated as the command line does it (the tests' budget, with
     diagnostics), once per run of the suite: the first worker to need it writes it, the
-    others wait for it and read that file (pytest-xdist's recipe for a session fixture). The
-    result file. Read it; do not change it."""
+    others wait for it (pytest-xdist's recipe for a session fixture). Each process gets its
+    own copy, in a folder of its own (tests snapshot the folder around the file). Read it; do
+    not change it."""
+    import shutil
+
     from filelock import FileLock
 
     from handeye_jax.cli import main
@@ -92,10 +95,12 @@ def paper_result_file(tmp_path_factory) -> Path:
     shared = tmp_path_factory.getbasetemp()
     if os.environ.get("PYTEST_XDIST_WORKER"):
         shared = shared.parent  # the folder every worker of this run has its own beside
-    out = shared / "paper.json"
-    with FileLock(f"{out}.lock"):
-        if not out.is_file():  # the CLI writes atomically: a file there is a whole one
-            assert main(["calibrate", str(PAPER), "--out", str(out), *FAST]) == 0
+    done = shared / "paper-session.json"
+    with FileLock(f"{done}.lock"):
+        if not done.is_file():  # the CLI writes atomically: a file there is a whole one
+            assert main(["calibrate", str(PAPER), "--out", str(done), *FAST]) == 0
+    out = tmp_path_factory.mktemp("session") / "paper.json"
+    shutil.copyfile(done, out)
     return out
 
 
