@@ -45,8 +45,8 @@ def test_a_ctrl_c_while_the_bar_draws_still_ends_its_line(capsys, monkeypatch):
 
     def refresh_then_ctrl_c(self, *args, **kwargs):
         out = drawn(self, *args, **kwargs)
-        # gc off, so that the handler runs here and not inside a gc callback (hypothesis's
-        # would report it as an unraisable exception, as tests/test_cli.py's Ctrl-C says)
+        # gc off while the handler runs, so no gc callback (hypothesis's) runs inside it; the
+        # traceback once blamed on this came from execnet's end-of-run SIGINT (conftest.py)
         gc.disable()
         try:
             signal.raise_signal(signal.SIGINT)  # the first draw, inside tqdm's constructor
