@@ -168,6 +168,8 @@ def test_the_result_file_keeps_captures_and_heights(fitted, tmp_path):
     save_result(r, path)
     back = load_result(path)
     assert back.data == ds and back.heights == r.heights
+    # The heights give the views a z: the depth's noise scale is the data's own, and kept.
+    assert r.stage1.noise.noise.depth_scale is not None and back.stage1.noise == r.stage1.noise
     uv, depth, theta, position, angle, want = _targets(model, rig, seed=1, k=4)
     got = back.predict(uv, depth, theta, capture_position_mm=position,
                        capture_hand_angle_deg=angle, axes="xyz")  # fmt: skip

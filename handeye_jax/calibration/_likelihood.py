@@ -116,6 +116,7 @@ def refine_ml(
             found = replace(found, noise=noise)
             break
         change = max(abs(math.log(found.noise.view_scale / noise.view_scale)),
+                     abs(math.log(found.noise.depth_scale_or_view / noise.depth_scale_or_view)),
                      abs(math.log(found.noise.touch_scale / noise.touch_scale)))  # fmt: skip
         noise = found.noise
         if change < SCALE_TOLERANCE:

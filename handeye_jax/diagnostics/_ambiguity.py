@@ -100,7 +100,8 @@ def _paper_F(objective, x):
 def _floored(noise: NoiseModel) -> NoiseModel:
     """``noise`` with at least its preset's variances (noise-free data would tell apart fits
     no real rig can)."""
-    return dataclasses.replace(noise, view_scale=max(noise.view_scale, 1.0),
+    depth = None if noise.depth_scale is None else max(noise.depth_scale, 1.0)
+    return dataclasses.replace(noise, view_scale=max(noise.view_scale, 1.0), depth_scale=depth,
                                touch_scale=max(noise.touch_scale, 1.0))  # fmt: skip
 
 

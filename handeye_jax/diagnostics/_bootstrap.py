@@ -321,7 +321,7 @@ def _predicted(result: CalibrationResult, parts: list[Targets], stage: int):
                 stage=stage)  # fmt: skip
     targets = _joined(parts)
     # Targets measured exactly (no picture noise): the fit's part of the error alone.
-    exact = replace(noise, view_scale=0.0)
+    exact = replace(noise, view_scale=0.0, depth_scale=0.0)
     fit_part = np.asarray(uncertainty(point1, targets, exact, **args)[2].covariance_mm2)
     # All targets again (one compiled program for both calls); the first part's kept.
     touching = np.asarray(uncertainty(point1, targets, noise, **args)[2].covariance_mm2)

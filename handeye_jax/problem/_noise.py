@@ -22,9 +22,13 @@ covariance and divided by the number of rows that repeat it. The sum of their sq
 log-likelihood (up to a constant): :class:`NoiseObjective` is the maximum-likelihood
 objective, and ``(JᵀJ)⁻¹`` of its whitened Jacobian the fit's covariance.
 
-The picture's and the touch's scales are estimated from the data (:func:`estimate_noise`,
-restricted maximum likelihood: each group's sum of squares over its redundancy), starting
-from a preset (:data:`NOISE_MODELS`).
+The scales of the noise are estimated from the data (:func:`estimate_noise`, restricted
+maximum likelihood: each component's sum of squares over its redundancy), starting from a
+preset (:data:`NOISE_MODELS`): the touches' scale, and the pictures' — one for the image and
+the depth together, or one each where the views' residuals tell them apart (recorded hand
+heights give the views a z, which sees the depth directly). Dots of two pixels are found twice
+as precisely as the preset's one-pixel dots while the depth's error stays as it was: one
+shared scale then weights the depth too little or the image too much.
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._core import spec
 from .._jax import fast_compile, in_float64
 from ..data import Observations
 from ..models import AbstractModel
@@ -71,6 +76,8 @@ class NoiseModel:
             (``None``: ``image_sigma_px``); for predicted hand-command errors.
         view_scale, touch_scale: variance multipliers of the pictures' and the touches'
             noise, estimated from a fit's residuals (:func:`estimate_noise`); 1: as stated.
+        depth_scale: the depth's own variance multiplier, where the data tell it apart from
+            the image's (``None``: ``view_scale`` applies to the depth too).
         name: the preset's name, or ``"custom"``.
     """
 
@@ -83,6 +90,7 @@ class NoiseModel:
     view_scale: float = 1.0
     touch_scale: float = 1.0
     name: str = "custom"
+    depth_scale: float | None = spec(omit="none", default=None)
 
     def __post_init__(self):
         for f in ("image_sigma_px", "depth_sigma_mm", "hand_resolution_mm", "touch_sigma_mm",
@@ -90,6 +98,9 @@ class NoiseModel:
             v = getattr(self, f)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"{f} must be finite and >= 0 (got {v})")
+        d = self.depth_scale
+        if d is not None and not (math.isfinite(d) and d >= 0):
+            raise ValueError(f"depth_scale must be finite and >= 0 or None (got {d})")
         if self.image_sigma_px + self.depth_sigma_mm <= 0:
             raise ValueError("a picture's noise (image_sigma_px, depth_sigma_mm) must not be 0")
         if self.hand_resolution_mm + self.touch_sigma_mm + self.tablet_resolution_px <= 0:
@@ -108,20 +119,34 @@ class NoiseModel:
         ``touch_scale``; at least a tenth of the x-y variance's floor)."""
         return self.touch_scale * max(self.hand_resolution_mm**2 / 12.0, 1e-6)
 
+    @property
+    def depth_scale_or_view(self) -> float:
+        """The depth's variance multiplier: ``depth_scale``, or ``view_scale`` if shared."""
+        return self.view_scale if self.depth_scale is None else self.depth_scale
+
     def picture_variances(self) -> tuple[float, float]:
-        """``(image px², depth mm²)``: a view's variances, times ``view_scale``."""
+        """``(image px², depth mm²)``: a view's variances, times their scales."""
         return (self.view_scale * self.image_sigma_px**2,
-                self.view_scale * self.depth_sigma_mm**2)  # fmt: skip
+                self.depth_scale_or_view * self.depth_sigma_mm**2)  # fmt: skip
 
     def target_variances(self) -> tuple[float, float]:
         """``(image px², depth mm²)`` of a target measured by the user."""
         s = self.image_sigma_px if self.target_sigma_px is None else self.target_sigma_px
-        return self.view_scale * s**2, self.view_scale * self.depth_sigma_mm**2
+        return self.view_scale * s**2, self.depth_scale_or_view * self.depth_sigma_mm**2
 
-    def scaled(self, view: float = 1.0, touch: float = 1.0) -> NoiseModel:
-        """The model with its pictures' and touches' variances multiplied by these."""
+    def scaled(self, view: float = 1.0, touch: float = 1.0, depth: float | None = None
+               ) -> NoiseModel:  # fmt: skip
+        """The model with its pictures' and touches' variances multiplied by these (the
+        depth's by ``depth``, default ``view``; a shared scale stays shared unless ``depth``
+        is given)."""
+        if depth is None and self.depth_scale is None:
+            depth_scale = None
+        else:
+            depth_scale = max(self.depth_scale_or_view * (view if depth is None else depth),
+                              MIN_SCALE)  # fmt: skip
         return replace(self, view_scale=max(self.view_scale * view, MIN_SCALE),
-                       touch_scale=max(self.touch_scale * touch, MIN_SCALE))  # fmt: skip
+                       touch_scale=max(self.touch_scale * touch, MIN_SCALE),
+                       depth_scale=depth_scale)  # fmt: skip
 
     def effective(self, mm_per_tablet_px: float) -> dict[str, float]:
         """The σs the scales give, per axis: image px, depth mm and a touch's x-y mm."""
@@ -215,10 +240,18 @@ def _view_covariance(model, obs: Observations, variances, dims: int):
 
 @fast_compile
 def _view_whitener(model, obs: Observations, variances, view_count, dims: int):
-    """Each row's view whitener ``W`` (``WᵀW = S⁻¹/count``): one compiled program."""
+    """Each row's view whitener ``W`` (``WᵀW = S⁻¹/count``) and, for views with a z, the
+    image's share of its whitened covariance, ``LᵀS_image L`` (``LLᵀ = S⁻¹``; the depth's is
+    ``I`` less it; zeros without a z, where the scales are not told apart): one compiled
+    program."""
     S = _view_covariance(model, obs, variances, dims)
     L = jnp.linalg.cholesky(jnp.linalg.inv(S))
-    return jnp.swapaxes(L, -1, -2) / jnp.sqrt(view_count)[:, None, None]
+    Lt = jnp.swapaxes(L, -1, -2)
+    W = Lt / jnp.sqrt(view_count)[:, None, None]
+    if dims < 3:  # x-y only: W's program as it was, bit for bit
+        return W, jnp.zeros_like(S)
+    S_image = _view_covariance(model, obs, variances.at[2].set(0.0), dims)
+    return W, Lt @ S_image @ L
 
 
 # -- the objective ---------------------------------------------------------------------------
@@ -236,11 +269,15 @@ class NoiseObjective(AbstractObjective):
             :class:`~handeye_jax.Stage2Objective`), whose errors are separated.
         view_whitener: per row, ``(k, k)``, k = 2 (x-y) or 3 (with the hand's heights).
         touch_whitener: per row and axis, ``(k,)`` (0 for a height not recorded).
+        image_share: per row, ``(k, k)``: the image noise's part of the whitened view
+            residual's covariance (the depth's is the identity less it), for estimating
+            their scales apart (:func:`estimate_noise`).
     """
 
     base: AbstractObjective
     view_whitener: Float[Array, "n k k"]
     touch_whitener: Float[Array, "n k"]
+    image_share: Float[Array, "n k k"]
 
     def separated(self, theta) -> tuple[Float[Array, "n k"], Float[Array, "n k"]]:
         """The rows' view and touch residuals at ``theta``, mm (not whitened)."""
@@ -253,6 +290,8 @@ class NoiseObjective(AbstractObjective):
 
     def _whitened(self, theta):
         v, t = self.separated(theta)
+        if v.shape[1] == 3:
+            v = v.at[:, 2].add(-view_offset(self.view_whitener, v))
         return jnp.einsum("nij,nj->ni", self.view_whitener, v), t * self.touch_whitener
 
     def blocks(self, theta):
@@ -264,7 +303,23 @@ class NoiseObjective(AbstractObjective):
     def on_landmarks(self, idx):
         idx = np.asarray(idx)
         return NoiseObjective(self.base.on_landmarks(idx), self.view_whitener[idx],
-                              self.touch_whitener[idx])  # fmt: skip
+                              self.touch_whitener[idx], self.image_share[idx])  # fmt: skip
+
+
+def view_offset(view_whitener: Float[Array, "n 3 3"], view: Float[Array, "n 3"]) -> Array:
+    """The views' common z offset (the camera's height on the hand, which the models do not
+    carry) by generalised least squares under their covariances, mm.
+
+    The views' z residuals arrive less their plain mean. With the hand's heights a view's
+    whitener mixes its z into its x and y (a depth error also moves the back-projected point
+    sideways, often more than its own pixel noise does), so that mean's error, common to
+    every row, reached each row's whitened x-y many times over: on a 3-capture grid of 147
+    views it showed as about 15 extra degrees of χ², most of them in the image's share, and
+    depth noise alone was estimated as image noise. Weighted by the covariances, the offset is
+    the likelihood's own profile, and it is one fitted parameter (:func:`estimate_noise`).
+    """
+    M = jnp.einsum("nki,nkj->nij", view_whitener, view_whitener)  # each row's S⁻¹/count
+    return jnp.sum(jnp.einsum("nj,nj->n", M[:, 2], view)) / jnp.sum(M[:, 2, 2])
 
 
 def separated_errors(
@@ -329,13 +384,14 @@ def noise_objective(
     dims = 3 if heights else 2
     view_count, touch_count = row_counts(obs)
     image_var, depth_var = noise.picture_variances()
-    W = _view_whitener(model, obs, np.array([image_var, image_var, depth_var]), view_count, dims)
+    W, share = _view_whitener(model, obs, np.array([image_var, image_var, depth_var]), view_count,
+                              dims)  # fmt: skip
     var_xy = noise.touch_variance_mm2(_mm_per_tablet_px(obs))
     w = np.tile(1.0 / np.sqrt(var_xy * touch_count)[:, None], (1, dims))
     if heights:
         recorded = np.isfinite(np.asarray(obs.hand_z_mm))
         w[:, 2] = np.where(recorded, 1.0 / np.sqrt(noise.hand_z_variance_mm2() * touch_count), 0.0)
-    return NoiseObjective(base, W, jnp.asarray(w))
+    return NoiseObjective(base, W, jnp.asarray(w), share)
 
 
 #: The tablet px size of observations that do not carry theirs: the paper's tablet, mm.
@@ -362,17 +418,21 @@ class NoiseFit:
     """The noise model a fit estimated from its residuals.
 
     Attributes:
-        noise: the model with its scales (``view_scale``, ``touch_scale``) estimated.
+        noise: the model with its scales (``view_scale``, ``touch_scale`` and, where told
+            apart, ``depth_scale``) estimated.
         view_redundancy, touch_redundancy: the degrees of freedom behind each scale (the
             group's residuals less its share of the fitted parameters); a scale with fewer
             than :data:`MIN_REDUNDANCY` keeps its previous value.
         chi2: the sum of squares of the whitened residuals under ``noise``.
+        depth_redundancy: the depth's share of ``view_redundancy`` (the rest is the
+            image's); at least :data:`MIN_REDUNDANCY` for a ``depth_scale`` of its own.
     """
 
     noise: NoiseModel
     view_redundancy: float
     touch_redundancy: float
     chi2: float
+    depth_redundancy: float | None = spec(omit="none", default=None)
 
     @property
     def dof(self) -> float:
@@ -380,12 +440,12 @@ class NoiseFit:
         return self.view_redundancy + self.touch_redundancy
 
 
-def _hat_diagonal(J: np.ndarray, prior_precision: np.ndarray | None) -> np.ndarray:
-    """The diagonal of ``J (JᵀJ + P)⁺ Jᵀ``."""
+def _hat_inner(J: np.ndarray, prior_precision: np.ndarray | None) -> np.ndarray:
+    """``(JᵀJ + P)⁺``, the hat matrix's middle."""
     A = J.T @ J
     if prior_precision is not None:
         A = A + prior_precision
-    return np.einsum("ij,jk,ik->i", J, np.linalg.pinv(A, hermitian=True), J)
+    return np.linalg.pinv(A, hermitian=True)
 
 
 @in_float64
@@ -401,6 +461,12 @@ def estimate_noise(
     (the group's independent residuals less the trace of its part of the hat matrix):
     restricted maximum likelihood, one step from the scales ``objective`` was built with.
 
+    The pictures' image and depth noise get a scale each where the depth's share of the
+    redundancy is at least :data:`MIN_REDUNDANCY` (variance components: each component's
+    quadratic form ``rᵀG r`` over its share ``tr(G(C − H))`` of the redundancy, ``G`` its
+    part of the whitened covariance, ``C`` the rows' weights and ``H`` the hat matrix; the two
+    shares add up to the group's). Otherwise one scale serves both, as stated.
+
     Args:
         objective: the stage's :class:`NoiseObjective`, built with ``noise``.
         theta: its optimum.
@@ -415,12 +481,36 @@ def estimate_noise(
     active_t = np.asarray(objective.touch_whitener) != 0
     size_v = float(np.sum(k / view_count))
     size_t = float(np.sum(active_t / touch_count[:, None]))
-    h = _hat_diagonal(J, prior_precision)
+    inner = _hat_inner(J, prior_precision)
+    h = np.einsum("ij,jk,ik->i", J, inner, J)  # the hat matrix's diagonal
     nv = n * k
     red_v, red_t = size_v - float(h[:nv].sum()), size_t - float(h[nv:].sum())
     ss_v, ss_t = float(np.sum(r[:nv] ** 2)), float(np.sum(r[nv:] ** 2))
+    # The depth's part of each row's whitened covariance, and of the redundancy.
+    G = np.eye(k) - np.asarray(objective.image_share)
+    Jv = J[:nv].reshape(n, k, -1)
+    H_rows = np.einsum("nad,de,nbe->nab", Jv, inner, Jv)  # each row's block of the hat matrix
+    red_d = float(np.einsum("nii->", G / view_count[:, None, None])
+                  - np.einsum("nij,nji->", G, H_rows))  # fmt: skip
+    if k == 3:  # the views' and the touches' profiled z offsets are fitted parameters too
+        u = np.asarray(objective.view_whitener)[:, :, 2]  # the views' whitened direction
+        red_v -= 1.0
+        red_d -= float(np.einsum("ni,nij,nj->", u, G, u) / np.sum(u * u))
+        red_t -= float(np.any(active_t[:, 2]))
     fv = ss_v / red_v if red_v >= MIN_REDUNDANCY else 1.0
     ft = ss_t / red_t if red_t >= MIN_REDUNDANCY else 1.0
+    red_i = red_v - red_d
+    # Only views with a z see the depth directly: in x-y alone its share is a lateral
+    # lever on the image's, and the two estimates trade off (on the paper's single capture
+    # they did not settle in five rounds).
+    if k == 3 and red_d >= MIN_REDUNDANCY and red_i >= MIN_REDUNDANCY:
+        rv = r[:nv].reshape(n, k)
+        ss_d = float(np.einsum("ni,nij,nj->", rv, G, rv))
+        fi, fd = (ss_v - ss_d) / red_i, ss_d / red_d
+        new = noise.scaled(fi, ft, depth=fd)
+        chi2 = (ss_v - ss_d) / max(fi, MIN_SCALE) + ss_d / max(fd, MIN_SCALE) \
+            + ss_t / max(ft, MIN_SCALE)
+        return NoiseFit(new, max(red_v, 0.0), max(red_t, 0.0), chi2, red_d)
     new = noise.scaled(fv, ft)
     chi2 = ss_v / max(fv, MIN_SCALE) + ss_t / max(ft, MIN_SCALE)
     return NoiseFit(new, max(red_v, 0.0), max(red_t, 0.0), chi2)
