@@ -448,6 +448,29 @@ def _hat_inner(J: np.ndarray, prior_precision: np.ndarray | None) -> np.ndarray:
     return np.linalg.pinv(A, hermitian=True)
 
 
+def _apart(objective: NoiseObjective, H_rows, rv, view_count, ss_v: float, red_v: float):
+    """The image's and the depth's variance factors of views with a z, ``(image, depth, the
+    depth's sum of squares, its redundancy)``; ``None`` if either share of the redundancy is
+    under :data:`MIN_REDUNDANCY` (then one scale serves both).
+
+    Each row's whitened covariance is the identity, the image's part ``G_i`` and the depth's
+    ``I − G_i``; a part's factor is its quadratic form over its share of the redundancy. Only
+    views with a z see the depth directly: in x-y alone its share is a sideways lever on the
+    image's, and the two estimates trade off (on the paper's single capture they did not
+    settle in five rounds). ``H_rows``: each row's block of the hat matrix, ``(n, 3, 3)``.
+    """
+    G = np.eye(rv.shape[1]) - np.asarray(objective.image_share)
+    red_d = float(np.einsum("nii->", G / view_count[:, None, None])
+                  - np.einsum("nij,nji->", G, H_rows))  # fmt: skip
+    u = np.asarray(objective.view_whitener)[:, :, 2]  # the profiled z offset's direction
+    red_d -= float(np.einsum("ni,nij,nj->", u, G, u) / np.sum(u * u))
+    red_i = red_v - red_d
+    if red_d < MIN_REDUNDANCY or red_i < MIN_REDUNDANCY:
+        return None
+    ss_d = float(np.einsum("ni,nij,nj->", rv, G, rv))
+    return (ss_v - ss_d) / red_i, ss_d / red_d, ss_d, red_d
+
+
 @in_float64
 def estimate_noise(
     objective: NoiseObjective,
@@ -486,31 +509,23 @@ def estimate_noise(
     nv = n * k
     red_v, red_t = size_v - float(h[:nv].sum()), size_t - float(h[nv:].sum())
     ss_v, ss_t = float(np.sum(r[:nv] ** 2)), float(np.sum(r[nv:] ** 2))
-    # The depth's part of each row's whitened covariance, and of the redundancy.
-    G = np.eye(k) - np.asarray(objective.image_share)
-    Jv = J[:nv].reshape(n, k, -1)
-    H_rows = np.einsum("nad,de,nbe->nab", Jv, inner, Jv)  # each row's block of the hat matrix
-    red_d = float(np.einsum("nii->", G / view_count[:, None, None])
-                  - np.einsum("nij,nji->", G, H_rows))  # fmt: skip
-    if k == 3:  # the views' and the touches' profiled z offsets are fitted parameters too
-        u = np.asarray(objective.view_whitener)[:, :, 2]  # the views' whitened direction
-        red_v -= 1.0
-        red_d -= float(np.einsum("ni,nij,nj->", u, G, u) / np.sum(u * u))
-        red_t -= float(np.any(active_t[:, 2]))
-    fv = ss_v / red_v if red_v >= MIN_REDUNDANCY else 1.0
-    ft = ss_t / red_t if red_t >= MIN_REDUNDANCY else 1.0
-    red_i = red_v - red_d
-    # Only views with a z see the depth directly: in x-y alone its share is a lateral
-    # lever on the image's, and the two estimates trade off (on the paper's single capture
-    # they did not settle in five rounds).
-    if k == 3 and red_d >= MIN_REDUNDANCY and red_i >= MIN_REDUNDANCY:
-        rv = r[:nv].reshape(n, k)
-        ss_d = float(np.einsum("ni,nij,nj->", rv, G, rv))
-        fi, fd = (ss_v - ss_d) / red_i, ss_d / red_d
-        new = noise.scaled(fi, ft, depth=fd)
-        chi2 = (ss_v - ss_d) / max(fi, MIN_SCALE) + ss_d / max(fd, MIN_SCALE) \
-            + ss_t / max(ft, MIN_SCALE)
-        return NoiseFit(new, max(red_v, 0.0), max(red_t, 0.0), chi2, red_d)
+    if k < 3:  # x-y only: one scale for the image and the depth (see _apart)
+        fv = ss_v / red_v if red_v >= MIN_REDUNDANCY else 1.0
+        ft = ss_t / red_t if red_t >= MIN_REDUNDANCY else 1.0
+    else:
+        # The views' and the touches' profiled z offsets are fitted parameters too.
+        red_v, red_t = red_v - 1.0, red_t - float(np.any(active_t[:, 2]))
+        ft = ss_t / red_t if red_t >= MIN_REDUNDANCY else 1.0
+        Jv = J[:nv].reshape(n, k, -1)
+        H_rows = np.einsum("nad,de,nbe->nab", Jv, inner, Jv)
+        apart = _apart(objective, H_rows, r[:nv].reshape(n, k), view_count, ss_v, red_v)
+        if apart is not None:
+            fi, fd, ss_d, red_d = apart
+            new = noise.scaled(fi, ft, depth=fd)
+            chi2 = ((ss_v - ss_d) / max(fi, MIN_SCALE) + ss_d / max(fd, MIN_SCALE)
+                    + ss_t / max(ft, MIN_SCALE))  # fmt: skip
+            return NoiseFit(new, max(red_v, 0.0), max(red_t, 0.0), chi2, red_d)
+        fv = ss_v / red_v if red_v >= MIN_REDUNDANCY else 1.0
     new = noise.scaled(fv, ft)
     chi2 = ss_v / max(fv, MIN_SCALE) + ss_t / max(ft, MIN_SCALE)
     return NoiseFit(new, max(red_v, 0.0), max(red_t, 0.0), chi2)
