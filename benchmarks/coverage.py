@@ -14,12 +14,13 @@ twin its own ``calibrate``'s result bit for bit) and ``diagnose`` it. Then:
 
 * **coverage**: for every stage-1 parameter the summary gives a σ for (not in a weak or
   undetermined direction, not moved by an alternative fit the data cannot exclude), whether
-  the reported 95 % interval (± t·σ, t the 97.5 % quantile of Student's t with the fit's
-  degrees of freedom) holds the truth; and for each combination the data determine where its
-  parts do not (the DH model's θc1 + γc, θt1 + γt). DH twins: the rig's camera sits on the
-  hand's x axis and the tablet's corner on the base's x axis (``yc = yt = 0``, ``xc`` drawn in
-  28–42 mm), so the DH chain holds it exactly; its truth is the HTM truth's rotations written
-  in DH form (checked: F < 1e-9 mm on the exact data).
+  the reported 95 % interval (± t·σ, t the 97.5 % quantile of Student's t with that σ's
+  degrees of freedom, ``std_dof``: those of the noise scales it rests on) holds the truth;
+  and for each combination the data determine where its parts do not (the DH model's
+  θc1 + γc, θt1 + γt). DH twins: the rig's camera sits on the hand's x axis and the tablet's
+  corner on the base's x axis (``yc = yt = 0``, ``xc`` drawn in 28–42 mm), so the DH chain
+  holds it exactly; its truth is the HTM truth's rotations written in DH form (checked:
+  F < 1e-9 mm on the exact data).
 * **predicted against measured touching error**: the stage deployed, on the twin's held-out
   targets (one capture: 20 on the display seen from the capture; three captures: 20 in each
   of four groups, seen from the first capture or a new pose 60 mm higher, on the display or
@@ -72,6 +73,7 @@ from handeye_jax.problem import (
     command_error,
     error_statistics,
     fitness,
+    std_dof,
 )
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -184,18 +186,20 @@ def _predicted(result, twin, stage: int):
 
 
 def _coverage_items(result, truth_params: dict[str, float]) -> list[dict]:
-    """Each parameter or combination the summary gives a σ for: name, fit, truth, σ."""
+    """Each parameter or combination the summary gives a σ for: name, fit, truth, σ and the
+    σ's degrees of freedom (``None``: no estimated noise scale enters it)."""
     d = result.diagnostics
     diag = d.stage1
     free = diag.free
     weak = set(d.weak_params)
+    own_dof = diag.std_dof or {}
     items = []
     for n in free:
         sd = diag.std.get(n)
         if sd is None or n in weak:
             continue
         items.append({"name": n, "fit": result.stage1.params[n], "truth": truth_params[n],
-                      "sigma": sd})  # fmt: skip
+                      "sigma": sd, "dof": own_dof.get(n)})  # fmt: skip
     cov = np.linalg.pinv(np.asarray(diag.precision, float), hermitian=True)
     for w in diag.weak_directions:
         if not w.determined:
@@ -208,8 +212,25 @@ def _coverage_items(result, truth_params: dict[str, float]) -> list[dict]:
         items.append({"name": " + ".join(names),
                       "fit": float(sum(result.stage1.params[n] for n in names)),
                       "truth": float(sum(truth_params[n] for n in names)),
-                      "sigma": float(math.sqrt(max(c @ cov @ c, 0.0)))})  # fmt: skip
+                      "sigma": float(math.sqrt(max(c @ cov @ c, 0.0))),
+                      "dof": _combination_dof(result, c)})  # fmt: skip
     return items
+
+
+def _combination_dof(result, c: np.ndarray) -> float | None:
+    """The degrees of freedom of the σ of ``c · x`` (stage 1's free parameters)."""
+    one = fitted_stages(result).stage1
+    with float64():
+        nu = std_dof(noise_part(one.objective), np.asarray(one.x, float), result.stage1.noise,
+                     prior_information(one.space), directions=c[None])[0]  # fmt: skip
+    return float(nu) if np.isfinite(nu) else None
+
+
+def _quantile(item: dict, row: dict) -> float:
+    """The 97.5 % quantile of Student's t at the item's σ's degrees of freedom (rows written
+    before each σ had its own: the fit's)."""
+    dof = item["dof"] if "dof" in item else row["dof"]
+    return 1.959963984540054 if dof is None else float(student_t.ppf(0.975, max(dof, 1.0)))
 
 
 def run_twins(seeds: list[int], model: str, captures: int) -> dict[int, dict | Exception]:
@@ -286,10 +307,9 @@ def coverage_table(rows: list[dict]) -> list[str]:
     """Per configuration and parameter: how many intervals, how many held the truth."""
     names: dict[str, dict[str, list[bool]]] = {}
     for r in rows:
-        q = float(student_t.ppf(0.975, max(r["dof"], 1.0)))
         cfg = f"{r['model'].upper()}, {r['captures']} capture{'s' if r['captures'] > 1 else ''}"
         for it in r["items"]:
-            hit = abs(it["fit"] - it["truth"]) <= q * it["sigma"]
+            hit = abs(it["fit"] - it["truth"]) <= _quantile(it, r) * it["sigma"]
             names.setdefault(it["name"], {}).setdefault(cfg, []).append(hit)
             names[it["name"]].setdefault("all", []).append(hit)
     cfgs = sorted({c for v in names.values() for c in v if c != "all"})

@@ -2,6 +2,8 @@
 depth's apart where the views have a z (several captures with the hand's heights), one shared
 scale where they do not (one capture, x-y only)."""
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -17,7 +19,13 @@ from handeye_jax import (
     snake_grid_px,
     synthesize_dataset,
 )
-from handeye_jax.problem import estimate_noise, get_noise_model, noise_objective, row_counts
+from handeye_jax.problem import (
+    estimate_noise,
+    get_noise_model,
+    noise_objective,
+    row_counts,
+    std_dof,
+)
 
 TRUTH = dict(xc=-3.0, yc=35.0, alpha_c=-1.5, beta_c=2.0, gamma_c=4.0, xt=150.0, yt=40.0,
              alpha_t=2.0, beta_t=-8.0, gamma_t=-3.0, xp=4.0, yp=-25.0)  # fmt: skip
@@ -124,3 +132,80 @@ def test_a_shared_scale_stays_shared_and_a_depth_scale_is_kept_apart():
     assert again.picture_variances() == pytest.approx((0.1**2, 0.6**2))
     with pytest.raises(ValueError, match="depth_scale"):
         type(PAPER)(depth_scale=float("nan"))
+
+
+# -- each σ's degrees of freedom ---------------------------------------------------------------
+
+
+def _fit_once(truth, ds, image_px: float, depth_mm: float, touch_mm: float, seed: int):
+    """One noisy draw of ``ds`` (pictures, and the touches' hand positions), fitted with its
+    scales estimated: the objective at the fit, the fit and the scales' fit."""
+    rng = np.random.default_rng(seed)
+    with handeye_jax.float64():
+        exact = ds.observations()
+        uv, d = np.asarray(exact.image_px), np.asarray(exact.depth_mm)
+        hand = np.asarray(exact.hand_xy_mm)
+        # A touch's error is one per touch, whichever of its rows repeats it.
+        rows = (np.arange(len(hand)) if exact.touch_index is None
+                else np.asarray(exact.touch_index))  # fmt: skip
+        touch = rng.normal(0.0, touch_mm, (int(rows.max()) + 1, 2))
+        obs = eqx.tree_at(lambda o: (o.image_px, o.depth_mm, o.hand_xy_mm), exact,
+                          (jnp.asarray(uv + rng.normal(0.0, image_px, uv.shape)),
+                           jnp.asarray(d + rng.normal(0.0, depth_mm, d.shape)),
+                           jnp.asarray(hand + touch[rows])))
+        noise, x = PAPER, jnp.asarray(truth.to_vector())
+        for _ in range(ROUNDS):
+            objective = noise_objective(Stage1Objective(HTMModel, obs), noise, truth, obs)
+            x = _fitted(objective, x)
+            found = estimate_noise(objective, x, noise, None, row_counts(obs))
+            noise = found.noise
+        objective = noise_objective(Stage1Objective(HTMModel, obs), noise, truth, obs)
+    return objective, x, found
+
+
+@pytest.mark.parametrize("which", ["one", "three"])
+def test_each_sigma_has_the_degrees_of_freedom_of_the_scales_it_rests_on(clean, which):
+    """Satterthwaite's count lies between the least of the scales' redundancies and their sum
+    (a parameter one scale alone sets has that scale's: the paper's stage 2, below)."""
+    truth, one, three = clean
+    objective, x, fit = _fit_once(truth, one if which == "one" else three, 0.1, 0.3, 0.3, 5)
+    reds = [fit.touch_redundancy]
+    if fit.depth_redundancy is None:
+        reds.append(fit.view_redundancy)
+    else:
+        reds += [fit.view_redundancy - fit.depth_redundancy, fit.depth_redundancy]
+    assert len(reds) == (2 if which == "one" else 3)
+    nu = std_dof(objective, x, fit)
+    assert nu.shape == (12,) and np.all(np.isfinite(nu))
+    assert np.all(nu >= min(reds) - 1e-9) and np.all(nu <= sum(reds) + 1e-9), (nu, reds)
+    assert np.ptp(nu) > 1.0  # the parameters rest on the scales in different shares
+    # A scale kept as stated (the touches', say) is certain: every count only grows, and
+    # none falls below the one estimated scale's.
+    views_only = std_dof(objective, x, dataclasses.replace(fit, touch_redundancy=0.0))
+    assert np.all(views_only >= nu - 1e-9) and np.any(views_only > nu + 1.0)
+    assert np.all(views_only >= min(reds[1:]) - 1e-9)
+    # A combination's count: the parameters' own for unit directions.
+    both = std_dof(objective, x, fit, directions=np.eye(12)[[0, 5]])
+    np.testing.assert_allclose(both, nu[[0, 5]])
+
+
+def test_no_estimated_scale_leaves_the_normal_quantile(clean):
+    truth, one, _ = clean
+    objective, x, fit = _fit_once(truth, one, 0.1, 0.3, 0.3, 6)
+    none = dataclasses.replace(fit, view_redundancy=1.0, touch_redundancy=1.0)
+    assert np.all(np.isinf(std_dof(objective, x, none)))
+
+
+def test_the_paper_fit_reports_each_sigmas_degrees_of_freedom(paper_result):
+    """Stage 2's corrections act on one side each: the views' on the pictures' residuals, the
+    touches' on the touches': each σ has that side's count exactly. Stage 1's lie between."""
+    diag, fit = paper_result.diagnostics, paper_result.stage2.noise
+    dof2 = diag.stage2.std_dof
+    for name in ("X1", "Y1", "theta1", "Sx1", "Sy1"):
+        assert dof2[name] == pytest.approx(fit.view_redundancy, rel=1e-6)
+    for name in ("X2", "Y2", "theta2", "Sx2", "Sy2"):
+        assert dof2[name] == pytest.approx(fit.touch_redundancy, rel=1e-6)
+    fit1, dof1 = paper_result.stage1.noise, diag.stage1.std_dof
+    assert set(dof1) == {n for n, s in diag.stage1.std.items() if s is not None}
+    reds = (fit1.view_redundancy, fit1.touch_redundancy)
+    assert all(min(reds) - 1e-9 <= v <= sum(reds) + 1e-9 for v in dof1.values()), dof1

@@ -138,6 +138,9 @@ BAD_FIELDS = [
     # others: the rig and the fit
     (("rig", "camera_px", "fx"), 0.5, "rig.camera_px.fx", "at least 1 px"),
     (("stage1", "params", "xt"), 1e30, "stage1.params.xt", "at most"),
+    # each σ's degrees of freedom: a count > 0 (or null: no estimated scale)
+    ((*D, "std_dof", "xt"), -1.0, "diagnostics.stage1.std_dof.xt", "must be > 0"),
+    ((*D, "std_dof", "xt"), "many", "diagnostics.stage1.std_dof.xt", "number"),
     # a class's own check (found by the explore profile: it was a traceback)
     (("stage1", "noise", "noise", "image_sigma_px"), -1.0, "stage1.noise.noise",
      "image_sigma_px must be finite and >= 0"),

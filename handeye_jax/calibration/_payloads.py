@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import ClassVar, Literal
 
-from .._core import Reader, count, length, spec
+from .._core import Reader, count, each, length, spec
 from ..problem import JacobianAnalysis
 
 # -- one stage's search ------------------------------------------------------------------
@@ -282,6 +282,12 @@ class LeaveOneOut:
     in_sample_F_mm: float = spec("in_sample_F", check=length)
 
 
+def _positive(r: Reader, x: float, where: str) -> float:
+    if not x > 0:
+        r.fail(where, f"must be > 0 (got {x})")
+    return x
+
+
 @dataclass(frozen=True)
 class StageDiagnostics(JacobianAnalysis):
     """A stage's diagnostics: the Jacobian's analysis at the fit (σ, standard deviations,
@@ -296,6 +302,11 @@ class StageDiagnostics(JacobianAnalysis):
     loo_method: str | None = spec(omit="none", default=None)
     outliers: tuple[int, ...] = ()
     local_optima: tuple[Mode, ...] | None = spec(omit="none", default=None)
+    #: Each σ's degrees of freedom (:func:`~handeye_jax.problem.std_dof`; ``None``: no
+    #: estimated noise scale enters it): its 95 % interval is ± t·σ, Student's t at that many.
+    #: Stage 2's count its own noise scales only.
+    std_dof: dict[str, float | None] | None = spec(omit="none", default=None,
+                                                   check=each(_positive))
 
 
 @dataclass(frozen=True)

@@ -55,7 +55,9 @@ def diagnose(result: CalibrationResult, *, search: dict | None = None) -> Calibr
     # and where the calibration holds: from what the diagnostics just found.
     deploy = choose_stage(diagnostics.stage1.loo, diagnostics.stage2.loo)
     noise = stage_noise(result.stage1) or get_noise_model(result.settings.noise)
-    diagnostics, expected, cov1 = ml_verdict(stages, diagnostics, deploy.stage, noise, obs)
+    fits = Stages(result.stage1.noise, result.stage2.noise)
+    diagnostics, expected, cov1 = ml_verdict(stages, diagnostics, deploy.stage, noise, obs,
+                                             fits)  # fmt: skip
     found = ambiguities(stages.stage1, diagnostics.stage1, noise, obs)
     weak = weak_parameters(diagnostics.stage1, found)
     untested = weak_parameters(diagnostics.stage1, [a for a in found if not a.edge])

@@ -26,8 +26,10 @@ from ..calibration import (
 )
 from ..data import Observations
 from ..problem import (
+    NoiseFit,
     NoiseModel,
     StagePoint,
+    std_dof,
     std_of_precision,
     uncertainty,
     workspace_targets,
@@ -72,13 +74,16 @@ def ml_verdict(
     stage: int,
     noise: NoiseModel,
     obs: Observations,
+    fits: Stages[NoiseFit | None] | None = None,
 ) -> tuple[Diagnostics, ExpectedError | None, np.ndarray | None]:
     """Under the noise model (both stages maximum-likelihood fits; else the diagnostics as
     they are and no expected error): each stage's standard deviations and precision in place
     of the paper's loss's Gauss–Newton ones (stage 2's with stage 1's uncertainty: it is
-    fitted to stage 1's points), and the touching error ``stage`` makes over the calibration's
-    own views touched at hand angles over the touches' range (:func:`workspace_targets`); and
-    stage 1's covariance (``None`` with the diagnostics as they are)."""
+    fitted to stage 1's points) and, given each stage's ``fits`` (the noise scales its
+    residuals gave), the degrees of freedom of each σ (:func:`std_dof`); the touching error
+    ``stage`` makes over the calibration's own views touched at hand angles over the touches'
+    range (:func:`workspace_targets`); and stage 1's covariance (``None`` with the diagnostics
+    as they are)."""
     one, two = stages.stage1, stages.stage2
     if not (is_ml(one.objective) and is_ml(two.objective)):
         return diagnostics, None, None
@@ -91,13 +96,22 @@ def ml_verdict(
     cov = np.asarray(cov)
     d1 = len(x1)
     found = {}
-    for key, st, info, block in (("stage1", one, infos[0], cov[:d1, :d1]),
-                                 ("stage2", two, infos[1], cov[d1:, d1:])):  # fmt: skip
+    fits = Stages(None, None) if fits is None else fits
+    for key, st, info, block, (o, x, P) in (
+        ("stage1", one, infos[0], cov[:d1, :d1], (o1, x1, P1)),
+        ("stage2", two, infos[1], cov[d1:, d1:], (o2, x2, P2)),
+    ):
         info = np.asarray(info)
         undetermined = std_of_precision(info, st.space.free)
         std = {n: (None if undetermined[n] is None else float(math.sqrt(max(v, 0.0))))
                for n, v in zip(st.space.free, np.diag(block), strict=True)}  # fmt: skip
-        found[key] = replace(getattr(diagnostics, key), std=std,
+        fit = getattr(fits, key)
+        dof = None
+        if fit is not None:
+            nu = std_dof(o, x, fit, P)
+            dof = {n: (float(v) if np.isfinite(v) else None)
+                   for n, v in zip(st.space.free, nu, strict=True) if std[n] is not None}
+        found[key] = replace(getattr(diagnostics, key), std=std, std_dof=dof,
                              precision=tuple(tuple(r) for r in info.tolist()))  # fmt: skip
     angles = np.unique(np.asarray(targets.hand_angle_deg))
     views = targets.k // len(angles)

@@ -17,8 +17,8 @@ _EXPORTS = {
     ),
     "_noise": (
         "estimate_noise", "get_noise_model", "NOISE_MODELS", "noise_objective", "NoiseFit",
-        "NoiseModel", "NoiseObjective", "row_counts", "separated_errors", "touch_groups",
-        "view_covariance", "whitened_jacobian",
+        "NoiseModel", "NoiseObjective", "row_counts", "separated_errors", "std_dof",
+        "touch_groups", "view_covariance", "whitened_jacobian",
     ),
     "_predict": (
         "command_error", "error_statistics", "ErrorPrediction", "fisher_information",

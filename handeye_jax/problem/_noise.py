@@ -440,6 +440,67 @@ class NoiseFit:
         return self.view_redundancy + self.touch_redundancy
 
 
+
+def _components(objective: NoiseObjective, J: np.ndarray, fit: NoiseFit):
+    """Each noise component whose scale ``fit`` estimated: its part of ``JᵀJ`` (``J``'s rows
+    whitened, views then touches) and the redundancy behind its scale."""
+    n, k = np.asarray(objective.touch_whitener).shape
+    Jv, Jt = J[: n * k].reshape(n, k, -1), J[n * k :]
+    if k == 3 and fit.depth_redundancy is not None:
+        G = np.asarray(objective.image_share)
+        red_d = fit.depth_redundancy
+        views = [(np.einsum("nad,nab,nbe->de", Jv, G, Jv), fit.view_redundancy - red_d),
+                 (np.einsum("nad,nab,nbe->de", Jv, np.eye(k) - G, Jv), red_d)]  # fmt: skip
+    else:
+        views = [(np.einsum("nad,nae->de", Jv, Jv), fit.view_redundancy)]
+    parts = [*views, (Jt.T @ Jt, fit.touch_redundancy)]
+    # A scale with too little redundancy kept its stated value: nothing of it was estimated.
+    return [(M, red) for M, red in parts if red >= MIN_REDUNDANCY]
+
+
+@in_float64
+def std_dof(
+    objective: NoiseObjective,
+    theta: Float[Array, " d"],
+    fit: NoiseFit,
+    prior_precision: np.ndarray | None = None,
+    directions: np.ndarray | None = None,
+) -> np.ndarray:
+    """The degrees of freedom of each σ (Satterthwaite's): its 95 % interval is ± t·σ, t the
+    97.5 % quantile of Student's t with that many.
+
+    A σ rests on the noise scales the residuals estimated, each from its own redundancy
+    (:class:`NoiseFit`): a variance ``Σ_k w_k·σ²`` that is a share ``w_k`` of component ``k``
+    (the touches; the pictures, or with the hand's heights their image and their depth) is
+    uncertain by ``Σ_k w_k²·2/ν_k``, as a χ² with ``1 / Σ_k (w_k²/ν_k)`` degrees of freedom.
+    A parameter the touches alone set has the touches' (23 on a three-capture grid of nine
+    landmarks), not the fit's (94): its interval is 4 % wider. The share of a component is
+    ``cᵀ C M_k C c / cᵀ C JᵀJ C c`` for a direction ``c``, ``C = (JᵀJ + P)⁺`` and ``M_k``
+    the component's part of ``JᵀJ``; a prior's information has no uncertainty of its own.
+
+    Args:
+        objective: the stage's :class:`NoiseObjective` at ``fit``'s scales.
+        theta: its optimum.
+        fit: the scales the residuals gave, with their redundancies (:func:`estimate_noise`).
+        prior_precision: a prior's information on the free parameters, or ``None``.
+        directions: ``(m, d)`` combinations of the free parameters (default: each parameter).
+
+    Returns:
+        ``(m,)`` degrees of freedom (``inf`` where no estimated scale enters).
+    """
+    J = np.asarray(whitened_jacobian(objective, jnp.asarray(theta))[1])
+    C = _hat_inner(J, prior_precision)
+    c = np.eye(J.shape[1]) if directions is None else np.atleast_2d(np.asarray(directions, float))
+    CC = c @ C
+    parts = [(np.einsum("md,de,me->m", CC, M, CC), red)
+             for M, red in _components(objective, J, fit)]  # fmt: skip
+    total = np.einsum("md,de,me->m", CC, J.T @ J, CC)
+    inverse = sum(((v / np.where(total > 0, total, 1.0)) ** 2 / red for v, red in parts),
+                  np.zeros(len(c)))  # fmt: skip
+    with np.errstate(divide="ignore"):
+        return np.where(inverse > 0, 1.0 / inverse, np.inf)
+
+
 def _hat_inner(J: np.ndarray, prior_precision: np.ndarray | None) -> np.ndarray:
     """``(JᵀJ + P)⁺``, the hat matrix's middle."""
     A = J.T @ J
