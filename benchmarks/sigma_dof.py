@@ -1,17 +1,18 @@
 """Each σ's degrees of freedom (``std_dof``, Satterthwaite's), checked by Monte Carlo.
 
-    python benchmarks/sigma_dof.py [--draws 150] [--captures 3] [--seed 1000]
+    python benchmarks/sigma_dof.py [--draws 150] [--twin 3] [--seed 1000]
 
 A σ² the fit reports is a sum of the noise scales it estimated, each from its own redundancy;
 over noise draws it scatters as a χ² with ``ν`` degrees of freedom would: its relative
-variance is ``2/ν``. On a 7 × 7 grid of known truth (three captures with the hand's heights,
-or one), each draw adds Gaussian noise of the ``paper`` model's form to the pictures (0.1 px,
-0.3 mm) and the touches (0.3 mm in x and y, the model's ratio in z), fits by Gauss–Newton with
-the scales alternated as the calibration does, and takes every parameter's σ² and ``ν``. The
-table gives, per parameter, the draws' relative variance of σ² against ``2/ν`` (mean ``ν``):
-the fit's σ², and the same with the Jacobian taken at the true parameters (the scales' part,
-and the data's own through the back-projection; not the optimum's wandering along a weakly
-determined direction).
+variance is ``2/ν``. On a twin's rig and nine landmarks, its three pictures exact (with the
+hand's heights: every parameter determined; one picture leaves two directions to the data's
+noise, whose σ² then scatter without bound), each draw adds Gaussian noise of the ``paper``
+model's form to the pictures (0.1 px, 0.3 mm) and the touches (0.3 mm in x and y, the
+model's ratio in z), fits by Gauss–Newton with the scales alternated as the calibration does,
+and takes every parameter's σ² and ``ν``. The table gives, per parameter, the draws' relative
+variance of σ² against ``2/ν`` (mean ``ν``): the fit's σ², and the same with the Jacobian
+taken at the true parameters (the scales' part, and the data's own through the
+back-projection; not the optimum's wandering along a weakly determined direction).
 """
 
 from __future__ import annotations
@@ -25,13 +26,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from handeye_jax import (
+    PRESETS,
     HTMModel,
-    Rig,
-    Scene,
     Stage1Objective,
+    draw_truth,
     float64,
-    snake_grid_px,
-    synthesize_dataset,
+    simulate,
     vectorise_small_loops,
 )
 from handeye_jax.problem import (
@@ -43,24 +43,18 @@ from handeye_jax.problem import (
     whitened_jacobian,
 )
 
-TRUTH = dict(xc=-3.0, yc=35.0, alpha_c=-1.5, beta_c=2.0, gamma_c=4.0, xt=150.0, yt=40.0,
-             alpha_t=2.0, beta_t=-8.0, gamma_t=-3.0, xp=4.0, yp=-25.0)  # fmt: skip
-RIG = Rig(617.7, 617.7, 316.5, 242.3, [320.0, -70.0, 290.0], 0.0, 1.0)
-POSES = [([320.0, -70.0, 290.0], 0.0), ([330.0, -80.0, 350.0], 15.0),
-         ([310.0, -50.0, 390.0], -20.0)]  # fmt: skip
 PAPER = get_noise_model("paper")
 IMAGE_PX, DEPTH_MM, TOUCH_MM = 0.1, 0.3, 0.3
 ROUNDS = 5
+CAPTURES = 3
 
 
-def dataset(captures: int):
-    grid = snake_grid_px(tuple(np.linspace(400, 1040, 7)), tuple(np.linspace(150, 550, 7)))
-    angles = np.linspace(0.0, 180.0, len(grid))
-    truth = HTMModel.from_dict(TRUTH)
-    if captures == 1:
-        return truth, synthesize_dataset(truth, RIG, grid, angles)
-    scene = Scene(camera_z_mm=3.0, tablet_height_mm=120.0, pen_z_mm=7.0)
-    return truth, synthesize_dataset(truth, RIG, grid, angles, captures=POSES, scene=scene)
+def dataset(captures: int, seed: int):
+    """Twin ``seed``'s rig and landmarks, its pictures exact (``captures`` of them, with the
+    hand's heights for more than one)."""
+    truth = draw_truth(seed, dot_px=2.0)
+    twin = simulate(truth, PRESETS["none"], seed, captures=captures, exact=True)
+    return truth.htm(), twin.dataset
 
 
 @eqx.filter_jit
@@ -104,22 +98,22 @@ def main() -> None:
     vectorise_small_loops()  # as the command line does
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--draws", type=int, default=150)
-    ap.add_argument("--captures", type=int, choices=(1, 3), default=3)
-    ap.add_argument("--seed", type=int, default=1000)
+    ap.add_argument("--twin", type=int, default=3, help="the twin whose rig and landmarks")
+    ap.add_argument("--seed", type=int, default=1000, help="the noise draws' seed")
     args = ap.parse_args()
     t0 = time.perf_counter()
     rng = np.random.default_rng(args.seed)
     with float64():
-        truth, ds = dataset(args.captures)
+        truth, ds = dataset(CAPTURES, args.twin)
         out = [draw(truth, ds, rng) for _ in range(args.draws)]
     s2, s2_truth, nu = (np.array(a) for a in zip(*out, strict=True))
     rel = s2.var(axis=0, ddof=1) / s2.mean(axis=0) ** 2
     # The same σ² from the Jacobian at the truth: the fit's own also moves with the optimum
     # where the data determine a direction weakly, which no count of the scales describes.
     rel0 = s2_truth.var(axis=0, ddof=1) / s2_truth.mean(axis=0) ** 2
-    print(f"command: python benchmarks/sigma_dof.py --draws {args.draws} --captures "
-          f"{args.captures} --seed {args.seed}")
-    print(f"{args.draws} draws, {args.captures} capture(s), {time.perf_counter() - t0:.0f} s; "
+    print(f"command: python benchmarks/sigma_dof.py --draws {args.draws} --twin {args.twin} "
+          f"--seed {args.seed}")
+    print(f"{args.draws} draws, {CAPTURES} captures, {time.perf_counter() - t0:.0f} s; "
           f"relative variance of σ² over the draws against 2/ν (its own standard error: "
           f"{np.sqrt(2 / (args.draws - 1)):.0%})\n")
     print("| parameter | mean ν | 2/ν | var(σ²)/E(σ²)² | ratio | at the true parameters | "
