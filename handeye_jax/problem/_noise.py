@@ -440,7 +440,6 @@ class NoiseFit:
         return self.view_redundancy + self.touch_redundancy
 
 
-
 def _components(objective: NoiseObjective, J: np.ndarray, fit: NoiseFit):
     """Each noise component whose scale ``fit`` estimated: its part of ``JᵀJ`` (``J``'s rows
     whitened, views then touches) and the redundancy behind its scale."""
@@ -473,7 +472,7 @@ def std_dof(
     (:class:`NoiseFit`): a variance ``Σ_k w_k·σ²`` that is a share ``w_k`` of component ``k``
     (the touches; the pictures, or with the hand's heights their image and their depth) is
     uncertain by ``Σ_k w_k²·2/ν_k``, as a χ² with ``1 / Σ_k (w_k²/ν_k)`` degrees of freedom.
-    A parameter the touches alone set has the touches' (23 on a three-capture grid of nine
+    A parameter the touches alone set has the touches' (23 on a three-capture twin of nine
     landmarks), not the fit's (94): its interval is 4 % wider. The share of a component is
     ``cᵀ C M_k C c / cᵀ C JᵀJ C c`` for a direction ``c``, ``C = (JᵀJ + P)⁺`` and ``M_k``
     the component's part of ``JᵀJ``; a prior's information has no uncertainty of its own.
