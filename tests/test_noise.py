@@ -209,3 +209,8 @@ def test_the_paper_fit_reports_each_sigmas_degrees_of_freedom(paper_result):
     assert set(dof1) == {n for n, s in diag.stage1.std.items() if s is not None}
     reds = (fit1.view_redundancy, fit1.touch_redundancy)
     assert all(min(reds) - 1e-9 <= v <= sum(reds) + 1e-9 for v in dof1.values()), dof1
+    # The verbose summary gives each σ its count.
+    text = handeye_jax.format_summary(paper_result, verbose=True)
+    for name, v in dof1.items():
+        line = next(x for x in text.splitlines() if x.strip().startswith(f"{name} "))
+        assert line.endswith(f"({v:.0f} dof)"), line

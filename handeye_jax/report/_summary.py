@@ -36,23 +36,29 @@ def _unit(u: str) -> str:
     return "" if u == "1" else f" {u}"
 
 
-def _value(v: float, std: float | None, unit: str, has_std: bool) -> str:
+def _value(v: float, std: float | None, unit: str, has_std: bool, dof: float | None = None
+           ) -> str:  # fmt: skip
     if not has_std:
         return f"{v:>12.5f}{_unit(unit)}"
     spread = "undetermined" if std is None else f"{std:.3g}"
-    return f"{v:>12.5f} ± {spread:<12}{_unit(unit)}"
+    out = f"{v:>12.5f} ± {spread:<12}{_unit(unit)}"
+    return out if std is None or dof is None else f"{out}  ({dof:.0f} dof)"
 
 
 def _stage_lines(
-    title: str, s: StageResult, cls, early_stop: bool, std: dict | None = None
-) -> list[str]:
-    """A stage's fit: F and its terms, DE, the LM polish, the parameters and the residuals."""
+    title: str, s: StageResult, cls, early_stop: bool, std: dict | None = None,
+    dof: dict | None = None,
+) -> list[str]:  # fmt: skip
+    """A stage's fit: F and its terms, DE, the LM polish, the parameters (with each σ's
+    degrees of freedom where known) and the residuals."""
     head = f"{title}: F = {s.F:.6f} mm  (f1 = {s.f1:.6f} mm, f2 = {s.f2:.6f} mm)"
     if s.prior_F is not None:
         head += f"; prior term of the MAP objective {s.prior_F:.6f} mm"
     lines = [head, *_search_lines(s, len(cls.param_names), early_stop)]
-    lines.append("  parameters" + (" (± one standard deviation):" if std else ":"))
-    lines += _parameter_lines(s, cls, std)
+    head = " (± one standard deviation" + ("; 95 %: ± t·σ, Student's t at its dof):" if dof
+                                             else "):")  # fmt: skip
+    lines.append("  parameters" + (head if std else ":"))
+    lines += _parameter_lines(s, cls, std, dof)
     if s.prior is not None:
         scale = s.prior.data_scale_mm
         line = f"  prior: from {s.prior.source}; data scale s = {scale:.3g} mm"
@@ -102,14 +108,16 @@ def _search_lines(s: StageResult, n_params: int, early_stop: bool) -> list[str]:
     return [*lines, found] if found else lines
 
 
-def _parameter_lines(s: StageResult, cls, std: dict | None) -> list[str]:
-    """Each parameter: value ± σ in its unit, or where a fixed one came from, or its prior."""
+def _parameter_lines(s: StageResult, cls, std: dict | None, dof: dict | None = None
+                     ) -> list[str]:  # fmt: skip
+    """Each parameter: value ± σ in its unit (and σ's degrees of freedom), or where a fixed
+    one came from, or its prior."""
     prior_of = {p.param: p for p in (s.prior.pulls if s.prior is not None else ())}
     lines = []
     for name, unit in zip(cls.param_names, cls.param_units, strict=True):
         status = s.status.get(name, "free")
         shown = std is not None and status != "fixed"
-        value = _value(s.params[name], (std or {}).get(name), unit, shown)
+        value = _value(s.params[name], (std or {}).get(name), unit, shown, (dof or {}).get(name))
         if status == "fixed":
             value += f"  fixed ({s.fixed_source.get(name, 'given')})"
         elif status == "prior" and name in prior_of:
@@ -245,12 +253,19 @@ def _head(result: CalibrationResult) -> list[str]:
     ]
 
 
+def _spread(diag, key: str) -> tuple[dict | None, dict | None]:
+    """A stage's σ and their degrees of freedom, each ``None`` if the diagnostics lack them."""
+    d = None if diag is None else getattr(diag, key)
+    return (None, None) if d is None else (d.std, d.std_dof)
+
+
 def _stage1_block(result: CalibrationResult) -> list[str]:
     """Stage 1: its fit, the sign twin, its diagnostics, the scope and the heights."""
     model_cls = type(result.model)
     diag = result.diagnostics
-    std = diag.stage1.std if diag is not None and diag.stage1 is not None else None
-    lines = _stage_lines("stage 1", result.stage1, model_cls, result.settings.early_stop, std)
+    std, dof = _spread(diag, "stage1")
+    lines = _stage_lines("stage 1", result.stage1, model_cls, result.settings.early_stop, std,
+                         dof)  # fmt: skip
     twin = result.sign_twin
     if twin is not None:
         found = ", ".join(f"{k} = {v:+.4f}" for k, v in twin.found.items())
@@ -266,8 +281,9 @@ def _stage1_block(result: CalibrationResult) -> list[str]:
 def _stage2_block(result: CalibrationResult) -> list[str]:
     """Stage 2: its fit, the centres of rotation, its diagnostics and the convention check."""
     diag = result.diagnostics
-    std = diag.stage2.std if diag is not None and diag.stage2 is not None else None
-    lines = _stage_lines("stage 2", result.stage2, AffinePair, result.settings.early_stop, std)
+    std, dof = _spread(diag, "stage2")
+    lines = _stage_lines("stage 2", result.stage2, AffinePair, result.settings.early_stop, std,
+                         dof)  # fmt: skip
     c1, c2 = result.centres_mm
     lines.append(
         f"  centres of rotation (landmark {result.centre_index}): A1 ({c1[0]:.3f}, {c1[1]:.3f}) mm,"
