@@ -55,9 +55,9 @@ def _stage_lines(
     if s.prior_F is not None:
         head += f"; prior term of the MAP objective {s.prior_F:.6f} mm"
     lines = [head, *_search_lines(s, len(cls.param_names), early_stop)]
-    head = " (± one standard deviation" + ("; 95 %: ± t·σ, Student's t at its dof):" if dof
-                                             else "):")  # fmt: skip
-    lines.append("  parameters" + (head if std else ":"))
+    legend = " (± one standard deviation" + ("; 95 %: ± t·σ, Student's t at its dof):" if dof
+                                               else "):")  # fmt: skip
+    lines.append("  parameters" + (legend if std else ":"))
     lines += _parameter_lines(s, cls, std, dof)
     if s.prior is not None:
         scale = s.prior.data_scale_mm
