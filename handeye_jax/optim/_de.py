@@ -194,7 +194,9 @@ def _init(key, lower, upper, n):
         seed=_rng.seed_from_key(k_seed),
         population=pop,
         fitness=jnp.full(n, jnp.nan, pop.dtype),
-        generation=jnp.asarray(0),
+        # Not weakly typed: the loop's carry makes it strong, so the chunks after the first
+        # would otherwise compile the chunk program again.
+        generation=jnp.asarray(0, dtype=int),
         converged=jnp.asarray(False),
     )
 
