@@ -128,6 +128,31 @@ def test_de_is_bit_for_bit_deterministic_and_chunk_independent():
     assert not np.array_equal(d.population, a.population)
 
 
+def test_a_run_of_several_chunks_traces_the_chunk_program_once():
+    """The first chunk starts from the state ``_init`` makes, the later ones from the state the
+    loop returns: both of one type, so one program serves every chunk (a weakly typed counter
+    at the start made a second, when no program store served both)."""
+    from handeye_jax import store_programs
+
+    traced = []
+
+    def listen(event, duration, **kw):
+        if event == "/jax/core/compile/jaxpr_trace_duration":
+            traced.append(kw.get("fun_name"))
+
+    fn = ShiftedSphere(jnp.array([0.1, -0.2, 0.3, -0.4, 0.5]))  # a shape no other test uses
+    store_programs(None)  # JAX's own jit, as the Python API runs by default
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        r = _de(fn, -np.ones(5), np.ones(5), key=jax.random.PRNGKey(5), population=23,
+                generations=3 * CHUNK_GENERATIONS, early_stop=False)  # fmt: skip
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+        store_programs(Path(os.environ["HANDEYE_JAX_CACHE_DIR"]) / "programs")  # the suite's
+    assert r.steps == 3 * CHUNK_GENERATIONS
+    assert traced.count("_chunk_scan") == 1, traced
+
+
 @settings(max_examples=10, deadline=None)
 @given(st.floats(3.0, 50.0), st.integers(0, 1000))
 def test_trials_never_leave_the_box(outside, seed):
