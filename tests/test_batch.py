@@ -92,6 +92,40 @@ def test_a_batch_gives_each_problem_its_own_run(twins, single):
     assert_same(numbers(got), single)
 
 
+def test_the_seconds_reported_are_the_calls_own(twins, single, monkeypatch):
+    """A result's ``timings_s["total"]`` is the time its fit took, the search's ranges and
+    the maximum-likelihood refinements included (each made 0.2 s slower here, to be seen),
+    and holds its parts; a batch's problems share its time."""
+    import time
+
+    from handeye_jax.calibration import _batch, _pipeline  # the steps slowed down
+
+    def slowed(step):
+        def run(*args, **kwargs):
+            time.sleep(0.2)
+            return step(*args, **kwargs)
+
+        return run
+
+    monkeypatch.setattr(_pipeline, "full_plan", slowed(_pipeline.full_plan))
+    monkeypatch.setattr(_batch, "full_plan", slowed(_batch.full_plan))
+    monkeypatch.setattr(_batch, "likelihood", slowed(_batch.likelihood))
+    t0 = time.perf_counter()
+    r = calibrate(twins[0], seeds(1)[0])
+    wall = time.perf_counter() - t0
+    t = r.timings_s
+    assert t["plan"] >= 0.2 and t["stage1_polish"] >= 0.2 and t["stage2_polish"] >= 0.2, t
+    parts = t["plan"] + sum(t[f"stage{k}_{p}"] for k in (1, 2) for p in ("de", "polish"))
+    assert parts <= t["total"] <= wall
+    assert t["total"] > 0.8 * wall, (t, wall)  # nothing the fit does is left out
+    t0 = time.perf_counter()
+    both = calibrate_batch([twins[0], twins[2]], [seeds(3)[0], seeds(3)[2]])
+    wall = time.perf_counter() - t0
+    assert all(r.timings_s["plan"] >= 0.2 for r in both)
+    total = sum(r.timings_s["total"] for r in both)
+    assert 0.8 * wall < total <= wall, (total, wall)
+
+
 def test_how_the_batch_is_split_changes_nothing(twins, single):
     """Other batches: the problems in another order and one wave per problem."""
     order = [2, 0, 1]

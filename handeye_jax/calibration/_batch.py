@@ -90,14 +90,22 @@ def calibrate_batch(
         return []
     each = _settings_of(datasets, settings)
     get_model(each[0].model)  # an unknown name fails here, before any work
-    outcomes = fit_batch(datasets, [full_plan(d, s) for d, s in zip(datasets, each,
-                                                                      strict=True)],
-                         each, progress=progress, wave=wave, mesh=mesh)  # fmt: skip
+    plans = [timed(full_plan, d, s) for d, s in zip(datasets, each, strict=True)]
+    outcomes = fit_batch(datasets, [p for p, _ in plans], each, progress=progress, wave=wave,
+                         mesh=mesh)  # fmt: skip
     if errors == "raise":
         for out in outcomes:
             if isinstance(out, Exception):
                 raise out
-    return outcomes
+    return [out if isinstance(out, Exception) else with_plan_time(out, plan_s)
+            for out, (_, plan_s) in zip(outcomes, plans, strict=True)]  # fmt: skip
+
+
+def with_plan_time(result: CalibrationResult, seconds: float) -> CalibrationResult:
+    """``result`` with the seconds its plan took (the search's ranges, from the data) in its
+    ``timings_s``, as ``plan`` and in ``total``."""
+    t = result.timings_s
+    return replace(result, timings_s={**t, "plan": seconds, "total": t["total"] + seconds})
 
 
 def _settings_of(datasets: Sequence[Dataset], settings) -> list[Settings]:
@@ -194,11 +202,11 @@ def _wave(problems: list[Job], mesh: Mesh) -> list[CalibrationResult | InputErro
     fits1 = fit_stages(tasks1, settings, [k[0] for k in keys], padded=padded1, mask=mask,
                        mesh=mesh, live=live, progress=progress)  # fmt: skip
     # Under the ml loss each problem's fit is refined to maximum likelihood on its own.
-    ml1 = [likelihood(f, p.run, p.plan.noise1, None, estimate=p.plan.previous is None)
+    ml1 = [timed(likelihood, f, p.run, p.plan.noise1, None, estimate=p.plan.previous is None)
            for f, p in zip(fits1[:real], problems, strict=True)]  # fmt: skip
-    fits1 = [f for f, _ in ml1] + list(fits1[real:])
-    stages1 = [_finish(f, "stage 1", p, noise) for (f, noise), p in zip(ml1, problems,
-                                                                        strict=True)]  # fmt: skip
+    fits1 = [f for (f, _), _ in ml1] + list(fits1[real:])
+    stages1 = [_finish(f, "stage 1", p, noise)
+               for ((f, noise), _), p in zip(ml1, problems, strict=True)]  # fmt: skip
     # Stage 2 on each real problem's stage-1 model; the fillers copy the first one's.
     models = [f.model() for f in fits1[:real]] + [fits1[0].model()] * (len(filled) - real)
     tasks2, points, padded2 = [], [], []
@@ -212,19 +220,37 @@ def _wave(problems: list[Job], mesh: Mesh) -> list[CalibrationResult | InputErro
     fits2 = fit_stages(tasks2, settings, [k[1] for k in keys],
                        padded=None if mask is None else padded2, mask=mask, mesh=mesh,
                        live=live, progress=progress)  # fmt: skip
-    share = (time.perf_counter() - t_start) / real
-    out: list[CalibrationResult | InputError] = []
+    finished = []
     for j, p in enumerate(problems):
-        fit2, noise2 = likelihood(fits2[j], p.run, p.plan.noise2, models[j],
-                                  estimate=p.plan.previous is None)  # fmt: skip
+        (fit2, noise2), ml2_s = timed(likelihood, fits2[j], p.run, p.plan.noise2, models[j],
+                                       estimate=p.plan.previous is None)  # fmt: skip
         stage2 = _finish(fit2, "stage 2", p, noise2)
         if isinstance(stages1[j], InputError) or isinstance(stage2, InputError):
-            out.append(stages1[j] if isinstance(stages1[j], InputError) else stage2)
+            finished.append(stages1[j] if isinstance(stages1[j], InputError) else stage2)
             continue
         centres = np.asarray(rotation_centres(fit2.model(), points[j], p.run.obs.centre_index))
-        fits, stages = Stages(fits1[j], fit2), Stages(stages1[j], stage2)
-        out.append(assemble(p, fits, stages, centres=centres, total_s=share))
-    return out
+        # The maximum-likelihood refinement is the polish's last step: its seconds count there.
+        fits = Stages(_polished_for(fits1[j], ml1[j][1]), _polished_for(fit2, ml2_s))
+        finished.append((p, fits, Stages(stages1[j], stage2), centres))
+    # Every step of the wave, both stages and their refinements, shared by its problems.
+    share = (time.perf_counter() - t_start) / real
+    return [f if isinstance(f, InputError) else
+            assemble(f[0], f[1], f[2], centres=f[3], total_s=share)
+            for f in finished]  # fmt: skip
+
+
+def timed(fn, *args, **kwargs):
+    """``fn(*args, **kwargs)`` and the seconds it took."""
+    t0 = time.perf_counter()
+    out = fn(*args, **kwargs)
+    return out, time.perf_counter() - t0
+
+
+def _polished_for(fit, seconds: float):
+    """``fit`` with ``seconds`` more in its polish's time."""
+    if seconds == 0.0:
+        return fit
+    return replace(fit, timings={**fit.timings, "polish": fit.timings["polish"] + seconds})
 
 
 def _finish(fit, name: str, problem: Job, noise):

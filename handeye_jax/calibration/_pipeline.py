@@ -22,7 +22,7 @@ from .._jax import in_float64, single_device_mesh
 from ..data import Dataset
 from ..models import AbstractCorrection, AbstractModel, AffinePair, get_model
 from ..problem import NoiseModel, ParameterSpace
-from ._batch import WAVE, check_shared, fit_batch
+from ._batch import WAVE, check_shared, fit_batch, timed, with_plan_time
 from ._plans import Plan, full_plan, recalibration_plan
 from ._programs import rotation_centres, stage_keys
 from ._result import CalibrationResult, StageResult
@@ -95,7 +95,8 @@ def calibrate(
         progress: show progress bars on stderr.
     """
     get_model(settings.model)  # an unknown name fails here, before any work
-    return fit(dataset, full_plan(dataset, settings), settings, progress=progress)
+    plan, plan_s = timed(full_plan, dataset, settings)
+    return with_plan_time(fit(dataset, plan, settings, progress=progress), plan_s)
 
 
 # -- recalibration -------------------------------------------------------------------------
@@ -132,9 +133,10 @@ def recalibrate(
             convention differ from ``previous``'s (a re-calibrated camera); without it they
             are an :class:`InputError` naming the field. The result records the change.
     """
-    plan, settings, changes = _recalibration(dataset, previous, refit, settings, fix, source,
-                                             accept_rig_change)  # fmt: skip
-    return _with_changes(fit(dataset, plan, settings, progress=progress), changes)
+    (plan, settings, changes), plan_s = timed(_recalibration, dataset, previous, refit,
+                                              settings, fix, source, accept_rig_change)  # fmt: skip
+    result = with_plan_time(fit(dataset, plan, settings, progress=progress), plan_s)
+    return _with_changes(result, changes)
 
 
 def _recalibration(
@@ -202,15 +204,17 @@ def recalibrate_batch(
     if len(olds) != n or len(each) != n:
         raise ValueError(f"{len(olds)} previous results and {len(each)} settings for {n} "
                          "datasets")  # fmt: skip
-    made = [_recalibration(d, o, refit, s, fix, None, False)
-            for d, o, s in zip(datasets, olds, each, strict=True)]  # fmt: skip
+    timed_made = [timed(_recalibration, d, o, refit, s, fix, None, False)
+                  for d, o, s in zip(datasets, olds, each, strict=True)]  # fmt: skip
+    made = [m for m, _ in timed_made]
     check_shared([m[1] for m in made])
     outcomes = fit_batch(datasets, [m[0] for m in made], [m[1] for m in made],
                          progress=progress, wave=wave, mesh=mesh)  # fmt: skip
     for out in outcomes:
         if isinstance(out, Exception):
             raise out
-    return [_with_changes(r, m[2]) for r, m in zip(outcomes, made, strict=True)]
+    return [_with_changes(with_plan_time(r, plan_s), m[2])
+            for r, (m, plan_s) in zip(outcomes, timed_made, strict=True)]  # fmt: skip
 
 
 @in_float64

@@ -181,18 +181,24 @@ def format_summary(
         lines.append("")
         lines += _stage2_block(result)
         lines += _ambiguity_lines(result)
-    t = result.timings_s
-    lines.append("")
-    lines.append(
-        f"time: {t['total']:.2f} s (stage 1: DE {t['stage1_de']:.2f} s, LM "
-        f"{t['stage1_polish']:.2f} s; stage 2: DE {t['stage2_de']:.2f} s, LM "
-        f"{t['stage2_polish']:.2f} s"
-        + (f"; diagnostics {t['diagnostics']:.2f} s" if "diagnostics" in t else "")
-        + (f"; bootstrap {t['bootstrap']:.2f} s" if "bootstrap" in t else "")
-        + "; includes JIT compilation)"
-        + ("" if verbose else "; --verbose: the optimisers, parameters, residuals and diagnostics")
-    )
+    lines += ["", _time_line(result.timings_s, verbose)]
     return "\n".join(lines)
+
+
+def _time_line(t: dict[str, float], verbose: bool) -> str:
+    """The seconds taken: the fit (its parts: the search's ranges, each stage's DE and LM),
+    then each step that ran after it, so that the first figure is their sum."""
+    ranges = f"search ranges {t['plan']:.2f} s; " if "plan" in t else ""
+    fit = (f"the fit {t['total']:.2f} s ({ranges}stage 1: DE {t['stage1_de']:.2f} s, LM "
+           f"{t['stage1_polish']:.2f} s; stage 2: DE {t['stage2_de']:.2f} s, LM "
+           f"{t['stage2_polish']:.2f} s)")  # fmt: skip
+    after = [name for name in ("diagnostics", "bootstrap") if name in t]
+    whole = t["total"] + sum(t[name] for name in after)
+    line = f"time: {whole:.2f} s: {fit}" + "".join(f", {n} {t[n]:.2f} s" for n in after)
+    line += "; includes JIT compilation"
+    if not verbose:
+        line += "; --verbose: the optimisers, parameters, residuals and diagnostics"
+    return line
 
 
 def _title(result: CalibrationResult) -> str:
