@@ -52,6 +52,21 @@ def test_the_verdict_comes_first_with_what_a_robot_engineer_needs(paper_result):
     assert "saved: r.json" in format_summary(paper_result, saved="r.json")
 
 
+def test_what_the_data_leave_undetermined_is_said_once_each(paper_result):
+    """The paper's one capture leaves two camera trade-offs; each is named once in the
+    verdict's note on the mount, not again as an alternative fit (its far end)."""
+    text = format_summary(paper_result)
+    notes = re.findall(r"\(not determined by these data \((.*?)\); z:", text)
+    assert notes, text
+    for note in notes:
+        reasons = note.split("; ")
+        assert len(reasons) == len(set(reasons)), note
+        assert "yc and alpha_c trade off" in reasons and "xc and beta_c trade off" in reasons
+        assert not any("trade off fits as well" in r for r in reasons), note
+    # ...while the list of alternative fits still names each far end.
+    assert "  - yc and alpha_c trade off: commands from elsewhere move" in text
+
+
 def test_no_expected_error_is_printed_where_the_fits_own_touches_contradict_it(paper_result):
     """Touches that miss by more than the noise model allows (outliers of the deployed stage)
     contradict the covariance's prediction: the verdict says so instead of a number."""

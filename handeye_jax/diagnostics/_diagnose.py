@@ -76,6 +76,7 @@ def _why_not(diag, found, weak: set[str]) -> str:
     """Why components leaning on ``weak`` parameters get no σ, in words."""
     reasons = [f"{' and '.join(w.params)} trade off" if w.determined is None
                else f"only {w.determined} is determined" for w in diag.weak_directions]
-    reasons += [f"a {a.kind} fits as well" for a in found
-                if max(a.here_mm, a.elsewhere_mm[1]) > MOVES_COMMANDS_MM]  # fmt: skip
+    # A weak direction's far end (``edge``) is the trade-off already named above.
+    reasons += [f"the {a.kind} fits as well" for a in found if not a.edge
+                and max(a.here_mm, a.elsewhere_mm[1]) > MOVES_COMMANDS_MM]  # fmt: skip
     return "not determined by these data (" + "; ".join(reasons) + ")" if reasons else ""
