@@ -29,6 +29,25 @@ def test_each_number_shows_the_digits_its_sigma_supports(value, sigma, want):
     assert with_sigma(value, sigma, "mm") == want
 
 
+def test_the_verbose_parameters_show_the_digits_their_sigma_supports(paper_result):
+    """Issue 26: "parameters print with five decimals on ±59 mm". Each σ to two significant
+    digits, each value to the same decimals."""
+    text = format_summary(paper_result, verbose=True)
+    std = {**paper_result.diagnostics.stage1.std, **paper_result.diagnostics.stage2.std}
+    rows = 0
+    for name, sigma in std.items():
+        if sigma is None:
+            continue
+        line = next(x for x in text.splitlines() if x.strip().startswith(f"{name} "))
+        value, shown = re.match(rf"\s*{name}\s+(\S+) ± (\S+)", line).groups()
+        assert shown == with_sigma(0.0, sigma).split(" ± ")[1], line
+        decimals = len(shown.partition(".")[2])
+        assert len(value.partition(".")[2]) == decimals, line
+        assert float(shown) == pytest.approx(sigma, rel=0.05), line
+        rows += 1
+    assert rows >= 12
+
+
 def test_the_verdict_comes_first_with_what_a_robot_engineer_needs(paper_result):
     text = format_summary(paper_result)
     lines = text.splitlines()

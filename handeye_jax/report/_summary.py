@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numpy as np
+
 from ..calibration import (
     CalibrationResult,
     ConventionCheck,
@@ -23,6 +25,7 @@ from ._verdict import (
     alternatives_lines,
     ambiguity_line,
     checks_lines,
+    decimals_for,
     failed_checks,
     some,
     verdict_lines,
@@ -38,11 +41,13 @@ def _unit(u: str) -> str:
 
 def _value(v: float, std: float | None, unit: str, has_std: bool, dof: float | None = None
            ) -> str:  # fmt: skip
-    if not has_std:
+    if not has_std:  # no diagnostics: no σ to say which digits hold
         return f"{v:>12.5f}{_unit(unit)}"
-    spread = "undetermined" if std is None else f"{std:.3g}"
-    out = f"{v:>12.5f} ± {spread:<12}{_unit(unit)}"
-    return out if std is None or dof is None else f"{out}  ({dof:.0f} dof)"
+    if std is None or not np.isfinite(std) or std <= 0:
+        return f"{v:>12.3g} ± {'undetermined':<12}{_unit(unit)}"
+    place = decimals_for(std)  # the digits σ supports, as in the verdict
+    out = f"{v:>12.{place}f} ± {std:<12.{place}f}{_unit(unit)}"
+    return out if dof is None else f"{out}  ({dof:.0f} dof)"
 
 
 def _stage_lines(

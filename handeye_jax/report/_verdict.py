@@ -32,8 +32,14 @@ def with_sigma(value: float | None, sigma: float | None, unit: str = "") -> str:
         return f"{_sig(value, 3)}{u}"
     if sigma <= 0:
         return f"{value:.6g} ± 0{u}"
-    place = max(-int(math.floor(math.log10(sigma))) + 1, 0)
+    place = decimals_for(sigma)
     return f"{value:.{place}f} ± {sigma:.{place}f}{u}"
+
+
+def decimals_for(sigma: float) -> int:
+    """The decimals that show ``sigma`` (> 0) to two significant digits, and a value to the
+    digits that σ supports."""
+    return max(-int(math.floor(math.log10(sigma))) + 1, 0)
 
 
 def _sig(value: float, digits: int) -> str:
