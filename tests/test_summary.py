@@ -82,8 +82,11 @@ def test_what_the_data_leave_undetermined_is_said_once_each(paper_result):
         assert len(reasons) == len(set(reasons)), note
         assert "yc and alpha_c trade off" in reasons and "xc and beta_c trade off" in reasons
         assert not any("trade off fits as well" in r for r in reasons), note
-    # ...while the list of alternative fits still names each far end.
+    # ...while the list of alternative fits still names each far end, and the checks say
+    # what it is.
     assert "  - yc and alpha_c trade off: commands from elsewhere move" in text
+    assert "ambiguity: yc and alpha_c trade off: the valley's far end fits as well (" in text
+    assert "ambiguity: yc and alpha_c trade off fits as well" not in text
 
 
 def test_no_expected_error_is_printed_where_the_fits_own_touches_contradict_it(paper_result):

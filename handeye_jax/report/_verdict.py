@@ -205,7 +205,9 @@ def failed_checks(result: CalibrationResult) -> list[str]:
 def ambiguity_line(a) -> str:
     """An alternative fit in one line: what it is and what it does to commands."""
     diff = ", ".join(f"{n} {v:+.3g}" for n, v in list(a.differs.items())[:6])
-    return (f"ambiguity: {a.kind} fits as well (Δ(−2 log L) = {a.delta_chi2:.2g}; {diff}); "
+    # A weak direction's far end is a point of its valley; other alternatives are fits by name.
+    what = f"{a.kind}: the valley's far end" if a.edge else f"the {a.kind}"
+    return (f"ambiguity: {what} fits as well (Δ(−2 log L) = {a.delta_chi2:.2g}; {diff}); "
             f"commands differ by {_sig(a.here_mm, 2)} mm here and up to "
             f"{_sig(a.elsewhere_mm[1], 2)} mm for {a.elsewhere}")  # fmt: skip
 
