@@ -60,7 +60,7 @@ def test_the_verdict_comes_first_with_what_a_robot_engineer_needs(paper_result):
     m = re.search(r"expected touching error: ([\d.]+) mm mean, ([\d.]+) mm 95th percentile", head)
     assert m and float(m.group(1)) == pytest.approx(e.mean_mm, rel=0.05)
     assert float(m.group(2)) == pytest.approx(e.p95_mm, rel=0.05) and e.p95_mm > e.mean_mm
-    for phrase in ("T_tool0_camera", "xyz  x ", "rpy  roll ", "quaternion (x, y, z, w)",
+    for phrase in ("T_tool0_camera", "xyz  x ", "rpy  roll ", "quaternion  x ",
                    "pen tip in the flange", "saved: nothing (no --out)"):  # fmt: skip
         assert phrase in head, phrase
     # The verdict, then the checks, then the fit in brief: no optimiser detail.

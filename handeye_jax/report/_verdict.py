@@ -164,8 +164,10 @@ def _pose_lines(title: str, pose: Pose) -> list[str]:
         lines.append(f"    rpy  roll {r}, pitch {p}, yaw {w} (fixed axes, URDF's)")
     if pose.quaternion_xyzw is not None:
         sig = pose.quaternion_sigma or (None,) * 4
-        q = ", ".join(with_sigma(v, s) for v, s in zip(pose.quaternion_xyzw, sig, strict=True))
-        lines.append(f"    quaternion (x, y, z, w)  {q}")
+        # Each component named, as xyz and rpy are: a σ belongs to its own component.
+        q = ", ".join(f"{c} {with_sigma(v, s)}" for c, v, s in zip("xyzw", pose.quaternion_xyzw,
+                                                                    sig, strict=True))  # fmt: skip
+        lines.append(f"    quaternion  {q}")
     if pose.note:
         lines.append(f"    ({pose.note})")
     return lines
