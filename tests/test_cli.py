@@ -485,7 +485,8 @@ def test_the_subcommands_are_the_ones_checked_above():
 
 
 def test_help_of_every_subcommand_imports_nothing_heavy():
-    """``--help`` stays quick: no JAX, matplotlib, OpenCV or tomlkit (issue 19, section 3)."""
+    """``--help`` stays quick: no JAX, matplotlib, OpenCV or tomlkit (issue 19, section 3), nor
+    the package metadata's reader."""
     code = """
 import contextlib, io, json, sys
 from handeye_jax.cli import main
@@ -497,7 +498,7 @@ for name in sys.argv[1:]:
     shown[name] = out.getvalue()
     heavy[name] = sorted({m.split(".")[0] for m in sys.modules} & {"jax", "jaxlib",
                          "matplotlib", "cv2", "tomlkit", "equinox", "optimistix"})
-print(json.dumps({"heavy": heavy, "shown": shown}))
+print(json.dumps({"heavy": heavy, "shown": shown, "metadata": "importlib.metadata" in sys.modules}))
 """
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     p = subprocess.run([sys.executable, "-c", code, "", *SUBCOMMANDS], capture_output=True,
@@ -505,6 +506,7 @@ print(json.dumps({"heavy": heavy, "shown": shown}))
     assert p.returncode == 0, p.stderr
     doc = json.loads(p.stdout)
     assert doc["heavy"] == {name: [] for name in ["", *SUBCOMMANDS]}
+    assert not doc["metadata"]  # the version is read only for --version (15 ms of a start)
     for name in SUBCOMMANDS:
         assert doc["shown"][name].startswith(f"usage: handeye-jax {name} ")
         assert "--help" in doc["shown"][name] and len(doc["shown"][name]) > 200

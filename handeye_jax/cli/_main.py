@@ -24,6 +24,15 @@ from ._types import MODELS, PROG, Parser
 __all__ = ["MODELS", "PROG", "build_parser", "main", "run"]
 
 
+
+class _Version(argparse.Action):
+    """``--version``: the installed version, read only when asked (reading the package
+    metadata imports ``importlib.metadata``, about 15 ms of every command's start)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        sys.stdout.write(f"{parser.prog} {package_version()}\n")  # as argparse's own does
+        parser.exit()
+
 def build_parser() -> argparse.ArgumentParser:
     # Nothing here imports JAX, OpenCV, matplotlib or tomlkit: the commands do, when they run.
     from ._batch import add_calibrate_batch_command
@@ -41,7 +50,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog=PROG,
         description="Hand-eye calibration of a camera + pen end-effector from tablet landmarks.",
     )
-    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
+    parser.add_argument("--version", action=_Version, nargs=0,
+                        help="show the program's version number and exit")  # fmt: skip
     sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
     for add in (add_calibrate_command, add_calibrate_batch_command, add_simulate_command,
                 add_detect_command, add_evaluate_command, add_export_command,
