@@ -6,11 +6,13 @@ import re
 from dataclasses import replace
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from handeye_jax import format_summary
 from handeye_jax.cli import main
 from handeye_jax.report._figures import verdict_title
-from handeye_jax.report._verdict import MAX_CHECKS, with_sigma
+from handeye_jax.report._verdict import MAX_CHECKS, decimals_for, with_sigma
 from tests.common import FAST, PAPER
 
 #: A screen: the default summary, and the verbose one, fit in this many lines.
@@ -27,6 +29,18 @@ VERBOSE_SCREEN = 160
 ])  # fmt: skip
 def test_each_number_shows_the_digits_its_sigma_supports(value, sigma, want):
     assert with_sigma(value, sigma, "mm") == want
+
+
+@settings(max_examples=50)
+@given(st.floats(-1e4, 1e4), st.floats(1e-6, 1e3))
+def test_a_value_and_its_sigma_share_their_decimals(value, sigma):
+    """σ to two significant digits (at least), the value to the same decimals: the value is
+    within half its last digit, σ within 5 %."""
+    shown, _, spread = with_sigma(value, sigma).partition(" ± ")
+    decimals = len(spread.partition(".")[2])
+    assert len(shown.partition(".")[2]) == decimals == decimals_for(sigma)
+    assert abs(float(shown) - value) <= 0.5 * 10.0**-decimals * (1 + 1e-9)
+    assert abs(float(spread) - sigma) <= 0.05 * sigma
 
 
 def test_the_verbose_parameters_show_the_digits_their_sigma_supports(paper_result):
