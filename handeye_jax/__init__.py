@@ -186,8 +186,8 @@ _JAX_STACK = ("jax", "jaxlib", "equinox", "optimistix", "jaxtyping", "lineax", "
 
 
 def __getattr__(name: str):
-    if name == "__version__":  # read from the installed metadata when asked: importlib.metadata
-        # takes about 15 ms to import, a tenth of the command line's start
+    if name == "__version__":  # read when asked: the installed metadata's reader cost every
+        # command's start about a fifth (benchmarks/RESULTS.md)
         globals()[name] = value = package_version()
         return value
     if name in _SUBMODULES:

@@ -506,7 +506,7 @@ print(json.dumps({"heavy": heavy, "shown": shown, "metadata": "importlib.metadat
     assert p.returncode == 0, p.stderr
     doc = json.loads(p.stdout)
     assert doc["heavy"] == {name: [] for name in ["", *SUBCOMMANDS]}
-    assert not doc["metadata"]  # the version is read only for --version (15 ms of a start)
+    assert not doc["metadata"]  # the version is read only for --version
     for name in SUBCOMMANDS:
         assert doc["shown"][name].startswith(f"usage: handeye-jax {name} ")
         assert "--help" in doc["shown"][name] and len(doc["shown"][name]) > 200

@@ -248,8 +248,6 @@ def timed(fn, *args, **kwargs):
 
 def _polished_for(fit, seconds: float):
     """``fit`` with ``seconds`` more in its polish's time."""
-    if seconds == 0.0:
-        return fit
     return replace(fit, timings={**fit.timings, "polish": fit.timings["polish"] + seconds})
 
 

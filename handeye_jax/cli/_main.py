@@ -24,14 +24,14 @@ from ._types import MODELS, PROG, Parser
 __all__ = ["MODELS", "PROG", "build_parser", "main", "run"]
 
 
-
 class _Version(argparse.Action):
-    """``--version``: the installed version, read only when asked (reading the package
-    metadata imports ``importlib.metadata``, about 15 ms of every command's start)."""
+    """``--version``: the installed version, read only when asked (the package metadata's
+    reader cost every command's start about a fifth: benchmarks/RESULTS.md)."""
 
     def __call__(self, parser, namespace, values, option_string=None):
         sys.stdout.write(f"{parser.prog} {package_version()}\n")  # as argparse's own does
         parser.exit()
+
 
 def build_parser() -> argparse.ArgumentParser:
     # Nothing here imports JAX, OpenCV, matplotlib or tomlkit: the commands do, when they run.

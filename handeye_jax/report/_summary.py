@@ -4,9 +4,8 @@ the diagnostics' detail."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
-
-import numpy as np
 
 from ..calibration import (
     CalibrationResult,
@@ -43,7 +42,7 @@ def _value(v: float, std: float | None, unit: str, has_std: bool, dof: float | N
            ) -> str:  # fmt: skip
     if not has_std:  # no diagnostics: no σ to say which digits hold
         return f"{v:>12.5f}{_unit(unit)}"
-    if std is None or not np.isfinite(std) or std <= 0:
+    if std is None or not math.isfinite(std) or std <= 0:
         return f"{v:>12.3g} ± {'undetermined':<12}{_unit(unit)}"
     place = decimals_for(std)  # the digits σ supports, as in the verdict
     out = f"{v:>12.{place}f} ± {std:<12.{place}f}{_unit(unit)}"
