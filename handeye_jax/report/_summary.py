@@ -42,8 +42,11 @@ def _value(v: float, std: float | None, unit: str, has_std: bool, dof: float | N
            ) -> str:  # fmt: skip
     if not has_std:  # no diagnostics: no σ to say which digits hold
         return f"{v:>12.5f}{_unit(unit)}"
-    if std is None or not math.isfinite(std) or std <= 0:
+    if std is None or not math.isfinite(std):
         return f"{v:>12.3g} ± {'undetermined':<12}{_unit(unit)}"
+    if std <= 0:  # as the verdict says it (with_sigma)
+        out = f"{v:>12.6g} ± {'0':<12}{_unit(unit)}"
+        return out if dof is None else f"{out}  ({dof:.0f} dof)"
     place = decimals_for(std)  # the digits σ supports, as in the verdict
     out = f"{v:>12.{place}f} ± {std:<12.{place}f}{_unit(unit)}"
     return out if dof is None else f"{out}  ({dof:.0f} dof)"
