@@ -148,3 +148,70 @@ def test_a_program_that_calls_back_into_python_is_not_stored(store):
     with jax.enable_x64(True):
         np.testing.assert_array_equal(doubled(jnp.arange(3.0)), [0.0, 2.0, 4.0])
     assert not list(store.glob("*.program"))
+
+
+# -- what a program traces ------------------------------------------------------------------
+# A cold calibration's time is mostly tracing, lowering and compiling its programs; these
+# check that a program does not trace the same code twice (benchmarks/RESULTS.md, issue 24).
+
+
+class _Quartic(eqx.Module):
+    """A least-squares problem of a size no other test traces (4 parameters, 5 residuals)."""
+
+    def __call__(self, x):
+        return jnp.sum(self.residuals(x) ** 2)
+
+    def residuals(self, x):
+        return jnp.concatenate([x - jnp.array([0.5, -0.5, 0.25, 1.0]), x[:1] * x[1:2]])
+
+
+def _counting(calls: list, name: str, f):
+    def counted(*args, **kwargs):
+        calls.append(name)
+        return f(*args, **kwargs)
+
+    return counted
+
+
+def test_each_lm_program_traces_its_problem_and_its_solver_once(store, monkeypatch):
+    """The polish's batch program traces optimistix's LM once (not once more for its output
+    types), and the multi-start LM traces the starts' residuals and Jacobian once (not once
+    more for its state's shapes)."""
+    from handeye_jax.optim import _lm, _multistart, minimise_many, minimise_starts
+
+    calls: list[str] = []
+    monkeypatch.setattr(_lm, "_lm", _counting(calls, "optimistix", _lm._lm))
+    evaluate = _counting(calls, "jacobian", _multistart._evaluate)
+    monkeypatch.setattr(_multistart, "_evaluate", evaluate)
+    _xla.store_programs(None)  # traced here, not loaded from an earlier run's store
+    box = Box(-2.0 * np.ones(4), 2.0 * np.ones(4))
+    with jax.enable_x64(True):
+        fns = jax.tree.map(lambda x: jnp.stack([x, x]), _Quartic())
+        boxes = Box(np.stack([box.lower] * 2), np.stack([box.upper] * 2))
+        polished = minimise_many(fns, LM, boxes, x0=np.zeros((2, 4)))
+        assert calls.count("optimistix") == 1, calls
+        starts = minimise_starts(_Quartic(), LM, box, np.array([[0.0] * 4, [1.0, 1.0, 0.0, 0.0]]))
+        assert calls.count("jacobian") == 1, calls  # the loop's body; its first pass evaluates
+    np.testing.assert_allclose(np.asarray(polished.x)[0], np.asarray(starts.x)[0], atol=1e-6)
+
+
+def test_the_chain_runs_its_sine_polynomials_once_per_shape(monkeypatch):
+    """``sincos_deg`` is jitted: a program that calls it for every rotation of the chain (here
+    40 times, differentiated and vmapped as the LM's Jacobians are) traces its polynomials at
+    most twice for a shape, for the primal and for its JVP rule's call (never, if an earlier
+    test traced that shape); inline, they were traced at every call."""
+    from handeye_jax import geometry as geo
+
+    runs: list[str] = []
+    monkeypatch.setattr(geo._sincos_deg, "fun", _counting(runs, "body", geo._sincos_deg.fun))
+
+    def chain(a):
+        out = 0.0
+        for i in range(10):
+            R = geo.rot_zyx(a[i], a[i + 1], a[i + 2]) @ geo.rot_z(a[i]) @ geo.rot_x(a[i + 1])
+            out = out + (R @ geo.rot_y(a[i + 2])).sum()
+        return out
+
+    with jax.enable_x64(True):
+        jax.make_jaxpr(jax.vmap(jax.jacfwd(chain)))(jnp.ones((3, 12)))
+    assert len(runs) <= 4, runs  # shapes (): rot_x, rot_y, rot_z; (3,): rot_zyx's angles

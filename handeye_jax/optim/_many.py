@@ -152,8 +152,9 @@ def _polish(block, lm):
         def polish():
             return _lm._lm(fn, x, Box(lo, hi), lm)
 
-        shapes = jax.eval_shape(polish)
-        skip = (x, jnp.zeros((), shapes[1].dtype), jnp.zeros((), shapes[2].dtype))
+        # optimistix counts steps in JAX's default integer (its ``jnp.array(0)``); a mismatch
+        # fails loudly in lax.cond. Shapes by jax.eval_shape would trace the LM twice.
+        skip = (x, jnp.zeros((), jnp.asarray(0).dtype), jnp.zeros((), bool))
         return jax.lax.cond(go, polish, lambda: skip)
 
     return jax.lax.map(one, block)
