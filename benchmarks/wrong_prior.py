@@ -6,7 +6,8 @@
 For each seed S and parameter P: the twin of ``simulate old --seed S`` (``paper`` noise) is
 calibrated with the defaults: the old result. Then the pen changes (``change_truth(…, "pen",
 S)``) and, unannounced, P moves by 5 of its prior σ (the old posterior's marginal over the
-parameters outside the pen); the new twin (noise seed 1000 + S) is cut to k landmarks (k = 4:
+parameters outside the pen), or nothing else moves (the prior right: a row of its own); the
+new twin (noise seed 1000 + S) is cut to k landmarks (k = 4:
 the corners, m = 0, 2, 6, 8) and recalibrated from the old result with ``--refit pen``: every
 other parameter takes the old posterior as its prior. The summary names a moved prior
 parameter in its checks, largest pull first, the parameters that only follow it (their
@@ -54,21 +55,24 @@ def run(seed: int, params, k: int, captures: int = 1) -> dict:
     old_twin = simulate(truth, PRESETS["paper"], seed, captures=captures)
     old = diagnose(calibrate(old_twin.dataset, Settings(seed=seed)))
     out = {}
-    for p in params:
-        sigma = prior_sigma(old, p, "pen")
+    for p in [*params, None]:  # None: nothing else moved, the prior right
+        sigma = None if p is None else prior_sigma(old, p, "pen")
         changed = change_truth(truth, "pen", seed)
-        model = {**changed.model, p: changed.model[p] + SIGMAS * sigma}
+        model = dict(changed.model)
+        if p is not None:
+            model[p] += SIGMAS * sigma
         twin = simulate(replace(changed, model=model), PRESETS["paper"], NEW_SEED + seed)
         r = recalibrate(subset(twin.dataset, SUBSETS[k]), old, ("pen",), Settings(seed=seed))
         checks = [w for w in r.warnings if w.kind == "prior"]
         pulls = {q.param: q for q in r.stage1.prior.pulls}
         out[p] = {
-            "sigma": sigma, "pull": pulls[p].pull,
+            "sigma": sigma, "pull": None if p is None else pulls[p].pull,
             "first": checks[0].param if checks else None,
             "beside": [w.param for w in checks[1:] if w.param is not None],
             "stage2_following": any(w.param is None for w in checks),
             "following": [q.param for q in pulls.values() if q.follows],
             "text": checks[0].text if checks else "",
+            "checks": len(checks),
         }  # fmt: skip
     return out
 
@@ -108,6 +112,10 @@ def main() -> None:
                      f"{sum(pulls) / len(pulls):.1f}, {min(pulls):.1f} | {beside:.1f} | "
                      f"{follow:.1f} | {sum(r['stage2_following'] for r in rows)} of "
                      f"{len(rows)} |")  # fmt: skip
+    right = [runs[s][None] for s in args.seeds]
+    flagged = sum(r["checks"] > 0 for r in right)
+    lines.append(f"| none (the prior right) | – | – | – | {flagged} of {len(right)} fits with a "
+                 f"check ({sum(r['checks'] for r in right)} in all) | – | – |")
     example = next((runs[s][args.params[0]]["text"] for s in args.seeds
                     if runs[s][args.params[0]]["text"]), "")  # fmt: skip
     if example:

@@ -17,6 +17,7 @@ from test_objective import RIG, YawOnlyModel
 
 from handeye_jax import (
     PRESETS,
+    Diagnostics,
     GaussianObjective,
     HTMModel,
     InputError,
@@ -45,6 +46,7 @@ from handeye_jax import (
     recalibrate,
     recalibrate_batch,
     save_dataset,
+    save_result,
     simulate,
     snake_grid_px,
     synthesize_dataset,
@@ -310,6 +312,48 @@ def test_a_prior_wrong_by_five_sigma_is_flagged_naming_the_parameter(rig):
     assert len(said) == 1 and re.match(r"  \d+\. stage 1: the data pull xt ", said[0])
     assert f"xt {abs(pulls['xt']):.1f} sigma from its prior (old.json" in said[0]
     assert not any("pull xt " in w for w in map(str, right.warnings))
+
+
+@pytest.mark.slow
+def test_a_prior_is_tested_against_the_fits_its_old_data_could_not_exclude(rig):
+    """The tablet moved 5 prior sigmas along x, and the old result is told that a fit with xt
+    moved as far (say, a mirror mount) fitted its data as well: the rig may have been there all
+    along, so the data pull nothing from that fit and nothing is flagged. With that fit on the
+    other side, xt is flagged and named first, as without one. And the alternative survives a
+    marginal and a conditional of the prior, and the result file, exactly."""
+    from handeye_jax.calibration import Ambiguity
+
+    old = load_result(rig / "old.json")
+    prior = old.posterior("stage1")
+    sigma = float(prior.marginal(["xt"]).sigma[0])
+    truth = load_truth(rig / "new" / "truth.json")
+    moved = replace(truth, model={**truth.model, "xt": truth.model["xt"] + 5.0 * sigma})
+    data = simulate(moved, PRESETS["paper"], 12, exact=True).dataset  # the test above's
+
+    def told(shift: float):
+        alternative = Ambiguity(kind="mirror camera mount", differs={"xt": shift},
+                                delta_F_mm=0.0, here_mm=0.0, elsewhere_mm=(0.0, 0.0))  # fmt: skip
+        return replace(old, diagnostics=Diagnostics(ambiguities=(alternative,),
+                                                    untested_params=("xt",)))  # fmt: skip
+
+    there, opposite = told(5.0 * sigma), told(-5.0 * sigma)
+    post = there.posterior("stage1")
+    assert "xt" not in post.untested and post.alternatives == ({"xt": 5.0 * sigma},)
+    others = [n for n in post.names if n not in ("xp", "yp")]
+    assert post.marginal(others).alternatives == post.alternatives
+    assert post.conditional(others, {"xp": 0.0, "yp": 0.0}).alternatives == post.alternatives
+    budget = Settings(**BUDGET)
+    near = recalibrate(data, there, ("pen",), budget, source="old.json")
+    far = recalibrate(data, opposite, ("pen",), budget, source="old.json")
+    assert not [w for w in near.warnings if w.kind == "prior"]
+    pulls = {p.param: p.pull for p in near.stage1.prior.pulls}
+    assert abs(pulls["xt"]) < 3.0
+    checks = [w for w in far.warnings if w.kind == "prior"]
+    assert checks and checks[0].param == "xt"
+    assert far.stage1.prior.alternatives == ({"xt": -5.0 * sigma},)
+    path = rig / "far.json"
+    save_result(far, path)
+    assert load_result(path).stage1.prior == far.stage1.prior
 
 
 # -- properties of the objective -------------------------------------------------------------

@@ -137,7 +137,9 @@ class Pull:
 class PriorReport:
     """A stage's prior (its source, the parameters it covers, their mean and precision, the
     data scale and noise σ of the fit it came from, mm) and each parameter's pull; the
-    ``untested`` ones (the fit it came from did not determine them) are not flagged."""
+    ``untested`` ones (the fit it came from did not determine them) are not flagged, and the
+    others only when the data pull them from each of the ``alternatives`` too: the fits the
+    data it came from could not exclude, as shifts by parameter (:class:`~handeye_jax.Prior`)."""
 
     source: str
     names: tuple[str, ...]
@@ -147,6 +149,7 @@ class PriorReport:
     pulls: tuple[Pull, ...] = ()
     data_sigma_mm: float | None = spec(omit="none", default=None)
     untested: tuple[str, ...] = spec(omit="empty", default=())
+    alternatives: tuple[dict[str, float], ...] = spec(omit="empty", default=())
 
 
 @dataclass(frozen=True)

@@ -212,7 +212,7 @@ def _prior_of(report: PriorReport | None) -> Prior | None:
     if report is None:
         return None
     return Prior(report.names, report.mean, report.precision, report.source, report.data_scale_mm,
-                 report.data_sigma_mm, report.untested)  # fmt: skip
+                 report.data_sigma_mm, report.untested, report.alternatives)  # fmt: skip
 
 
 def spaces_of(result: CalibrationResult, search: dict) -> Stages[ParameterSpace]:

@@ -262,13 +262,29 @@ class CalibrationResult:
         if P is None:
             P, sigma = self._posterior_precision(stage, free)
         untested: tuple[str, ...] = ()
+        alternatives: tuple[dict[str, float], ...] = ()
         if self.diagnostics is not None and stage == "stage1":
-            d = self.diagnostics
-            names = d.weak_params if d.untested_params is None else d.untested_params
-            untested = tuple(n for n in names if n in free)
+            untested, alternatives = self._untested(free)
         return Prior(free, [s.params[n] for n in free], np.asarray(P, dtype=float),
                      source or f"previous result ({self.dataset_name})",
-                     max(s.F, 1e-6) / 4.0, sigma if sigma else None, untested)  # fmt: skip
+                     max(s.F, 1e-6) / 4.0, sigma if sigma else None, untested,
+                     alternatives)  # fmt: skip
+
+    def _untested(self, free) -> tuple[tuple[str, ...], tuple[dict[str, float], ...]]:
+        """The stage-1 parameters a prior from this result does not test (in a weak direction,
+        or at the sign twin's fold), and the alternative fits (a mirror mount, the sign twin)
+        against which it tests those they move (files from before ``untested_params``: none,
+        every weak parameter untested)."""
+        d = self.diagnostics
+        if d.untested_params is None:
+            return tuple(n for n in d.weak_params if n in free), ()
+        alternatives = [a for a in d.ambiguities if not (a.edge or a.fold)]
+        never = {p for w in d.stage1.weak_directions for p in w.params} if d.stage1 else set()
+        never |= {p for a in d.ambiguities if a.fold for p in a.differs}
+        moved = {p for a in alternatives for p in a.differs}
+        untested = tuple(n for n in d.untested_params
+                         if n in free and (n in never or n not in moved))  # fmt: skip
+        return untested, tuple(dict(a.differs) for a in alternatives)
 
     def _posterior_precision(self, stage: str, free: tuple[str, ...]) -> np.ndarray:
         if self.data is None:

@@ -90,7 +90,7 @@ def _prior_report(stage: StageFit) -> PriorReport | None:
         source=prior.source, names=tuple(prior.names), mean=tuple(prior.mean.tolist()),
         precision=tuple(tuple(row) for row in prior.precision.tolist()),
         data_scale_mm=prior.data_scale_mm, pulls=tuple(out), data_sigma_mm=prior.data_sigma_mm,
-        untested=tuple(prior.untested),
+        untested=tuple(prior.untested), alternatives=tuple(prior.alternatives),
     )  # fmt: skip
 
 
@@ -111,19 +111,38 @@ def _update_precision(Q: np.ndarray, P: np.ndarray) -> np.ndarray:
     return (A / lam[keep]) @ A.T
 
 
-def _refit_released(stage: StageFit, cols: list[int],
-                    starts: list[np.ndarray]) -> tuple[float, np.ndarray]:  # fmt: skip
+def _moved_prior(stage: StageFit, shift: np.ndarray, at_prior: np.ndarray):
+    """The stage's objective with its prior's mean moved by ``shift``, LM's starts for it (the
+    fit, and the moved mean with the other parameters at the fit) and its lowest value."""
+    prior = stage.space.prior
+    moved = eqx.tree_at(lambda o: o.mean, stage.objective, jnp.asarray(prior.mean + shift))
+    start = np.array(at_prior, dtype=float)
+    start[list(stage.space.prior_indices())] += shift
+    starts = [np.asarray(stage.x), stage.space.clip(start)]
+    return moved, starts, _lowest(stage, moved, starts)[0]
+
+
+def _refit_released(
+    stage: StageFit, cols: list[int], starts: list[np.ndarray],
+    objective: AbstractObjective | None = None,
+) -> tuple[float, np.ndarray]:  # fmt: skip
     """The stage's lowest value and its point, by LM from each of ``starts``, with the prior
     means of the prior's parameters ``cols`` free: the prior's precision ``P`` becomes
     ``P − PE(EᵀPE)⁻¹EᵀP`` (``E``: those columns of the identity), the prior's information about
     everything else kept. Every refit of a stage runs one LM program (its objective differs
-    from the fit's in the whitener's values alone)."""
+    from the fit's in the whitener's and the mean's values alone). ``objective``: the stage's
+    with its prior's mean moved (default: the stage's own)."""
     prior = stage.space.prior
     P = prior.precision
     E = np.eye(len(P))[:, cols]
     A = np.eye(len(P)) - E @ np.linalg.solve(E.T @ P @ E, E.T @ P)
-    objective = eqx.tree_at(lambda o: o.whitener, stage.objective,
+    objective = eqx.tree_at(lambda o: o.whitener, objective or stage.objective,
                             jnp.asarray(prior.whitener() @ A))  # fmt: skip
+    return _lowest(stage, objective, starts)
+
+
+def _lowest(stage: StageFit, objective: AbstractObjective,
+            starts: list[np.ndarray]) -> tuple[float, np.ndarray]:  # fmt: skip
     best = (math.inf, starts[0])
     for x0 in starts:
         value, x = _lm_from(stage, objective, x0)
@@ -169,9 +188,15 @@ def _released_pulls(stage: StageFit, pulls: np.ndarray,
 
     out = np.array(pulls, dtype=float)
     released = {}
+    alternatives = [_moved_prior(stage, shift, at_prior) for shift in prior.alternative_shifts()]
     for j in flagged:
         released[j] = _refit_released(stage, [j], [stage.x, at_prior])
         out[j] = math.copysign(pull(F0 - released[j][0]), pulls[j])
+        # The rig may have been at a fit its old data could not tell from the prior's mean:
+        # the pull is the smallest of those from the prior and from the prior moved there.
+        for moved, starts, F_moved in alternatives:
+            F_free = _refit_released(stage, [j], starts, moved)[0]
+            out[j] = math.copysign(min(abs(out[j]), pull(F_moved - F_free)), pulls[j])
     top = max(flagged, key=lambda j: abs(out[j]))
     follows = {}
     if abs(out[top]) > PULL_FLAG:

@@ -47,8 +47,12 @@ class Prior:
             it came from, whose precision is ``JᵀJ/σ²``: the noise of the new data under the
             same model, for the pulls (``None``: estimated from the new fit's residuals).
         untested: parameters the fit it came from did not determine well enough for its
-            Gaussian to be their error (in a weak direction, or moved by an alternative fit):
-            their pulls are reported but not flagged.
+            Gaussian to be their error (in a weak direction, or at a fold of the tablet's
+            sign twin): their pulls are reported but not flagged.
+        alternatives: the fits the data it came from could not tell from its optimum (a
+            mirror camera mount, the tablet's sign twin), each as its shifts from ``mean`` by
+            parameter (their units). A parameter is flagged only when the data pull it away
+            from the prior and from the prior moved to each of them.
     """
 
     names: tuple[str, ...]
@@ -58,6 +62,7 @@ class Prior:
     data_scale_mm: float = 0.25
     data_sigma_mm: float | None = None
     untested: tuple[str, ...] = ()
+    alternatives: tuple[Mapping[str, float], ...] = ()
 
     def __post_init__(self):
         names = tuple(str(n) for n in self.names)
@@ -82,6 +87,11 @@ class Prior:
         object.__setattr__(self, "mean", mean)
         object.__setattr__(self, "precision", P)
         object.__setattr__(self, "data_scale_mm", float(self.data_scale_mm))
+        alternatives = tuple({str(n): float(v) for n, v in dict(a).items() if n in names}
+                             for a in self.alternatives)  # fmt: skip
+        if not all(math.isfinite(v) for a in alternatives for v in a.values()):
+            raise ValueError("prior alternatives' shifts must be finite")
+        object.__setattr__(self, "alternatives", tuple(a for a in alternatives if a))
         if self.data_sigma_mm is not None:
             if not (math.isfinite(self.data_sigma_mm) and self.data_sigma_mm > 0):
                 raise ValueError(f"data_sigma_mm must be > 0 (got {self.data_sigma_mm})")
@@ -159,7 +169,8 @@ class Prior:
             P_kd, P_dd = P[np.ix_(keep, drop)], P[np.ix_(drop, drop)]
             P_kk = P_kk - P_kd @ np.linalg.pinv(P_dd, hermitian=True) @ P_kd.T
         return Prior(tuple(self.names[i] for i in keep), self.mean[keep], P_kk, self.source,
-                     self.data_scale_mm, self.data_sigma_mm, self._untested(keep))  # fmt: skip
+                     self.data_scale_mm, self.data_sigma_mm, self._untested(keep),
+                     self._alternatives(keep))  # fmt: skip
 
     def conditional(self, names: Iterable[str], others: Mapping[str, float]) -> Prior:
         """The prior of ``names`` given the other parameters' values ``others``."""
@@ -172,10 +183,21 @@ class Prior:
             d_o = np.array([others[self.names[i]] for i in drop]) - self.mean[drop]
             mean = mean - np.linalg.pinv(P_kk, hermitian=True) @ P[np.ix_(keep, drop)] @ d_o
         return Prior(tuple(self.names[i] for i in keep), mean, P_kk, self.source,
-                     self.data_scale_mm, self.data_sigma_mm, self._untested(keep))  # fmt: skip
+                     self.data_scale_mm, self.data_sigma_mm, self._untested(keep),
+                     self._alternatives(keep))  # fmt: skip
 
     def _untested(self, keep: list[int]) -> tuple[str, ...]:
         return tuple(self.names[i] for i in keep if self.names[i] in self.untested)
+
+    def _alternatives(self, keep: list[int]) -> tuple[dict[str, float], ...]:
+        kept = {self.names[i] for i in keep}
+        out = ({n: v for n, v in a.items() if n in kept} for a in self.alternatives)
+        return tuple(a for a in out if a)
+
+    def alternative_shifts(self) -> list[np.ndarray]:
+        """The shifts of :attr:`mean` to each alternative fit, ``(k,)`` each (0 for a
+        parameter it does not move)."""
+        return [np.array([float(a.get(n, 0.0)) for n in self.names]) for a in self.alternatives]
 
 
 @dataclass(frozen=True, eq=False)
