@@ -70,13 +70,15 @@ class Blocks:
         and to at least ``minimum`` problems per device (:meth:`gather` leaves them out)."""
         sharding = NamedSharding(mesh, P(PROBLEMS))
         leaves, treedef = jax.tree.flatten(tree)
+        if not leaves:  # nothing to place (a problem without data): each device gets it as is
+            return cls(mesh, [tree] * mesh.devices.size)
         n = leaves[0].shape[0]
         devices = mesh.devices.size
         size = max(-(-n // devices), minimum) * devices
         if size != n:
             rows = np.concatenate([np.arange(n), np.zeros(size - n, int)])
             leaves = [np.asarray(x)[rows] for x in leaves]
-        placed = [jax.device_put(np.asarray(x), sharding) for x in leaves]
+        placed = jax.device_put([np.asarray(x) for x in leaves], sharding)  # one transfer
         per_device = {d: i for i, d in enumerate(mesh.devices.flat)}
         blocks: list[list[Any]] = [[None] * len(leaves) for _ in per_device]
         for j, x in enumerate(placed):

@@ -138,9 +138,16 @@ def values_many(fns: Problem, x: Float[ArrayLike, "b *s d"], mesh: Mesh | None =
     its points (``(b, s, d)``), as :func:`~handeye_jax.optim.minimise` evaluates it."""
     mesh = problem_mesh() if mesh is None else mesh
     x = np.asarray(x, float)
+    problems = Blocks.of(fns, mesh, LOOPED)  # placed once for all the points
     if x.ndim == 3:  # the points of a problem one after another, as the single run does
-        return np.stack([values_many(fns, x[:, j], mesh) for j in range(x.shape[1])], axis=1)
-    return per_device(_values, Blocks.of((fns, x), mesh, LOOPED)).gather()
+        return np.stack([_values_at(problems, x[:, j]) for j in range(x.shape[1])], axis=1)
+    return _values_at(problems, x)
+
+
+def _values_at(problems: Blocks, x: np.ndarray) -> np.ndarray:
+    points = Blocks.of(x, problems.mesh, LOOPED)
+    blocks = [(f, p) for f, p in zip(problems.blocks, points.blocks, strict=True)]
+    return per_device(_values, Blocks(problems.mesh, blocks, points.n)).gather()
 
 
 @fast_compile
