@@ -198,8 +198,10 @@ def test_a_valley_is_walked_past_its_quadratic_to_what_the_data_still_allow(pape
 def test_a_valleys_far_end_withholds_sigma_but_leaves_the_prior_check_its_tests(paper_result):
     """The parameters riding a valley to its far end lose their σ in the summary, but a
     recalibration from the result still tests them against its prior (the pull test's own
-    benchmark: no flags on a right prior, the moved parameter named first); the other
-    alternatives and the weak directions withhold both."""
+    benchmark: no flags on a right prior, the moved parameter named first). The weak
+    directions withhold both; the other alternatives (here the tablet's sign twin) withhold
+    the σ, and a recalibration tests what they move from the prior and from the prior moved
+    to each of them."""
     from handeye_jax.diagnostics._mount import weak_parameters
 
     d = paper_result.diagnostics
@@ -207,7 +209,12 @@ def test_a_valleys_far_end_withholds_sigma_but_leaves_the_prior_check_its_tests(
     assert {"xt", "xp", "yp"} <= riders
     others = [a for a in d.ambiguities if not a.edge]
     assert set(d.untested_params) == weak_parameters(d.stage1, others)
-    assert set(paper_result.posterior("stage1").untested) == set(d.untested_params)
+    post = paper_result.posterior("stage1")
+    weak = {p for w in d.stage1.weak_directions for p in w.params}
+    assert weak and set(post.untested) == weak  # the valleys: yc, alpha_c; xc, beta_c
+    twin = next(a for a in others if a.kind == "tablet sign twin")
+    assert set(twin.differs) == {"alpha_t", "beta_t"} <= set(d.untested_params)
+    assert post.alternatives == (twin.differs,)  # its tilts tested from both fits
     # A file written before the field: its weak parameters are the prior's untested ones.
     old = dataclasses.replace(
         paper_result, diagnostics=dataclasses.replace(d, untested_params=None)
