@@ -320,7 +320,11 @@ def test_a_prior_is_tested_against_the_fits_its_old_data_could_not_exclude(rig):
     moved as far (say, a mirror mount) fitted its data as well: the rig may have been there all
     along, so the data pull nothing from that fit and nothing is flagged. With that fit on the
     other side, xt is flagged and named first, as without one. And the alternative survives a
-    marginal and a conditional of the prior, and the result file, exactly."""
+    marginal and a conditional of the prior, and the result file, exactly.
+
+    With the tablet's yaw moved too, to where an alternative says the rig may have been, the
+    yaw and the tilt it drags follow xt: from that alternative, once xt moves, they are not
+    pulled. Told of no alternative, they are flagged beside it."""
     from handeye_jax.calibration import Ambiguity
 
     old = load_result(rig / "old.json")
@@ -330,19 +334,29 @@ def test_a_prior_is_tested_against_the_fits_its_old_data_could_not_exclude(rig):
     moved = replace(truth, model={**truth.model, "xt": truth.model["xt"] + 5.0 * sigma})
     data = simulate(moved, PRESETS["paper"], 12, exact=True).dataset  # the test above's
 
-    def told(shift: float):
-        alternative = Ambiguity(kind="mirror camera mount", differs={"xt": shift},
+    def told(untested=("xt",), **differs: float):
+        alternative = Ambiguity(kind="mirror camera mount", differs=differs,
                                 delta_F_mm=0.0, here_mm=0.0, elsewhere_mm=(0.0, 0.0))  # fmt: skip
-        return replace(old, diagnostics=Diagnostics(ambiguities=(alternative,),
-                                                    untested_params=("xt",)))  # fmt: skip
+        return replace(old, diagnostics=Diagnostics(ambiguities=(alternative,) if differs else (),
+                                                    untested_params=untested))  # fmt: skip
 
-    there, opposite = told(5.0 * sigma), told(-5.0 * sigma)
+    budget = Settings(**BUDGET)
+    yaw = 5.0 * float(prior.marginal(["gamma_t"]).sigma[0])
+    turned = replace(moved, model={**moved.model, "gamma_t": moved.model["gamma_t"] + yaw})
+    turned_data = simulate(turned, PRESETS["paper"], 12, exact=True).dataset
+    for old_said, beside in ((told((), gamma_t=yaw), []), (told(()), ["beta_t", "gamma_t"])):
+        r = recalibrate(turned_data, old_said, ("pen",), budget, source="old.json")
+        flagged = [w.param for w in r.warnings if w.kind == "prior" and w.param is not None]
+        assert flagged == ["xt", *beside]
+        follows = {p.param: p.follows for p in r.stage1.prior.pulls}
+        assert all(follows[n] == (None if n in beside else "xt") for n in ("beta_t", "gamma_t"))
+
+    there, opposite = told(xt=5.0 * sigma), told(xt=-5.0 * sigma)
     post = there.posterior("stage1")
     assert "xt" not in post.untested and post.alternatives == ({"xt": 5.0 * sigma},)
     others = [n for n in post.names if n not in ("xp", "yp")]
     assert post.marginal(others).alternatives == post.alternatives
     assert post.conditional(others, {"xp": 0.0, "yp": 0.0}).alternatives == post.alternatives
-    budget = Settings(**BUDGET)
     near = recalibrate(data, there, ("pen",), budget, source="old.json")
     far = recalibrate(data, opposite, ("pen",), budget, source="old.json")
     assert not [w for w in near.warnings if w.kind == "prior"]

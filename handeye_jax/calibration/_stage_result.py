@@ -187,26 +187,38 @@ def _released_pulls(stage: StageFit, pulls: np.ndarray,
         return math.sqrt(max(2.0 * drop / weight, 0.0))
 
     out = np.array(pulls, dtype=float)
+    # The priors a pull is tested from: the prior, and the prior moved to each fit its old
+    # data could not exclude (objective, starts, lowest value); each flagged parameter's
+    # release from each of them (value and point).
+    references = [(stage.objective, [stage.x, at_prior], F0)]
+    references += [_moved_prior(stage, shift, at_prior) for shift in prior.alternative_shifts()]
     released = {}
-    alternatives = [_moved_prior(stage, shift, at_prior) for shift in prior.alternative_shifts()]
     for j in flagged:
-        released[j] = _refit_released(stage, [j], [stage.x, at_prior])
-        out[j] = math.copysign(pull(F0 - released[j][0]), pulls[j])
+        released[j] = [_refit_released(stage, [j], starts, objective)
+                       for objective, starts, _ in references]  # fmt: skip
         # The rig may have been at a fit its old data could not tell from the prior's mean:
         # the pull is the smallest of those from the prior and from the prior moved there.
-        for moved, starts, F_moved in alternatives:
-            F_free = _refit_released(stage, [j], starts, moved)[0]
-            out[j] = math.copysign(min(abs(out[j]), pull(F_moved - F_free)), pulls[j])
+        out[j] = math.copysign(min(pull(F_ref - F_free) for (_, _, F_ref), (F_free, _)
+                                   in zip(references, released[j], strict=True)), pulls[j])
     top = max(flagged, key=lambda j: abs(out[j]))
     follows = {}
     if abs(out[top]) > PULL_FLAG:
-        F1, x1 = released[top]
         for i in flagged:
-            if i != top and abs(out[i]) > PULL_FLAG:
-                F2, _ = _refit_released(stage, [top, i], [x1, at_prior])
-                if pull(F1 - F2) <= PULL_FLAG:
-                    follows[prior.names[i]] = prior.names[top]
+            if i != top and abs(out[i]) > PULL_FLAG and _follows(stage, top, i, references,
+                                                                released[top], pull):
+                follows[prior.names[i]] = prior.names[top]
     return out, follows
+
+
+def _follows(stage: StageFit, top: int, i: int, references, released_top, pull) -> bool:
+    """Whether flagged parameter ``i`` only follows ``top``: from some reference prior (the
+    prior, or an alternative of the old fit), with ``top`` released, releasing ``i`` too
+    lowers the value no more than a right prior would."""
+    for (objective, starts, _), (F1, x1) in zip(references, released_top, strict=True):
+        F2, _ = _refit_released(stage, [top, i], [x1, starts[-1]], objective)
+        if pull(F1 - F2) <= PULL_FLAG:
+            return True
+    return False
 
 
 def _stage_result(stage: StageFit, prior_report: PriorReport | None = None) -> StageResult:
