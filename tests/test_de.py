@@ -45,13 +45,18 @@ class ShiftedSphere(eqx.Module):
         return x - self.centre
 
 
+#: Compiled, as the DE's loop runs it: one program per n, where its operations one at a time
+#: compiled a handful each.
+_distinct_indices = jax.jit(distinct_indices)
+
+
 @settings(max_examples=30, deadline=None)
 @given(st.integers(4, 60), st.integers(0, 2**31 - 1))
 def test_index_draws_are_distinct_and_exclude_the_target(n, seed):
     # NumPy's uniforms: JAX's would compile three small programs for every new n.
     u = np.random.default_rng(seed).random((3, n))
     u[:, 0], u[:, -1] = 0.0, 1.0 - 2.0**-53  # the extremes of [0, 1)
-    r = np.asarray(distinct_indices(u))
+    r = np.asarray(_distinct_indices(u))
     i = np.arange(n)
     assert r.min() >= 0 and r.max() < n
     assert np.all(r[0] != i) and np.all(r[1] != i) and np.all(r[2] != i)
@@ -62,7 +67,7 @@ def test_index_draws_are_distinct_and_exclude_the_target(n, seed):
 def test_index_draws_stay_in_range_for_uniforms_next_to_one(n):
     """The gather has no bounds handling, so no draw may reach n, however u rounds."""
     u = jnp.full((3, n), 1.0 - 2.0**-53, dtype=jnp.float64)
-    r = np.asarray(distinct_indices(u))
+    r = np.asarray(_distinct_indices(u))
     assert r.min() >= 0 and r.max() < n
     i = np.arange(n)
     assert np.all(r != i)
@@ -72,7 +77,7 @@ def test_index_draws_stay_in_range_for_uniforms_next_to_one(n):
 def test_index_draws_are_uniform_over_the_allowed_values():
     n, draws = 7, 4000
     u = uniforms(jnp.uint64(7), 0, (draws, 3 * n)).reshape(draws, 3, n)
-    r = np.asarray(jax.vmap(distinct_indices)(u))  # (draws, 3, n)
+    r = np.asarray(jax.jit(jax.vmap(distinct_indices))(u))  # (draws, 3, n)
     for j in range(3):
         counts = np.bincount(r[:, j, 0], minlength=n)  # member 0's picks
         assert counts[0] == 0
