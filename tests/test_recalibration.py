@@ -344,7 +344,8 @@ def test_a_prior_is_tested_against_the_fits_its_old_data_could_not_exclude(rig):
     yaw = 5.0 * float(prior.marginal(["gamma_t"]).sigma[0])
     turned = replace(moved, model={**moved.model, "gamma_t": moved.model["gamma_t"] + yaw})
     turned_data = simulate(turned, PRESETS["paper"], 12, exact=True).dataset
-    for old_said, beside in ((told((), gamma_t=yaw), []), (told(()), ["beta_t", "gamma_t"])):
+    for old_said, beside in ((told(untested=(), gamma_t=yaw), []),
+                             (told(untested=()), ["beta_t", "gamma_t"])):
         r = recalibrate(turned_data, old_said, ("pen",), budget, source="old.json")
         flagged = [w.param for w in r.warnings if w.kind == "prior" and w.param is not None]
         assert flagged == ["xt", *beside]

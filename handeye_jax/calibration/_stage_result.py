@@ -184,7 +184,7 @@ def _released_pulls(stage: StageFit, pulls: np.ndarray,
     F0, _ = _lm_from(stage, stage.objective, stage.x)
 
     def pull(drop: float) -> float:
-        return math.sqrt(max(2.0 * drop / weight, 0.0))
+        return _pull(drop, weight)
 
     out = np.array(pulls, dtype=float)
     # The priors a pull is tested from: the prior, and the prior moved to each fit its old
@@ -205,18 +205,24 @@ def _released_pulls(stage: StageFit, pulls: np.ndarray,
     if abs(out[top]) > PULL_FLAG:
         for i in flagged:
             if i != top and abs(out[i]) > PULL_FLAG and _follows(stage, top, i, references,
-                                                                released[top], pull):
+                                                                released[top]):
                 follows[prior.names[i]] = prior.names[top]
     return out, follows
 
 
-def _follows(stage: StageFit, top: int, i: int, references, released_top, pull) -> bool:
+def _pull(drop: float, weight: float) -> float:
+    """The likelihood-ratio pull of a drop of the stage's value (see :func:`_released_pulls`)."""
+    return math.sqrt(max(2.0 * drop / weight, 0.0))
+
+
+def _follows(stage: StageFit, top: int, i: int, references, released_top) -> bool:
     """Whether flagged parameter ``i`` only follows ``top``: from some reference prior (the
     prior, or an alternative of the old fit), with ``top`` released, releasing ``i`` too
     lowers the value no more than a right prior would."""
+    weight = float(stage.objective.weight)
     for (objective, starts, _), (F1, x1) in zip(references, released_top, strict=True):
         F2, _ = _refit_released(stage, [top, i], [x1, starts[-1]], objective)
-        if pull(F1 - F2) <= PULL_FLAG:
+        if _pull(F1 - F2, weight) <= PULL_FLAG:
             return True
     return False
 
