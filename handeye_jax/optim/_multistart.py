@@ -9,9 +9,9 @@ its arithmetic is the same bit for bit whatever rows of zeros pad a problem's re
 
 * the sums over residual rows (``|r|²``, ``JᵀJ``, ``Jᵀr``) are taken row after row, in
   order, so a padded row of zeros adds exactly nothing;
-* the damped normal equations are solved by an unrolled Cholesky factorisation (they are
-  positive definite for λ > 0), elementwise over the starts: no library call whose blocking
-  depends on the batch's shape.
+* the damped normal equations (positive definite for λ > 0) are solved by LAPACK's Cholesky
+  factorisation and triangular solves, one start's matrix per call: a start's step is the
+  same whatever the other starts or problems of the batch.
 
 It works in the box coordinates of :mod:`._box`, as the other LM does, with bounds kept as an
 active set there (:func:`._box.held`, :func:`._box.step`): a coordinate on a bound takes its
@@ -69,33 +69,12 @@ def _evaluate(fn: Problem, z, lower, upper):
 
 
 def _cholesky_solve(A: Float[Array, "s d d"], b: Float[Array, "s d"]) -> Float[Array, "s d"]:
-    """``A⁻¹b`` for symmetric positive definite ``A``, by an unrolled Cholesky factorisation
-    (``d`` is small: 12 for a stage-1 model)."""
-    d = A.shape[-1]
-    L = [[None] * d for _ in range(d)]
-    for j in range(d):
-        s = A[:, j, j]
-        for k in range(j):
-            s = s - L[j][k] * L[j][k]
-        L[j][j] = jnp.sqrt(s)
-        for i in range(j + 1, d):
-            s = A[:, i, j]
-            for k in range(j):
-                s = s - L[i][k] * L[j][k]
-            L[i][j] = s / L[j][j]
-    y = [None] * d
-    for i in range(d):
-        s = b[:, i]
-        for k in range(i):
-            s = s - L[i][k] * y[k]
-        y[i] = s / L[i][i]
-    x = [None] * d
-    for i in reversed(range(d)):
-        s = y[i]
-        for k in range(i + 1, d):
-            s = s - L[k][i] * x[k]
-        x[i] = s / L[i][i]
-    return jnp.stack(x, axis=-1)
+    """``A⁻¹b`` for symmetric positive definite ``A``, each start's on its own (LAPACK's potrf
+    and trsm). Unrolled in XLA, the factorisation of a 12 × 12 matrix was about 300 scalar
+    operations per start, which made the restarts' program the largest a calibration compiles
+    (``benchmarks/RESULTS.md``)."""
+    L = jax.lax.linalg.cholesky(A, symmetrize_input=False)  # A is symmetric as built
+    return jax.scipy.linalg.cho_solve((L, True), b[..., None])[..., 0]
 
 
 def _step(fn: Problem, lower, upper, lm: LevenbergMarquardt, st: _State) -> _State:
