@@ -27,6 +27,7 @@ from handeye_jax.optim import (
 )
 from handeye_jax.optim._de import distinct_indices
 from handeye_jax.optim._lm import _lm
+from handeye_jax.optim._multistart import _cholesky_solve
 from handeye_jax.optim._rng import uniforms
 
 
@@ -284,6 +285,23 @@ def test_lm_from_many_starts_finds_the_basin_one_start_misses():
     np.testing.assert_allclose(ends[1, 0], 1.0, atol=1e-8)
     np.testing.assert_allclose(ends[1, 1], ends[0, 1], atol=1e-8)  # each start on its own
     assert int(np.argmin(cost)) == 3 and cost[3] < 1e-16 < cost[0]
+
+
+@settings(max_examples=15)
+@given(st.integers(1, 12), st.integers(1, 4), st.integers(0, 2**32 - 1))
+def test_the_restarts_solve_each_starts_equations_on_their_own(d, s, seed):
+    """The multi-start LM's damped normal equations (``JᵀJ + μ·I``, positive definite): solved,
+    and each start's solution bit for bit the one it gets alone, whatever the other starts."""
+    rng = np.random.default_rng(seed)
+    J = rng.normal(size=(s, d + 3, d))
+    A = np.einsum("smi,smj->sij", J, J) + rng.uniform(1e-3, 1.0, (s, 1, 1)) * np.eye(d)
+    b = rng.normal(size=(s, d))
+    solve = jax.jit(_cholesky_solve)
+    x = np.asarray(solve(A, b))
+    want = np.linalg.solve(A, b[..., None])[..., 0]
+    np.testing.assert_allclose(x, want, rtol=1e-8, atol=1e-10 * np.abs(want).max())
+    for i in range(s):
+        assert np.array_equal(np.asarray(solve(A[i : i + 1], b[i : i + 1]))[0], x[i])
 
 
 class PastTheBound(LeastSquares):
