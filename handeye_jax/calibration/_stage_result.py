@@ -183,9 +183,6 @@ def _released_pulls(stage: StageFit, pulls: np.ndarray,
     # compare optimum with optimum.
     F0, _ = _lm_from(stage, stage.objective, stage.x)
 
-    def pull(drop: float) -> float:
-        return _pull(drop, weight)
-
     out = np.array(pulls, dtype=float)
     # The priors a pull is tested from: the prior, and the prior moved to each fit its old
     # data could not exclude (objective, starts, lowest value); each flagged parameter's
@@ -198,7 +195,7 @@ def _released_pulls(stage: StageFit, pulls: np.ndarray,
                        for objective, starts, _ in references]  # fmt: skip
         # The rig may have been at a fit its old data could not tell from the prior's mean:
         # the pull is the smallest of those from the prior and from the prior moved there.
-        out[j] = math.copysign(min(pull(F_ref - F_free) for (_, _, F_ref), (F_free, _)
+        out[j] = math.copysign(min(_pull(F_ref - F_free, weight) for (_, _, F_ref), (F_free, _)
                                    in zip(references, released[j], strict=True)), pulls[j])
     top = max(flagged, key=lambda j: abs(out[j]))
     follows = {}
