@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import inspect
 import xml.etree.ElementTree as ET
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -16,7 +17,7 @@ import yaml
 from handeye_jax import PRESETS, calibrate, draw_truth, save_result, simulate
 from handeye_jax.cli import main
 from handeye_jax.robot import EASY_HANDEYE_PARAMETERS, export_text, with_heights
-from tests.common import FAST_SETTINGS
+from tests.common import EXACT_RESTARTS, FAST_SETTINGS
 
 
 class HandeyeCalibrationParameters:
@@ -34,7 +35,7 @@ def heights_result(tmp_path_factory):
     """A noise-free three-capture twin's calibration: its touches recorded hand heights."""
     truth = draw_truth(6, dot_px=2.0)
     twin = simulate(truth, PRESETS["none"], 6, exact=True, n_heldout=2, captures=3)
-    r = calibrate(twin.dataset, FAST_SETTINGS)
+    r = calibrate(twin.dataset, replace(FAST_SETTINGS, restarts=EXACT_RESTARTS))
     path = tmp_path_factory.mktemp("heights") / "r.json"
     save_result(r, path)
     return truth, r, path

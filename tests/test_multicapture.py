@@ -26,6 +26,7 @@ from handeye_jax import (
 )
 from handeye_jax.data import read_capture_columns, read_points_csv
 from handeye_jax.twin import seen_from, true_command
+from tests.common import EXACT_RESTARTS
 
 TRUTH = {
     "htm": dict(xc=-3.0, yc=35.0, alpha_c=-1.5, beta_c=2.0, gamma_c=4.0, xt=150.0, yt=40.0,
@@ -137,7 +138,8 @@ def test_rows_pair_each_view_with_each_touch_and_skip_missing_landmarks():
 def fitted(request):
     model, zero, sign = request.param
     rig, ds = _dataset(model, zero, sign)
-    return model, rig, ds, calibrate(ds, Settings(model=model, seed=0, generations=400))
+    return model, rig, ds, calibrate(ds, Settings(model=model, seed=0, generations=400,
+                                                    restarts=EXACT_RESTARTS))
 
 
 @pytest.mark.slow
@@ -243,7 +245,8 @@ def exact_twin(request, tmp_path_factory):
     twin = simulate(truth, PRESETS["none"], request.param, exact=True, n_heldout=5, captures=3)
     folder = tmp_path_factory.mktemp(f"twin{request.param}")
     write_twin(twin, folder)
-    return twin, folder, calibrate(twin.dataset, Settings(seed=0, generations=400))
+    return twin, folder, calibrate(twin.dataset,
+                                     Settings(seed=0, generations=400, restarts=EXACT_RESTARTS))
 
 
 def test_twin_draws_captures_at_several_heights_and_hand_angles(exact_twin):
