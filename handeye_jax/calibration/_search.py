@@ -219,11 +219,17 @@ def _lm_searches(batch: _Batch, found, keys, settings: Settings,
     best = _Best(np.where(better[:, None], lm.x, best.x), np.where(better, lm.value, best.value),
                  [f"{f} + LM" if b else f for f, b in zip(best.found_by, better, strict=True)])
     restarts = [None] * len(batch.tasks)
-    if settings.restarts > 0 and found is not None:
-        best, restarts = _restarts(batch, found, keys, settings, best)
     replaced = [()] * len(batch.tasks)
-    if settings.restarts > 0 and batch.tasks[0].refit_starts is not None:
-        best, replaced = _refits(batch, best, settings.restarts)
+    search = settings.restarts > 0 and found is not None
+    refit = settings.restarts > 0 and batch.tasks[0].refit_starts is not None
+    whole = search and all(f.space is t.space for f, t in zip(found, batch.tasks, strict=True))
+    if refit and whole:
+        best, restarts, replaced = _restarts_and_refits(batch, found, keys, settings, best)
+    else:
+        if search:
+            best, restarts = _restarts(batch, found, keys, settings, best)
+        if refit:
+            best, replaced = _refits(batch, best, settings.restarts)
     out = [PolishSummary(
         ran=True, accepted=bool(best.value[i] < F_before[i]), F_before_mm=float(F_before[i]),
         steps=int(lm.steps[i]), solver_converged=bool(lm.converged[i]), restarts=restarts[i],
@@ -246,6 +252,65 @@ def _polish(batch: _Batch, objectives, x0: np.ndarray, run: np.ndarray):
 def _restarts(batch: _Batch, found: list[DESearch], keys, settings: Settings,
               best: _Best) -> tuple[_Best, list[RestartSummary]]:  # fmt: skip
     """:func:`~._stage._restarts` of every problem."""
+    points, labels, ks = _restart_starts(batch, found, keys, settings)
+    # As wide as the refits' (the last start repeated): one LM program and one program for
+    # the ends' values serve both.
+    ends = _multistart(batch, [f.objective for f in found], _boxes([f.space for f in found]),
+                       points, max(settings.restarts, REFIT_WIDTH))  # fmt: skip
+    return _restarts_adopted(batch, found, ends, labels, ks, settings, best)
+
+
+def _refits(batch: _Batch, best: _Best,
+            size: int) -> tuple[_Best, list[tuple[float, ...]]]:  # fmt: skip
+    """:func:`~._stage._refits` of every problem."""
+    starts, labels = _refit_starts(batch.tasks, best)
+    # All the padded ends, as wide as the restarts': their values are then one program.
+    ends = _multistart(batch, batch.objective, _boxes([t.space for t in batch.tasks]), starts,
+                       max(size, REFIT_WIDTH))  # fmt: skip
+    return _refits_adopted(batch, best, ends, labels)
+
+
+def _restarts_and_refits(batch: _Batch, found: list[DESearch], keys, settings: Settings,
+                         best: _Best) -> tuple[_Best, list[RestartSummary], list[tuple]]:
+    """:func:`_restarts`, then :func:`_refits`, with their LM runs in one program call: the
+    restarts search every free parameter, so both run on the problem's own objective and
+    box. The refit from the fit starts where the fit was before the restarts; a problem whose
+    restarts moved its fit runs its refits again, from there, as they run apart.
+
+    Apart, the refits' call was mostly copies of its last start, as wide as the restarts' (so
+    that the two share a program); together, the program is as wide as both: stage 1's
+    multi-start work falls by about a third (``benchmarks/RESULTS.md``)."""
+    points, r_labels, ks = _restart_starts(batch, found, keys, settings)
+    refit_starts, f_labels = _refit_starts(batch.tasks, best)
+    r, width = points.shape[1], points.shape[1] + refit_starts.shape[1]
+    box = _boxes([t.space for t in batch.tasks])
+    ends = _multistart(batch, batch.objective, box, np.concatenate([points, refit_starts], 1),
+                       width)  # fmt: skip
+    size = max(settings.restarts, REFIT_WIDTH)
+    before = best
+    best, info = _restarts_adopted(batch, found, _widened(ends[:, :r], size), r_labels, ks,
+                                   settings, best)  # fmt: skip
+    refit_ends = ends[:, r:]
+    moved = batch.live & np.any(best.x != before.x, axis=1)
+    if moved.any():  # their refits, as apart: from the moved fit, stopping when they do
+        refit_starts, f_labels = _refit_starts(batch.tasks, best)
+        again = _multistart(replace(batch, live=moved), batch.objective, box, refit_starts,
+                            width)  # fmt: skip
+        refit_ends = np.where(moved[:, None, None], again[:, : refit_starts.shape[1]], refit_ends)
+    best, replaced = _refits_adopted(batch, best, _widened(refit_ends, size), f_labels)
+    return best, info, replaced
+
+
+def _widened(ends: np.ndarray, size: int) -> np.ndarray:
+    """``ends`` ``(b, k, d)`` with the last column repeated up to ``size`` columns."""
+    return np.concatenate([ends, np.repeat(ends[:, -1:], max(size - ends.shape[1], 0), 1)], 1)
+
+
+def _restart_starts(batch: _Batch, found: list[DESearch], keys,
+                    settings: Settings) -> tuple[np.ndarray, list[list[str]], list[int]]:
+    """The restarts' starts ``(b, restarts, d)`` in each DE search's space: the final
+    population's other optima, then Latin-hypercube points; their labels; how many came from
+    the population."""
     restarts = settings.restarts
     subs = [f.space for f in found]
     box = _boxes(subs)
@@ -261,11 +326,17 @@ def _restarts(batch: _Batch, found: list[DESearch], keys, settings: Settings,
         labels.append([f"LM from another optimum of the final DE population (restart {j + 1} "
                        f"of {restarts})" if j < k else f"LM from a Latin-hypercube start "
                        f"(restart {j + 1} of {restarts})" for j in range(restarts)])  # fmt: skip
+    return points, labels, ks
+
+
+def _restarts_adopted(batch: _Batch, found: list[DESearch], ends: np.ndarray,
+                      labels: list[list[str]], ks: list[int], settings: Settings,
+                      best: _Best) -> tuple[_Best, list[RestartSummary]]:  # fmt: skip
+    """The restarts' LM ends ``ends`` (in each DE search's space, the last repeated up to the
+    program's width) taken: the new bests, and what the restarts found."""
+    restarts = settings.restarts
+    subs = [f.space for f in found]
     landmarks = batch.tasks[0].restart_landmarks
-    # As wide as the refits' (the last start repeated): one LM program and one program for
-    # the ends' values serve both.
-    ends = _multistart(batch, [f.objective for f in found], box, points,
-                       max(restarts, REFIT_WIDTH))  # fmt: skip
     labels = [own + [own[-1]] * (ends.shape[1] - restarts) for own in labels]
     full = np.array([[t.space.embed(subs[i].free, e, found[i].base) for e in ends[i]]
                      for i, t in enumerate(batch.tasks)])  # fmt: skip
@@ -280,14 +351,11 @@ def _restarts(batch: _Batch, found: list[DESearch], keys, settings: Settings,
     return out, info
 
 
-def _refits(batch: _Batch, best: _Best,
-            size: int) -> tuple[_Best, list[tuple[float, ...]]]:  # fmt: skip
-    """:func:`~._stage._refits` of every problem."""
-    tasks = batch.tasks
-    # Each problem's starts (its own count: the closed-form estimate adds one or two), then
-    # its fit; repeated to a width that does not depend on the batch, so that a problem's
-    # program is the same alone and in any batch (a repeated start ends where it did, and the
-    # lowest end's first occurrence wins).
+def _refit_starts(tasks: Sequence[StageTask], best: _Best) -> tuple[np.ndarray, list[list[str]]]:
+    """The refits' starts ``(b, width, d)``: each problem's own (its count: the closed-form
+    estimate adds one or two), then its fit; repeated to a width that does not depend on the
+    batch, so that a problem's program is the same alone and in any batch (a repeated start
+    ends where it did, and the lowest end's first occurrence wins). And their labels."""
     width = max(REFIT_WIDTH, *(len(t.refit_starts) + 1 for t in tasks))
     starts, labels = [], []
     for i, t in enumerate(tasks):
@@ -298,11 +366,16 @@ def _refits(batch: _Batch, best: _Best,
         rows = np.concatenate([t.refit_starts, best.x[i][None]])
         starts.append(np.concatenate([rows, np.repeat(rows[-1:], width - k - 1, axis=0)]))
         labels.append(own + [own[-1]] * (width - k - 1))
-    starts = np.array(starts)
+    return np.array(starts), labels
+
+
+def _refits_adopted(batch: _Batch, best: _Best, ends: np.ndarray,
+                    labels: list[list[str]]) -> tuple[_Best, list[tuple[float, ...]]]:
+    """The refits' LM ends ``ends`` (the last repeated up to the program's width) taken: the
+    new bests, and the value each replaced (none where the fit stood)."""
+    tasks = batch.tasks
     box = _boxes([t.space for t in tasks])
     landmarks = tasks[0].restart_landmarks
-    # All the padded ends, as wide as the restarts': their values are then one program.
-    ends = _multistart(batch, batch.objective, box, starts, max(size, REFIT_WIDTH))
     labels = [own + [own[-1]] * (ends.shape[1] - len(own)) for own in labels]
     out, _, _ = _best_end(batch, ends, labels, best, landmarks is not None)
     changed = out.value != best.value
