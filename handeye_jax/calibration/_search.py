@@ -301,9 +301,9 @@ def _restarts_and_refits(batch: _Batch, found: list[DESearch], keys, settings: S
     return best, info, replaced
 
 
-def _widened(ends: np.ndarray, size: int) -> np.ndarray:
-    """``ends`` ``(b, k, d)`` with the last column repeated up to ``size`` columns."""
-    return np.concatenate([ends, np.repeat(ends[:, -1:], max(size - ends.shape[1], 0), 1)], 1)
+def _widened(rows: np.ndarray, size: int) -> np.ndarray:
+    """``rows`` ``(b, k, d)`` (starts or ends) with the last column repeated up to ``size``."""
+    return np.concatenate([rows, np.repeat(rows[:, -1:], max(size - rows.shape[1], 0), 1)], 1)
 
 
 def _restart_starts(batch: _Batch, found: list[DESearch], keys,
@@ -394,8 +394,7 @@ def _multistart(batch: _Batch, objectives, box: Box, starts: np.ndarray, size: i
     landmarks = batch.tasks[0].restart_landmarks
     searched = objectives if landmarks is None else [o.on_landmarks(landmarks)
                                                      for o in objectives]  # fmt: skip
-    k = starts.shape[1]
-    wide = np.concatenate([starts, np.repeat(starts[:, -1:], max(size - k, 0), axis=1)], axis=1)
+    wide = _widened(starts, size)
     lm = LevenbergMarquardt(rtol=1e-10, atol=0.0, max_steps=RESTART_STEPS)
     return minimise_starts_many(stack(searched), lm, box, wide, run=batch.live,
                                 mesh=batch.mesh).x  # fmt: skip
