@@ -189,7 +189,9 @@ def fit_stages(
 
 def _de_searches(batch: _Batch, builds, search, settings: Settings, keys,
                  progress: bool) -> list[DESearch] | None:  # fmt: skip
-    """:func:`~._stage._de_search` of every problem, as one DE run."""
+    """Each problem's DE search, all in one DE run: over the parameters ``search`` names (the
+    rest held at the space's clipped start), with the space's prior. ``None`` when the stage
+    searches nothing."""
     if not search:
         return None
     subs, objectives, bases = [], [], []
@@ -212,7 +214,10 @@ def _de_searches(batch: _Batch, builds, search, settings: Settings, keys,
 
 def _lm_searches(batch: _Batch, found, keys, settings: Settings,
                  best: _Best) -> tuple[_Best, list[PolishSummary]]:  # fmt: skip
-    """:func:`~._stage._lm_searches` of every problem."""
+    """Each problem's LM search from its best point so far: the polish, then the restarts
+    (from the DE population's other optima and Latin-hypercube points) and the multi-start
+    refits; each replaces the best only where it is lower. Returns the new bests and what
+    each problem's LM search did."""
     F_before = best.value.copy()
     lm = _polish(batch, batch.objective, best.x, batch.live)
     better = np.isfinite(lm.value) & (lm.value < best.value)
@@ -251,7 +256,8 @@ def _polish(batch: _Batch, objectives, x0: np.ndarray, run: np.ndarray):
 
 def _restarts(batch: _Batch, found: list[DESearch], keys, settings: Settings,
               best: _Best) -> tuple[_Best, list[RestartSummary]]:  # fmt: skip
-    """:func:`~._stage._restarts` of every problem."""
+    """Each problem's restarts: LM from ``settings.restarts`` starts in its DE search's
+    space; the lowest end replaces the best where it is lower."""
     points, labels, ks = _restart_starts(batch, found, keys, settings)
     # As wide as the refits' (the last start repeated): one LM program and one program for
     # the ends' values serve both.
@@ -262,7 +268,8 @@ def _restarts(batch: _Batch, found: list[DESearch], keys, settings: Settings,
 
 def _refits(batch: _Batch, best: _Best,
             size: int) -> tuple[_Best, list[tuple[float, ...]]]:  # fmt: skip
-    """:func:`~._stage._refits` of every problem."""
+    """Each problem's multi-start refits: LM from its own refit starts and from its fit; the
+    lowest end replaces the fit where it is lower."""
     starts, labels = _refit_starts(batch.tasks, best)
     # All the padded ends, as wide as the restarts': their values are then one program.
     ends = _multistart(batch, batch.objective, _boxes([t.space for t in batch.tasks]), starts,
@@ -389,8 +396,9 @@ def _refits_adopted(batch: _Batch, best: _Best, ends: np.ndarray,
 
 
 def _multistart(batch: _Batch, objectives, box: Box, starts: np.ndarray, size: int):
-    """:func:`~._stage._multistart` of every problem: LM end points ``(b, max(k, size), d)``
-    for ``k`` starts, the last start's end repeated up to ``size``."""
+    """LM from each problem's ``k`` starts (on the restarts' landmarks, where a problem has
+    them): the end points ``(b, max(k, size), d)``, the last start's end repeated up to
+    ``size``."""
     landmarks = batch.tasks[0].restart_landmarks
     searched = objectives if landmarks is None else [o.on_landmarks(landmarks)
                                                      for o in objectives]  # fmt: skip
@@ -402,8 +410,11 @@ def _multistart(batch: _Batch, objectives, box: Box, starts: np.ndarray, size: i
 
 def _best_end(batch: _Batch, ends: np.ndarray, labels: list[list[str]], best: _Best,
               narrowed: bool) -> tuple[_Best, np.ndarray, np.ndarray]:  # fmt: skip
-    """:func:`~._stage._best_end` of every problem: the new bests, every end point's value and
-    the lowest one's value after its polish."""
+    """Each problem's lowest end point among ``ends``, polished when it may beat the best
+    (or, after a search narrowed to fewer landmarks or parameters, may match it), taken where
+    it is lower by
+    :data:`BETTER_BY_MM`: the new bests, every end point's value and the lowest one's value
+    after its polish."""
     values = values_many(stack(batch.objective), ends, batch.mesh)
     values = np.where(np.isfinite(values), values, np.inf)
     i = np.argmin(values, axis=1)
