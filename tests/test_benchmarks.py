@@ -164,6 +164,22 @@ def test_startup_times_every_command_and_the_parts_of_a_calibration():
     assert re.search(r"NumPy Predictor, in this process: \d+\.\d+ µs per point", out)
 
 
+def test_suite_profile_names_each_compilation_s_test_and_program(tmp_path):
+    probe = tmp_path / "test_probe.py"
+    probe.write_text(
+        "import jax\n\n"
+        "def test_compiles():\n    assert float(jax.jit(lambda x: x * 3.0)(2.0)) == 6.0\n\n"
+        "def test_compiles_nothing():\n    assert True\n"
+    )
+    out = run_in_process("suite_profile.py", "--top", "5", "--", str(probe))
+    assert re.search(r"; 2 tests, their times summed \d+\.\d s$", out, re.M), out
+    assert re.search(r"XLA \d+\.\d s in 1 compilations;", out), out
+    assert re.search(r"^\| <lambda> \| \d+\.\d \| 1 \|$", out, re.M), out
+    tests = out.split("| test | time, s | built, s |")[1]
+    assert re.search(r"^\| test_probe\.py::test_compiles \| \d+\.\d \| \d+\.\d \|$", tests, re.M)
+    assert "test_compiles_nothing" not in tests  # it built nothing
+
+
 def test_tablet_attack_runs_every_attack():
     out = _run("tablet_attack.py", "--connections", "40", "--seconds", "1", "--drip", "0.5",
                "--resets", "5")  # fmt: skip
