@@ -411,10 +411,9 @@ def _multistart(batch: _Batch, objectives, box: Box, starts: np.ndarray, size: i
 def _best_end(batch: _Batch, ends: np.ndarray, labels: list[list[str]], best: _Best,
               narrowed: bool) -> tuple[_Best, np.ndarray, np.ndarray]:  # fmt: skip
     """Each problem's lowest end point among ``ends``, polished when it may beat the best
-    (or, after a search narrowed to fewer landmarks or parameters, may match it), taken where
-    it is lower by
-    :data:`BETTER_BY_MM`: the new bests, every end point's value and the lowest one's value
-    after its polish."""
+    (or, after a search narrowed to fewer landmarks or parameters, may match it), and taken
+    where it is lower by :data:`BETTER_BY_MM`. Returns the new bests, every end point's value
+    and the lowest one's value after its polish."""
     values = values_many(stack(batch.objective), ends, batch.mesh)
     values = np.where(np.isfinite(values), values, np.inf)
     i = np.argmin(values, axis=1)
