@@ -31,19 +31,22 @@ BENCH = Path(__file__).resolve().parent
 ROOT = BENCH.parent
 #: The environment variable that turns the plugin on: the folder it writes its rows to.
 OUT_ENV = "SUITE_PROFILE_DIR"
-#: jax.monitoring's duration events, by the phase of building a program they time.
+#: jax.monitoring's duration events, by the phase of building a program they time. On a hit
+#: of the persistent cache, JAX reports the fetch (without the program's name), then the
+#: backend's event for the fetched program: that one is counted as a fetch, not a compilation.
 PHASES = {
     "jaxpr_trace_duration": "trace",
     "jaxpr_to_mlir_module_duration": "lower",
     "backend_compile_duration": "xla",
-    "cache_retrieval_time_sec": "fetch",
 }
-BUILD = ("trace", "lower", "xla")
+FETCH_EVENT = "cache_retrieval_time_sec"
+BUILD = ("trace", "lower", "xla", "fetch")
 
 # -- the plugin (imported by pytest in each test process: ``-p suite_profile``) ------------
 
 _rows: list[list] = []
 _test = ["(collection)"]
+_fetched = [False]  # the next backend event is a cache fetch
 
 
 def _program(name: str) -> str:
@@ -51,7 +54,13 @@ def _program(name: str) -> str:
 
 
 def _listen(event: str, duration: float, **kw) -> None:
-    phase = PHASES.get(event.rsplit("/", 1)[-1])
+    name = event.rsplit("/", 1)[-1]
+    if name == FETCH_EVENT:
+        _fetched[0] = True
+        return
+    phase = PHASES.get(name)
+    if phase == "xla" and _fetched[0]:
+        phase, _fetched[0] = "fetch", False
     if phase is not None:
         _rows.append(["build", _test[0], _program(str(kw.get("fun_name", "?"))), phase, duration])
 
@@ -99,16 +108,15 @@ def read_rows(folder: Path) -> tuple[dict, list[list]]:
 
 def report(durations: dict, builds: list[list], wall_s: float, top: int) -> str:
     """The report's text: totals, then tables by program, by test file and by test."""
-    phase_s = collections.Counter()
-    program_s, program_n = collections.Counter(), collections.Counter()
-    test_build = collections.Counter()
+    C = collections.Counter
+    phase_s, phase_n, program_s, compiled, fetched, test_build = C(), C(), C(), C(), C(), C()
     for test, program, phase, s in builds:
         phase_s[phase] += s
-        if phase in BUILD:
-            program_s[program] += s
-            test_build[test] += s
-        if phase == "xla":
-            program_n[program] += 1
+        phase_n[phase] += 1
+        program_s[program] += s
+        test_build[test] += s
+        compiled[program] += phase == "xla"
+        fetched[program] += phase == "fetch"
     test_s = collections.Counter()
     for (test, _), s in durations.items():
         test_s[test] += s
@@ -117,19 +125,19 @@ def report(durations: dict, builds: list[list], wall_s: float, top: int) -> str:
         file_s[test.split("::")[0]] += s
     for test, s in test_build.items():
         file_build[test.split("::")[0]] += s
-    fetches = sum(1 for b in builds if b[2] == "fetch")
     summed, built = sum(test_s.values()), sum(phase_s[p] for p in BUILD)
     lines = [
         f"wall time of the pytest run: {wall_s:.1f} s; {len(test_s)} tests, their times summed "
         f"{summed:.1f} s",
         f"built in the test processes: {built:.1f} s ({100 * built / max(summed, 1e-9):.0f} % of "
         f"the summed time): tracing {phase_s['trace']:.1f} s, lowering {phase_s['lower']:.1f} s, "
-        f"XLA {phase_s['xla']:.1f} s in {sum(program_n.values())} compilations; "
-        f"{fetches} programs fetched from the persistent cache in {phase_s['fetch']:.1f} s",
+        f"XLA {phase_s['xla']:.1f} s in {phase_n['xla']} compilations; {phase_n['fetch']} "
+        f"programs fetched from the persistent cache in {phase_s['fetch']:.1f} s",
         "",
-        "| program | built, s | XLA compilations |",
-        "|---|---|---|",
-        *(f"| {p} | {s:.1f} | {program_n[p]} |" for p, s in program_s.most_common(top)),
+        "| program | built, s | XLA compilations | fetched |",
+        "|---|---|---|---|",
+        *(f"| {p} | {s:.1f} | {compiled[p]} | {fetched[p]} |"
+          for p, s in program_s.most_common(top)),
         "",
         "| test file | time, s | built, s |",
         "|---|---|---|",
