@@ -33,6 +33,7 @@ from handeye_jax import (
     calibrate,
     chain_points,
     change_truth,
+    diagnose,
     draw_truth,
     errors_of,
     evaluate,
@@ -324,7 +325,8 @@ def test_a_prior_is_tested_against_the_fits_its_old_data_could_not_exclude(rig):
 
     With the tablet's yaw moved too, to where an alternative says the rig may have been, the
     yaw and the tilt it drags follow xt: from that alternative, once xt moves, they are not
-    pulled. Told of no alternative, they are flagged beside it."""
+    pulled. Told of no alternative, the yaw is flagged beside xt (it moved too), and the tilt
+    follows the yaw: once both move, it is not pulled."""
     from handeye_jax.calibration import Ambiguity
 
     old = load_result(rig / "old.json")
@@ -344,13 +346,14 @@ def test_a_prior_is_tested_against_the_fits_its_old_data_could_not_exclude(rig):
     yaw = 5.0 * float(prior.marginal(["gamma_t"]).sigma[0])
     turned = replace(moved, model={**moved.model, "gamma_t": moved.model["gamma_t"] + yaw})
     turned_data = simulate(turned, PRESETS["paper"], 12, exact=True).dataset
-    for old_said, beside in ((told(untested=(), gamma_t=yaw), []),
-                             (told(untested=()), ["beta_t", "gamma_t"])):
+    for old_said, beside, tilt_follows in ((told(untested=(), gamma_t=yaw), [], "xt"),
+                                           (told(untested=()), ["gamma_t"], "gamma_t")):
         r = recalibrate(turned_data, old_said, ("pen",), budget, source="old.json")
         flagged = [w.param for w in r.warnings if w.kind == "prior" and w.param is not None]
         assert flagged == ["xt", *beside]
         follows = {p.param: p.follows for p in r.stage1.prior.pulls}
-        assert all(follows[n] == (None if n in beside else "xt") for n in ("beta_t", "gamma_t"))
+        assert follows["gamma_t"] == (None if beside else "xt")
+        assert follows["beta_t"] == tilt_follows
 
     there, opposite = told(xt=5.0 * sigma), told(xt=-5.0 * sigma)
     post = there.posterior("stage1")
@@ -369,6 +372,31 @@ def test_a_prior_is_tested_against_the_fits_its_old_data_could_not_exclude(rig):
     path = rig / "far.json"
     save_result(far, path)
     assert load_result(path).stage1.prior == far.stage1.prior
+
+
+@pytest.mark.slow
+def test_a_moved_parameter_the_linear_pull_misses_is_named_first():
+    """``benchmarks/wrong_prior.py``'s seed 5 at the suite's budget: the pen changed and the
+    tablet moved 5 prior sigmas along y, recalibrated on the four corners. At the fit the
+    wrong prior dragged, the linear w-test puts yt at 1.0 sigma and the tilt alpha_t at 4.0;
+    refitted with each tested parameter's prior mean free, the data pull yt most, and the
+    tilt follows it."""
+    seed = 5
+    truth = draw_truth(seed, dot_px=1.0)
+    budget = replace(FAST_SETTINGS, seed=seed)
+    old = diagnose(calibrate(simulate(truth, PRESETS["paper"], seed).dataset, budget))
+    post = old.posterior("stage1")
+    prior = post.marginal([n for n in post.names if n not in HTMModel.groups["pen"]])
+    sigma = float(prior.sigma[prior.names.index("yt")])
+    changed = change_truth(truth, "pen", seed)
+    moved = replace(changed, model={**changed.model, "yt": changed.model["yt"] + 5.0 * sigma})
+    new = simulate(moved, PRESETS["paper"], 1000 + seed).dataset.landmark_subset(CORNERS)
+    r = recalibrate(new, old, ("pen",), budget)
+    checks = [w for w in r.warnings if w.kind == "prior"]
+    assert checks and checks[0].param == "yt"
+    pulls = {p.param: p for p in r.stage1.prior.pulls}
+    assert pulls["yt"].pull > 5.0
+    assert pulls["alpha_t"].follows == "yt"
 
 
 # -- properties of the objective -------------------------------------------------------------

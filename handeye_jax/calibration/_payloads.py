@@ -118,8 +118,9 @@ class Convergence:
 class Pull:
     """How far the data pulled one prior parameter: its prior mean and σ, the fitted value
     and its posterior σ (each in the parameter's unit; σ ``None``: unbounded or
-    undetermined), Baarda's w-test ``pull`` (for a flagged parameter, its likelihood-ratio
-    form, from a refit with its prior mean free) and the marginal one, in σ; and
+    undetermined), the ``pull`` (for a tested parameter the new data inform, the
+    likelihood-ratio form of Baarda's w-test, from refits with its prior mean free; for the
+    others the linear w-test) and the marginal one, in σ; and
     ``follows``: the parameter pulled most, when this one's pull vanishes once that one's
     shift is accounted for (it follows it, correlated, rather than moving itself)."""
 

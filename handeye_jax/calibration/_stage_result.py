@@ -41,9 +41,10 @@ def _prior_report(stage: StageFit) -> PriorReport | None:
     covariance when the prior is right, the pull of parameter j is Baarda's w-test of a shift
     of μ_j alone, ``(Q⁻¹d)_j/√(Q⁻¹)_jj``: standard normal for a right prior, and largest for
     the parameter that moved even when correlated ones absorb part of its move (the marginal
-    ``d_j/√Q_jj``, kept as ``marginal_pull``, then blames them). A flagged parameter's pull
-    is then the test's likelihood-ratio form, from refits (:func:`_released_pulls`): the
-    linear one misleads when a wrong prior has moved the fit far. ``Σ_post`` is the Gauss–Newton
+    ``d_j/√Q_jj``, kept as ``marginal_pull``, then blames them). Each tested parameter the
+    new data inform (``(Q⁻¹)_jj > 0``) then gets the test's likelihood-ratio form, from refits
+    (:func:`_released_pulls`): the linear one, taken at a fit a wrong prior has dragged, can
+    be at the noise for the parameter that moved. ``Σ_post`` is the Gauss–Newton
     posterior ``(JᵀJ/σ² + Σ_prior⁻¹)⁻¹`` at the fit, with the noise σ of the fit the prior came
     from when the prior states it: a few new landmarks leave too few degrees of freedom to
     estimate σ (benchmarks/RESULTS.md, "Recalibration: what three touches can reach").
@@ -72,11 +73,13 @@ def _prior_report(stage: StageFit) -> PriorReport | None:
     sig_prior = prior.sigma
     pulls = np.array([(Q_inv[j] @ d) / math.sqrt(Q_inv[j, j]) if Q_inv[j, j] > 0 else 0.0
                       for j in range(len(prior.names))])  # fmt: skip
-    tested = np.array([n not in prior.untested for n in prior.names])
-    flagged = [j for j in range(len(pulls)) if tested[j] and abs(pulls[j]) > PULL_FLAG]
+    # Every tested parameter the new data inform gets the likelihood-ratio pull: the linear
+    # one, at a fit a wrong prior has dragged, can miss the parameter that moved
+    # (benchmarks/RESULTS.md, "The pull of every tested parameter by refits").
+    tested = [j for j, n in enumerate(prior.names) if n not in prior.untested and Q_inv[j, j] > 0]
     follows = {}
-    if flagged:
-        pulls, follows = _released_pulls(stage, pulls, flagged)
+    if tested:
+        pulls, follows = _released_pulls(stage, pulls, tested)
     out = []
     for j, name in enumerate(prior.names):
         sp, spost = float(sig_prior[j]), post[name]
@@ -163,17 +166,21 @@ def _lm_from(stage: StageFit, objective: AbstractObjective,
 
 
 def _released_pulls(stage: StageFit, pulls: np.ndarray,
-                    flagged: list[int]) -> tuple[np.ndarray, dict[str, str]]:  # fmt: skip
-    """The flagged parameters' pulls as likelihood ratios, and which of them follow another.
+                    tested: list[int]) -> tuple[np.ndarray, dict[str, str]]:  # fmt: skip
+    """The ``tested`` parameters' pulls as likelihood ratios (the signs of the linear
+    ``pulls``), and which of the flagged ones follow another.
 
     Parameter j's pull becomes ``±√(2ΔF/w)``: ΔF is how far the stage's value drops when the
     fit is redone with μ_j free (``w``: the prior block's weight, so ``2ΔF/w`` is the drop of
     −2 log posterior, χ²₁ when the prior is right). In the linear limit this is the w-test;
     unlike it, it stays right when a wrong prior has moved the fit far. Each refit starts from
     the fit and from the prior's mean (a wrong prior can drag the fit across a fold, such as
-    the tablet's tilt signs, that LM from the fit does not cross back). The parameter pulled
-    most is then freed for good; each other flagged one whose pull, so tested again, is no
-    longer flagged only follows it (data snooping's next step)."""
+    the tablet's tilt signs, that LM from the fit does not cross back).
+
+    Then data snooping, a step at a time: the flagged parameter pulled most is freed for good,
+    and each other flagged one is tested again with the freed ones' means free. One whose pull
+    is no longer flagged follows the parameter freed last; of the rest, the one pulled most
+    is freed next (a second parameter that moved), until none is left."""
     prior = stage.space.prior
     weight = float(stage.objective.weight)
     at_prior = np.array(stage.x, dtype=float)
@@ -185,25 +192,34 @@ def _released_pulls(stage: StageFit, pulls: np.ndarray,
 
     out = np.array(pulls, dtype=float)
     # The priors a pull is tested from: the prior, and the prior moved to each fit its old
-    # data could not exclude (objective, starts, lowest value); each flagged parameter's
+    # data could not exclude (objective, starts, lowest value); each tested parameter's
     # release from each of them (value and point).
     references = [(stage.objective, [stage.x, at_prior], F0)]
     references += [_moved_prior(stage, shift, at_prior) for shift in prior.alternative_shifts()]
     released = {}
-    for j in flagged:
+    for j in tested:
         released[j] = [_refit_released(stage, [j], starts, objective)
                        for objective, starts, _ in references]  # fmt: skip
         # The rig may have been at a fit its old data could not tell from the prior's mean:
         # the pull is the smallest of those from the prior and from the prior moved there.
-        out[j] = math.copysign(min(_pull(F_ref - F_free, weight) for (_, _, F_ref), (F_free, _)
-                                   in zip(references, released[j], strict=True)), pulls[j])
-    top = max(flagged, key=lambda j: abs(out[j]))
+        F_ref = [F for _, _, F in references]
+        out[j] = math.copysign(_smallest_pull(F_ref, _values(released[j]), weight), pulls[j])
     follows = {}
-    if abs(out[top]) > PULL_FLAG:
-        for i in flagged:
-            if i != top and abs(out[i]) > PULL_FLAG and _follows(stage, top, i, references,
-                                                                released[top]):
+    left = {j: abs(out[j]) for j in tested if abs(out[j]) > PULL_FLAG}
+    freed: list[int] = []
+    while left:
+        top = max(left, key=left.get)
+        freed.append(top)
+        base = released[top]
+        del left[top]
+        for i in list(left):
+            released[i] = [_refit_released(stage, [*freed, i], [x1, starts[-1]], objective)
+                           for (objective, starts, _), (_, x1)
+                           in zip(references, base, strict=True)]  # fmt: skip
+            left[i] = _smallest_pull(_values(base), _values(released[i]), weight)
+            if left[i] <= PULL_FLAG:
                 follows[prior.names[i]] = prior.names[top]
+                del left[i]
     return out, follows
 
 
@@ -212,16 +228,14 @@ def _pull(drop: float, weight: float) -> float:
     return math.sqrt(max(2.0 * drop / weight, 0.0))
 
 
-def _follows(stage: StageFit, top: int, i: int, references, released_top) -> bool:
-    """Whether flagged parameter ``i`` only follows ``top``: from some reference prior (the
-    prior, or an alternative of the old fit), with ``top`` released, releasing ``i`` too
-    lowers the value no more than a right prior would."""
-    weight = float(stage.objective.weight)
-    for (objective, starts, _), (F1, x1) in zip(references, released_top, strict=True):
-        F2, _ = _refit_released(stage, [top, i], [x1, starts[-1]], objective)
-        if _pull(F1 - F2, weight) <= PULL_FLAG:
-            return True
-    return False
+def _smallest_pull(before: list[float], after: list[float], weight: float) -> float:
+    """The smallest pull over the reference priors, from each one's lowest value ``before`` a
+    release to its value ``after`` it."""
+    return min(_pull(b - a, weight) for b, a in zip(before, after, strict=True))
+
+
+def _values(refits: list[tuple[float, np.ndarray]]) -> list[float]:
+    return [F for F, _ in refits]
 
 
 def _stage_result(stage: StageFit, prior_report: PriorReport | None = None) -> StageResult:
