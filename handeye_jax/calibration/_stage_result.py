@@ -73,9 +73,8 @@ def _prior_report(stage: StageFit) -> PriorReport | None:
     sig_prior = prior.sigma
     pulls = np.array([(Q_inv[j] @ d) / math.sqrt(Q_inv[j, j]) if Q_inv[j, j] > 0 else 0.0
                       for j in range(len(prior.names))])  # fmt: skip
-    # Every tested parameter the new data inform gets the likelihood-ratio pull: the linear
-    # one, at a fit a wrong prior has dragged, can miss the parameter that moved
-    # (benchmarks/RESULTS.md, "The pull of every tested parameter by refits").
+    # All of them, not only those the linear pull flags: at a fit a wrong prior dragged, it
+    # can miss the one that moved (RESULTS.md, "The pull of every tested parameter by refits").
     tested = [j for j, n in enumerate(prior.names) if n not in prior.untested and Q_inv[j, j] > 0]
     follows = {}
     if tested:
