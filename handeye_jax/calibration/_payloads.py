@@ -121,8 +121,9 @@ class Pull:
     undetermined), the ``pull`` (for a tested parameter the new data inform, the
     likelihood-ratio form of Baarda's w-test, from refits with its prior mean free; for the
     others the linear w-test) and the marginal one, in σ; and
-    ``follows``: the parameter pulled most, when this one's pull vanishes once that one's
-    shift is accounted for (it follows it, correlated, rather than moving itself)."""
+    ``follows``: the flagged parameter whose shift, once accounted for (with those of the
+    parameters freed before it), makes this one's pull vanish: it follows it, correlated,
+    rather than moving itself."""
 
     param: str
     mean: float

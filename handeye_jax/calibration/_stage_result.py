@@ -195,13 +195,13 @@ def _released_pulls(stage: StageFit, pulls: np.ndarray,
     # release from each of them (value and point).
     references = [(stage.objective, [stage.x, at_prior], F0)]
     references += [_moved_prior(stage, shift, at_prior) for shift in prior.alternative_shifts()]
+    F_ref = [F for _, _, F in references]
     released = {}
     for j in tested:
         released[j] = [_refit_released(stage, [j], starts, objective)
                        for objective, starts, _ in references]  # fmt: skip
         # The rig may have been at a fit its old data could not tell from the prior's mean:
         # the pull is the smallest of those from the prior and from the prior moved there.
-        F_ref = [F for _, _, F in references]
         out[j] = math.copysign(_smallest_pull(F_ref, _values(released[j]), weight), pulls[j])
     follows = {}
     left = {j: abs(out[j]) for j in tested if abs(out[j]) > PULL_FLAG}
