@@ -119,8 +119,9 @@ class Pull:
     """How far the data pulled one prior parameter: its prior mean and σ, the fitted value
     and its posterior σ (each in the parameter's unit; σ ``None``: unbounded or
     undetermined), the ``pull`` (for a tested parameter the new data inform, the
-    likelihood-ratio form of Baarda's w-test, from refits with its prior mean free; for the
-    others the linear w-test) and the marginal one, in σ; and
+    likelihood-ratio form of Baarda's w-test, from refits with its prior mean free, its sign
+    where that refit puts the parameter against the prior mean; for the others the linear
+    w-test) and the marginal one, in σ; and
     ``follows``: the flagged parameter whose shift, once accounted for (with those of the
     parameters freed before it), makes this one's pull vanish: it follows it, correlated,
     rather than moving itself."""

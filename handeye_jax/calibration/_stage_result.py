@@ -166,15 +166,17 @@ def _lm_from(stage: StageFit, objective: AbstractObjective,
 
 def _released_pulls(stage: StageFit, pulls: np.ndarray,
                     tested: list[int]) -> tuple[np.ndarray, dict[str, str]]:  # fmt: skip
-    """The ``tested`` parameters' pulls as likelihood ratios (the signs of the linear
-    ``pulls``), and which of the flagged ones follow another.
+    """The ``tested`` parameters' pulls as likelihood ratios, and which of the flagged ones
+    follow another (``pulls``: the linear ones, kept for the others).
 
     Parameter j's pull becomes ``±√(2ΔF/w)``: ΔF is how far the stage's value drops when the
     fit is redone with μ_j free (``w``: the prior block's weight, so ``2ΔF/w`` is the drop of
-    −2 log posterior, χ²₁ when the prior is right). In the linear limit this is the w-test;
-    unlike it, it stays right when a wrong prior has moved the fit far. Each refit starts from
-    the fit and from the prior's mean (a wrong prior can drag the fit across a fold, such as
-    the tablet's tilt signs, that LM from the fit does not cross back).
+    −2 log posterior, χ²₁ when the prior is right), signed by where that refit puts the
+    parameter against μ_j (the linear pull's sign can be the other way at a dragged fit). In
+    the linear limit this is the w-test; unlike it, it stays right when a wrong prior has
+    moved the fit far. Each refit starts from the fit and from the prior's mean (a wrong prior
+    can drag the fit across a fold, such as the tablet's tilt signs, that LM from the fit does
+    not cross back).
 
     Then data snooping, a step at a time: the flagged parameter pulled most is freed for good,
     and each other flagged one is tested again with the freed ones' means free. One whose pull
@@ -182,8 +184,9 @@ def _released_pulls(stage: StageFit, pulls: np.ndarray,
     is freed next (a second parameter that moved), until none is left."""
     prior = stage.space.prior
     weight = float(stage.objective.weight)
+    idx = list(stage.space.prior_indices())
     at_prior = np.array(stage.x, dtype=float)
-    at_prior[list(stage.space.prior_indices())] = prior.mean
+    at_prior[idx] = prior.mean
     at_prior = stage.space.clip(at_prior)
     # The fit's own value as these refits reach it (LM from the fit), so that the drops
     # compare optimum with optimum.
@@ -202,7 +205,8 @@ def _released_pulls(stage: StageFit, pulls: np.ndarray,
                        for objective, starts, _ in references]  # fmt: skip
         # The rig may have been at a fit its old data could not tell from the prior's mean:
         # the pull is the smallest of those from the prior and from the prior moved there.
-        out[j] = math.copysign(_smallest_pull(F_ref, _values(released[j]), weight), pulls[j])
+        toward = released[j][0][1][idx[j]] - prior.mean[j]  # the data's μ_j, from the prior's
+        out[j] = math.copysign(_smallest_pull(F_ref, _values(released[j]), weight), toward)
     follows = {}
     left = {j: abs(out[j]) for j in tested if abs(out[j]) > PULL_FLAG}
     freed: list[int] = []
