@@ -172,11 +172,10 @@ def _released_pulls(stage: StageFit, pulls: np.ndarray,
     Parameter j's pull becomes ``±√(2ΔF/w)``: ΔF is how far the stage's value drops when the
     fit is redone with μ_j free (``w``: the prior block's weight, so ``2ΔF/w`` is the drop of
     −2 log posterior, χ²₁ when the prior is right), signed by where that refit puts the
-    parameter against μ_j (the linear pull's sign can be the other way at a dragged fit). In
-    the linear limit this is the w-test; unlike it, it stays right when a wrong prior has
-    moved the fit far. Each refit starts from the fit and from the prior's mean (a wrong prior
-    can drag the fit across a fold, such as the tablet's tilt signs, that LM from the fit does
-    not cross back).
+    parameter against μ_j. In the linear limit this is the w-test; unlike it, it stays right
+    when a wrong prior has moved the fit far (its sign too). Each refit starts from the fit
+    and from the prior's mean (a wrong prior can drag the fit across a fold, such as the
+    tablet's tilt signs, that LM from the fit does not cross back).
 
     Then data snooping, a step at a time: the flagged parameter pulled most is freed for good,
     and each other flagged one is tested again with the freed ones' means free. One whose pull
@@ -204,8 +203,9 @@ def _released_pulls(stage: StageFit, pulls: np.ndarray,
         released[j] = [_refit_released(stage, [j], starts, objective)
                        for objective, starts, _ in references]  # fmt: skip
         # The rig may have been at a fit its old data could not tell from the prior's mean:
-        # the pull is the smallest of those from the prior and from the prior moved there.
-        toward = released[j][0][1][idx[j]] - prior.mean[j]  # the data's μ_j, from the prior's
+        # the pull is the smallest of those from the prior and from the prior moved there; its
+        # sign, where the data put μ_j (released from the prior itself) against its mean.
+        toward = released[j][0][1][idx[j]] - prior.mean[j]
         out[j] = math.copysign(_smallest_pull(F_ref, _values(released[j]), weight), toward)
     follows = {}
     left = {j: abs(out[j]) for j in tested if abs(out[j]) > PULL_FLAG}
