@@ -16,7 +16,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .. import geometry as geo
-from .._jax import in_float64
+from .._jax import fast_compile, in_float64
 from ..data import Camera, Capture, Dataset
 from ..models import AbstractModel, Rig
 
@@ -76,15 +76,15 @@ def synthesize_dataset(
     n = tablet_px.shape[0]
     touch_px = np.zeros((n, 2)) if touch_error_px is None else np.asarray(touch_error_px, float)
     mm = geo.mm_per_tablet_px(scene.ppi, scene.scale)
-    touched = truth.tablet_to_base(jnp.asarray((tablet_px + touch_px) * mm))
-    offset = truth.pen_offset(rig.phi_deg(jnp.asarray(hand_angle_deg, dtype=float)))[:, :2]
+    touched, offset = _touched(truth, rig, (tablet_px + touch_px) * mm,
+                               np.asarray(hand_angle_deg, dtype=float))  # fmt: skip
     common = dict(
         name="synthetic",
         camera=Camera(float(rig.fx_px), float(rig.fy_px), float(rig.cx_px), float(rig.cy_px)),
         tablet_ppi=float(scene.ppi), tablet_scale=float(scene.scale),
         hand_angle_zero_deg=float(rig.angle_zero_deg), hand_angle_sign=int(rig.angle_sign),
         search={}, tablet_px=tablet_px,
-        hand_xy_mm=np.asarray(touched[:, :2] - offset, dtype=float),
+        hand_xy_mm=np.asarray(touched[:, :2] - offset[:, :2], dtype=float),
         hand_angle_deg=np.asarray(hand_angle_deg, dtype=float), touch_error_px=touch_px,
     )  # fmt: skip
     if captures is None:
@@ -111,10 +111,40 @@ def synthesize_dataset(
 def _seen(truth: AbstractModel, rig: Rig, tablet_mm, scene: Scene) -> tuple[np.ndarray, ...]:
     """What the camera at ``rig``'s capture pose sees of tablet points (mm): image px and
     depths, mm."""
-    p_camera = tablet_to_camera(truth, rig, tablet_mm, tablet_height_mm=scene.tablet_height_mm,
-                                camera_z_mm=scene.camera_z_mm)  # fmt: skip
-    image_px, depth_mm = geo.project(p_camera, rig.fx_px, rig.fy_px, rig.cx_px, rig.cy_px)
-    return np.asarray(image_px, dtype=float), np.asarray(depth_mm, dtype=float)
+    _, image_px, depth_mm = camera_view(truth, rig, tablet_mm, scene.tablet_height_mm,
+                                        scene.camera_z_mm)  # fmt: skip
+    return image_px, depth_mm
+
+
+# The twin's chain runs as compiled programs, not operation by operation: a twin takes a few
+# hundred evaluations of it (a rendered picture, two per landmark), and each eager operation
+# costs a dispatch, and a compilation per new shape.
+@fast_compile
+def _touched(truth: AbstractModel, rig: Rig, tablet_mm, hand_angle_deg):
+    return truth.tablet_to_base(tablet_mm), truth.pen_offset(rig.phi_deg(hand_angle_deg))
+
+
+@fast_compile
+def _camera_view(truth: AbstractModel, rig: Rig, tablet_mm, tablet_height_mm, camera_z_mm):
+    p = tablet_to_camera(truth, rig, tablet_mm, tablet_height_mm=tablet_height_mm,
+                         camera_z_mm=camera_z_mm)  # fmt: skip
+    return (p, *geo.project(p, rig.fx_px, rig.fy_px, rig.cx_px, rig.cy_px))
+
+
+@in_float64
+def camera_view(
+    truth: AbstractModel,
+    rig: Rig,
+    tablet_mm: Float[ArrayLike, "n 2"],
+    tablet_height_mm: float,
+    camera_z_mm: float,
+) -> tuple[Float[np.ndarray, "n 3"], Float[np.ndarray, "n 2"], Float[np.ndarray, " n"]]:
+    """Tablet points (mm, tablet frame) seen from ``rig``'s capture pose, in one compiled
+    program: ``(camera-frame points mm, image px, depths mm)`` (see :func:`tablet_to_camera`)."""
+    out = _camera_view(truth, rig, np.asarray(tablet_mm, dtype=float),
+                       np.asarray(tablet_height_mm, dtype=float),
+                       np.asarray(camera_z_mm, dtype=float))  # fmt: skip
+    return tuple(np.asarray(a, dtype=float) for a in out)
 
 
 def capture_rig(rig: Rig, position_mm: np.ndarray, hand_angle_deg: float) -> Rig:
@@ -166,10 +196,15 @@ def seen_from(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Where base-frame points (mm) appear in a picture taken from a capture pose (hand
     position mm, hand angle θc deg): ``(image_px (n, 2), depth_mm (n,))``."""
-    p = base_to_camera(truth, capture_rig(rig, position_mm, hand_angle_deg), p_base_mm,
-                       camera_z_mm=camera_z_mm)  # fmt: skip
-    uv, z = geo.project(p, rig.fx_px, rig.fy_px, rig.cx_px, rig.cy_px)
+    uv, z = _seen_from(truth, capture_rig(rig, position_mm, hand_angle_deg),
+                       np.asarray(p_base_mm, dtype=float), np.asarray(camera_z_mm, dtype=float))
     return np.asarray(uv), np.asarray(z)
+
+
+@fast_compile
+def _seen_from(truth: AbstractModel, rig: Rig, p_base_mm, camera_z_mm):
+    p = base_to_camera(truth, rig, p_base_mm, camera_z_mm=camera_z_mm)
+    return geo.project(p, rig.fx_px, rig.fy_px, rig.cx_px, rig.cy_px)
 
 
 @in_float64
@@ -183,7 +218,12 @@ def true_command(
 ) -> np.ndarray:
     """The hand position ``(x, y, z)``, mm, that puts the pen tip (``truth``'s, ``pen_z_mm``
     along the hand's z) on base-frame points at hand angles θh (deg): ``(n, 3)``."""
-    p = jnp.asarray(p_base_mm, dtype=float)
-    offset = truth.pen_offset(rig.phi_deg(jnp.asarray(hand_angle_deg, dtype=float)))
-    return np.asarray(jnp.concatenate(
-        [p[:, :2] - offset[:, :2], p[:, 2:] + pen_z_mm], axis=1))  # fmt: skip
+    return np.asarray(_command(truth, rig, np.asarray(p_base_mm, dtype=float),
+                               np.asarray(hand_angle_deg, dtype=float),
+                               np.asarray(pen_z_mm, dtype=float)))  # fmt: skip
+
+
+@fast_compile
+def _command(truth: AbstractModel, rig: Rig, p, hand_angle_deg, pen_z_mm):
+    offset = truth.pen_offset(rig.phi_deg(hand_angle_deg))
+    return jnp.concatenate([p[:, :2] - offset[:, :2], p[:, 2:] + pen_z_mm], axis=1)

@@ -12,6 +12,7 @@ Units: mm, deg, px (image px for the camera, tablet px for the display).
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -37,7 +38,7 @@ from .._core import (
 from .._jax import in_float64
 from ..data import Camera, check_tablet_px, distort_px, snake_grid_px, undistort_px
 from ..models import HTMModel, Rig
-from ._synthetic import Scene, tablet_to_camera
+from ._synthetic import Scene, camera_view
 
 FORMAT = "handeye-jax.twin-truth/1"
 
@@ -183,11 +184,18 @@ class TwinTruth:
     @in_float64
     def camera_points(self, tablet_px: Float[np.ndarray, "n 2"]) -> Float[np.ndarray, "n 3"]:
         """Display points, tablet px ``(n, 2)``, in the camera frame at capture, mm ``(n, 3)``."""
-        p = tablet_to_camera(
-            self.htm(), self.rig(), np.asarray(tablet_px, float) * self.mm_per_tablet_px,
-            tablet_height_mm=self.tablet_height_mm, camera_z_mm=self.camera_z_mm,
-        )  # fmt: skip
-        return np.asarray(p)
+        return self._view(tablet_px)[0]
+
+    @functools.cached_property
+    def _chain(self) -> tuple[HTMModel, Rig]:
+        # Built once per truth: a rendered picture projects points a few hundred times, and
+        # each build converts twenty numbers to arrays, one operation each.
+        return self.htm(), self.rig()
+
+    def _view(self, tablet_px):
+        return camera_view(*self._chain,
+                           np.asarray(tablet_px, float) * self.mm_per_tablet_px,
+                           self.tablet_height_mm, self.camera_z_mm)  # fmt: skip
 
     @in_float64
     def project(
@@ -195,10 +203,8 @@ class TwinTruth:
     ) -> tuple[Float[np.ndarray, "n 2"], Float[np.ndarray, " n"]]:
         """Where display points appear in the picture: ``(image_px (n, 2), depth_mm (n,))``,
         through the lens's distortion."""
-        c = self.camera_px
-        uv, z = geo.project(jnp.asarray(self.camera_points(tablet_px)), c["fx"], c["fy"],
-                            c["cx"], c["cy"])  # fmt: skip
-        return distort_px(np.asarray(uv), self.camera_tuple_px, self.distortion), np.asarray(z)
+        _, uv, z = self._view(tablet_px)
+        return distort_px(uv, self.camera_tuple_px, self.distortion), z
 
     @property
     def camera_tuple_px(self) -> tuple[float, float, float, float]:
