@@ -1,6 +1,8 @@
 """Several captures: each view through its own capture pose, the hand's heights, and commands
 (x, y, z) from capture poses the calibration never used, on noise-free data with known truth."""
 
+from dataclasses import replace
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -26,7 +28,7 @@ from handeye_jax import (
 )
 from handeye_jax.data import read_capture_columns, read_points_csv
 from handeye_jax.twin import seen_from, true_command
-from tests.common import EXACT_RESTARTS
+from tests.common import EXACT_RESTARTS, FAST_SETTINGS
 
 TRUTH = {
     "htm": dict(xc=-3.0, yc=35.0, alpha_c=-1.5, beta_c=2.0, gamma_c=4.0, xt=150.0, yt=40.0,
@@ -138,8 +140,8 @@ def test_rows_pair_each_view_with_each_touch_and_skip_missing_landmarks():
 def fitted(request):
     model, zero, sign = request.param
     rig, ds = _dataset(model, zero, sign)
-    return model, rig, ds, calibrate(ds, Settings(model=model, seed=0, generations=400,
-                                                    restarts=EXACT_RESTARTS))
+    return model, rig, ds, calibrate(ds, replace(FAST_SETTINGS, model=model, seed=0,
+                                                 restarts=EXACT_RESTARTS))
 
 
 @pytest.mark.slow
@@ -237,8 +239,6 @@ def test_exports_carry_the_height(fitted):
 @pytest.fixture(scope="module", params=[1, 4])  # conventions (90°, −1) and (0°, +1)
 def exact_twin(request, tmp_path_factory):
     """A noise-free three-capture twin written to a folder, and its calibration."""
-    from dataclasses import replace
-
     from handeye_jax import PRESETS, draw_truth, simulate, write_twin
 
     truth = replace(draw_truth(request.param, dot_px=2.0), pen_z_mm=95.0)
@@ -246,7 +246,7 @@ def exact_twin(request, tmp_path_factory):
     folder = tmp_path_factory.mktemp(f"twin{request.param}")
     write_twin(twin, folder)
     return twin, folder, calibrate(twin.dataset,
-                                     Settings(seed=0, generations=400, restarts=EXACT_RESTARTS))
+                                     replace(FAST_SETTINGS, seed=0, restarts=EXACT_RESTARTS))
 
 
 def test_twin_draws_captures_at_several_heights_and_hand_angles(exact_twin):
