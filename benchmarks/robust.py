@@ -1,7 +1,7 @@
 """The robust option on a noise-free twin dataset with one touch 5 mm off.
 
     python benchmarks/robust.py [--population N] [--generations G] [--twin-seed S]
-    python benchmarks/robust.py --quick    # tiny sizes and two losses, for the test suite
+    python benchmarks/robust.py --quick    # 30 generations and two losses, for the test suite
 
 The twin is ``simulate(draw_truth(S), PRESETS["none"], exact=True)``: noise-free, with exact
 image points. For each loss and scale it fits the clean twin and the one with landmark 6's hand
@@ -46,11 +46,13 @@ def main() -> None:
     ap.add_argument("--generations", type=int, default=400)
     ap.add_argument("--seed", type=int, default=3)
     ap.add_argument("--twin-seed", type=int, default=4)
-    ap.add_argument("--quick", action="store_true", help="tiny sizes, two losses, for the tests")
+    ap.add_argument("--quick", action="store_true", help="30 generations, two losses, for the tests")
     args = ap.parse_args()
     cases = CASES
     if args.quick:
-        args.population, args.generations = 40, 30
+        # The suite's population (tests/common.py): the DE's programs are then those of
+        # tests/test_diagnostics.py's robust fits of this twin.
+        args.population, args.generations = 200, 30
         cases = [CASES[0], CASES[3]]
     twin = simulate(draw_truth(args.twin_seed), PRESETS["none"], args.twin_seed, exact=True)
     clean = twin.dataset

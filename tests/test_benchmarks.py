@@ -66,7 +66,8 @@ def test_miss_rate_finds_de_and_lm_missing_twin_1_and_the_defaults_not():
 
 @pytest.mark.parametrize("seeds", [["--seeds", "1"]])
 def test_reproduce_paper_runs(seeds):
-    out = run_in_process("reproduce_paper.py", *seeds, "--population", "60", "--generations", "80")
+    # The suite's population (tests/common.py), so the DE's programs are the paper fits' own.
+    out = run_in_process("reproduce_paper.py", *seeds, "--population", "200", "--generations", "80")
     assert out.count("| seed 1 |") == 5  # 3 in the paper's ranges, 2 with the default search
     assert "## DH, default search" in out
 
