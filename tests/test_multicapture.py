@@ -362,7 +362,7 @@ def test_summary_says_where_the_calibration_holds():
     ds1 = synthesize_dataset(_truth("htm"), rig, snake_grid_px(), 22.5 * np.arange(9))
     # The paper's loss: the scope's errors from its Gauss-Newton covariance (the ML fit's
     # scope is not validated yet; benchmarks/RESULTS.md, issue 26).
-    s = Settings(seed=0, population=200, generations=300, restarts=4, loss="l1")
+    s = Settings(seed=0, population=200, generations=300, loss="l1")
     scopes = {}
     for k, ds in ((1, ds1), (3, ds3)):
         ds = ds.replace(hand_xy_mm=np.round(ds.hand_xy_mm, 1))
