@@ -198,7 +198,6 @@ def test_the_recalibration_walkthrough_runs_as_written(tmp_path, monkeypatch, ca
     class Budget(calibration.Settings):
         population: int = 200
         generations: int = 400
-        restarts: int = 4
 
     monkeypatch.setattr(calibration, "Settings", Budget)
 
