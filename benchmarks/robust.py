@@ -46,7 +46,8 @@ def main() -> None:
     ap.add_argument("--generations", type=int, default=400)
     ap.add_argument("--seed", type=int, default=3)
     ap.add_argument("--twin-seed", type=int, default=4)
-    ap.add_argument("--quick", action="store_true", help="30 generations, two losses, for the tests")
+    ap.add_argument("--quick", action="store_true",
+                    help="30 generations, two losses, for the tests")
     args = ap.parse_args()
     cases = CASES
     if args.quick:
