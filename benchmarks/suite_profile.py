@@ -84,7 +84,9 @@ def pytest_runtest_logreport(report):
 def pytest_sessionfinish(session):
     folder = os.environ.get(OUT_ENV)
     if folder:
-        name = os.environ.get("PYTEST_XDIST_WORKER", "main")
+        # The process id too: a pytest started from inside an xdist worker (as the suite's own
+        # test of this file does) inherits that worker's name, which its own workers reuse.
+        name = f"{os.environ.get('PYTEST_XDIST_WORKER', 'main')}-{os.getpid()}"
         with open(Path(folder) / f"{name}.jsonl", "w") as f:
             f.writelines(json.dumps(r) + "\n" for r in _rows)
 

@@ -165,14 +165,17 @@ def test_startup_times_every_command_and_the_parts_of_a_calibration():
     assert re.search(r"NumPy Predictor, in this process: \d+\.\d+ µs per point", out)
 
 
-def test_suite_profile_names_each_compilation_s_test_and_program(tmp_path):
+def test_suite_profile_names_each_compilation_s_test_and_program(tmp_path, monkeypatch):
     probe = tmp_path / "test_probe.py"
     probe.write_text(
         "import jax\n\n"
         "def test_compiles():\n    assert float(jax.jit(lambda x: x * 3.0)(2.0)) == 6.0\n\n"
         "def test_compiles_nothing():\n    assert True\n"
     )
-    out = run_in_process("suite_profile.py", "--top", "5", "--", str(probe))
+    # In an xdist worker, as the suite runs: the profiled pytest inherits the worker's name, and
+    # its own worker (as the suite's, under xdist) takes the same one; each keeps its rows.
+    monkeypatch.setenv("PYTEST_XDIST_WORKER", "gw0")
+    out = run_in_process("suite_profile.py", "--top", "5", "--", str(probe), "-n", "1")
     assert re.search(r"; 2 tests, their times summed \d+\.\d s$", out, re.M), out
     assert re.search(r"XLA \d+\.\d s in 1 compilations;", out), out
     assert re.search(r"^\| <lambda> \| \d+\.\d \| 1 \| 0 \|$", out, re.M), out
