@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import lsq_linear
 
@@ -377,6 +377,7 @@ def _linear_rj(X, A, b):
 
 @settings(max_examples=20, deadline=None)
 @given(st.integers(0, 2**31 - 1))
+@example(22512)  # found by the exploration: a start cycled on the sine's fold (90.6, not 55.4)
 def test_lm_in_a_box_meets_scipys_bounded_least_squares(seed):
     """Linear least squares in a box, where bounds are often active: from random starts and
     from the solution itself, both batch LMs reach scipy's bounded solution (BVLS)."""

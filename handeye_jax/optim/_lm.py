@@ -38,6 +38,9 @@ _LAMBDA_RANGE = (1e-12, 1e12)
 _QUIET_ITERATIONS = 10
 #: Marquardt's scaling, ``diag JᵀJ``, is floored at this fraction of its largest entry.
 _SCALE_FLOOR = 1e-6
+#: A step is kept only if it lowers ``|r|²`` by at least this fraction of the first-order
+#: decrease along it (Armijo's condition; see :func:`sufficient_decrease`).
+_SUFFICIENT = 1e-5
 
 
 def marquardt_scaling(diag: Float[Array, "*b d"]) -> Float[Array, "*b d"]:
@@ -69,6 +72,25 @@ def damped_normal_matrix(
     H = xp.where((held[..., :, None] | held[..., None, :]) & ~xp.eye(d, dtype=bool), 0.0, H)
     # H + λ·(diag H + ε) is positive definite for λ > 0: the solve cannot fail.
     return H + damping[..., :, None] * xp.eye(d)
+
+
+def sufficient_decrease(
+    cost: Float[Array, "*b"], cost_t: Float[Array, "*b"], g: Float[Array, "*b d"],
+    z: Float[Array, "*b d"], z_t: Float[Array, "*b d"],
+) -> Float[Array, "*b"]:
+    """Whether a trial point ``z_t`` lowers ``|r|²`` from ``cost`` to ``cost_t`` by at least
+    :data:`_SUFFICIENT` of the first-order decrease along the step, ``−2·g·(z_t − z)``
+    (``g = Jᵀr``, so ``2g`` is the gradient of ``|r|²``).
+
+    Any decrease was enough before, and the box transform let LM cycle: an undamped step of
+    about π + 2z in a coordinate folds back, through the sine, to nearly the point it left,
+    lowering the cost a little each time. Every such step was kept and shrank the damping,
+    so LM never took the damped step towards the bound and stopped, "converged", at an
+    interior point that is not an optimum (``tests/test_de.py``, scipy's bounded least
+    squares). Refused, such a step grows the damping instead."""
+    xp = _box._xp(cost, cost_t, g, z, z_t)
+    first_order = -2.0 * xp.sum(g * (z_t - z), axis=-1)
+    return cost_t < cost - _SUFFICIENT * xp.maximum(first_order, 0.0)
 
 
 class LevenbergMarquardt(AbstractSolver[LMSolution]):
@@ -154,9 +176,10 @@ def minimise_batch(
 
     Each iteration solves ``(JᵀJ + λ·D)·δ = −Jᵀr``, ``D`` Marquardt's scaling ``diag(JᵀJ)``
     floored (:func:`marquardt_scaling`), for every problem in the box coordinates ``z`` and
-    keeps a problem's step only if it lowers its ``|r|²``; λ shrinks after an accepted step
-    and grows after a rejected one. A parameter on a bound is held there while the cost
-    pushes it outward (an active set, as :func:`~handeye_jax.optim.minimise_starts`).
+    keeps a problem's step only if it lowers its ``|r|²`` by enough
+    (:func:`sufficient_decrease`); λ shrinks after an accepted step and grows after a rejected
+    one. A parameter on a bound is held there while the cost pushes it outward (an active
+    set, as :func:`~handeye_jax.optim.minimise_starts`).
 
     Args:
         fn: batched residuals and Jacobians: ``x (B, d) -> (r (B, m), J (B, m, d))``. Compile
@@ -185,7 +208,7 @@ def minimise_batch(
         dz = np.where(np.isfinite(dz), dz, 0.0)
         z_t = _box.step(z, dz)
         r_t, J_t, cost_t = evaluate(z_t)
-        better = cost_t < cost
+        better = sufficient_decrease(cost, cost_t, g, z, z_t)
         gain = np.where(better, cost - cost_t, 0.0)
         enough = gain > solver.rtol * np.where(np.isfinite(cost), cost, 0.0) + solver.atol
         z = np.where(better[:, None], z_t, z)

@@ -3,8 +3,9 @@ iteration of every start, with no trip to the host between iterations (a batch o
 :func:`~handeye_jax.optim.minimise_starts_many`).
 
 The iteration is :func:`~handeye_jax.optim.minimise_batch`'s (Marquardt's scaling, a step
-kept only if it lowers its start's ``|r|²``, λ shrunk after a kept step and grown after a
-refused one, a stop once no start has improved enough for 10 iterations), written so that
+kept only if it lowers its start's ``|r|²`` by enough (``_lm.sufficient_decrease``), λ shrunk
+after a kept step and grown after a refused one, a stop once no start has improved enough for
+10 iterations), written so that
 its arithmetic is the same bit for bit whatever rows of zeros pad a problem's residuals:
 
 * the sums over residual rows (``|r|²``, ``JᵀJ``, ``Jᵀr``) are taken row after row, in
@@ -38,6 +39,7 @@ from ._lm import (
     LevenbergMarquardt,
     damped_normal_matrix,
     residuals_and_jacobian,
+    sufficient_decrease,
 )
 from ._solvers import BatchSolution, Problem
 
@@ -86,7 +88,7 @@ def _step(fn: Problem, lower, upper, lm: LevenbergMarquardt, st: _State) -> _Sta
     dz = jnp.where(jnp.isfinite(dz), dz, 0.0)
     z_t = _box.step(st.z, dz)
     r_t, J_t, cost_t = _evaluate(fn, z_t, lower, upper)
-    better = cost_t < st.cost
+    better = sufficient_decrease(st.cost, cost_t, g, st.z, z_t)
     gain = jnp.where(better, st.cost - cost_t, 0.0)
     enough = gain > lm.rtol * jnp.where(jnp.isfinite(st.cost), st.cost, 0.0) + lm.atol
     lam = jnp.clip(jnp.where(better, st.lam * _SHRINK, st.lam * _GROW), *_LAMBDA_RANGE)
@@ -154,8 +156,9 @@ def minimise_starts(
 
     Each iteration solves ``(JᵀJ + λ·D)·δ = −Jᵀr``, ``D`` Marquardt's scaling ``diag(JᵀJ)``
     floored (:func:`~handeye_jax.optim._lm.damped_normal_matrix`), for every start in the box
-    coordinates and keeps a start's step only if it lowers its ``|r|²``; λ shrinks after a
-    kept step and grows after a refused one. A parameter on a bound is held there while the
+    coordinates and keeps a start's step only if it lowers its ``|r|²`` by enough (at least
+    1e-5 of the first-order decrease along it); λ shrinks after a kept step and grows after a
+    refused one. A parameter on a bound is held there while the
     cost pushes it outward (an active set), so an optimum on a bound is reached, not stalled
     before. All starts stop together, once
     none has lowered its cost by more than ``rtol·cost + atol`` for 10 iterations, or after
