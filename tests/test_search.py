@@ -9,7 +9,7 @@ import tomllib
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from test_objective import YawOnlyModel  # as pytest imports it: one class registered
 
@@ -96,6 +96,8 @@ def _noise_free(seed: int, model: str, convention: tuple[float, int], captures: 
 @PROPERTY
 @given(seed=st.integers(0, 2**31), model=st.sampled_from(["htm", "dh"]),
        convention=st.sampled_from(CONVENTIONS), captures=st.sampled_from([1, 3]))  # fmt: skip
+# Found by the exploration: the truth's gamma_c at -179.4 deg, its range around 180 deg.
+@example(seed=2116474, model="htm", convention=(0.0, 1), captures=1)
 def test_closed_form_estimate_recovers_a_noise_free_rig(seed, model, convention, captures):
     """Every model and hand-angle convention, one capture or three: a candidate of the closed
     form is the truth (one capture cannot tell the tablet tilt's sign, so either candidate
@@ -123,7 +125,11 @@ def test_closed_form_estimate_recovers_a_noise_free_rig(seed, model, convention,
     true = _true_params(truth, cls)
     for n, u in zip(cls.param_names, cls.param_units, strict=True):
         floor = HALF_WIDTH[u][0] / 2
-        assert ranges[n].lower + floor <= true[n] <= ranges[n].upper - floor, n
+        t = true[n]
+        if u == "deg":  # an angle and the same angle a turn away are one rotation
+            centre = 0.5 * (ranges[n].lower + ranges[n].upper)
+            t = centre + (t - centre + 180.0) % 360.0 - 180.0
+        assert ranges[n].lower + floor <= t <= ranges[n].upper - floor, (n, true[n])
 
 
 def test_closed_form_estimate_refuses_data_that_cannot_give_one(paper):
