@@ -21,7 +21,7 @@ from collections.abc import Callable
 import equinox as eqx
 import jax
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._jax import fast_compile
 from . import _box
@@ -77,17 +77,17 @@ def damped_normal_matrix(
 def sufficient_decrease(
     cost: Float[Array, "*b"], cost_t: Float[Array, "*b"], g: Float[Array, "*b d"],
     z: Float[Array, "*b d"], z_t: Float[Array, "*b d"],
-) -> Float[Array, "*b"]:
+) -> Bool[Array, "*b"]:
     """Whether a trial point ``z_t`` lowers ``|r|²`` from ``cost`` to ``cost_t`` by at least
     :data:`_SUFFICIENT` of the first-order decrease along the step, ``−2·g·(z_t − z)``
     (``g = Jᵀr``, so ``2g`` is the gradient of ``|r|²``).
 
-    Any decrease was enough before, and the box transform let LM cycle: an undamped step of
-    about π + 2z in a coordinate folds back, through the sine, to nearly the point it left,
-    lowering the cost a little each time. Every such step was kept and shrank the damping,
-    so LM never took the damped step towards the bound and stopped, "converged", at an
-    interior point that is not an optimum (``tests/test_de.py``, scipy's bounded least
-    squares). Refused, such a step grows the damping instead."""
+    Why not any decrease: through the box transform an undamped step of about π + 2z in a
+    coordinate folds back, by the sine, to nearly the point it left, lowering the cost a
+    little each time. Kept, every such step would shrink the damping, and LM would stop,
+    "converged", at an interior point that is not an optimum, never taking the damped step
+    towards the bound (``tests/test_de.py``, scipy's bounded least squares). Refused, such a
+    step grows the damping instead."""
     xp = _box._xp(cost, cost_t, g, z, z_t)
     first_order = -2.0 * xp.sum(g * (z_t - z), axis=-1)
     return cost_t < cost - _SUFFICIENT * xp.maximum(first_order, 0.0)

@@ -5,8 +5,8 @@ iteration of every start, with no trip to the host between iterations (a batch o
 The iteration is :func:`~handeye_jax.optim.minimise_batch`'s (Marquardt's scaling, a step
 kept only if it lowers its start's ``|r|²`` by enough (``_lm.sufficient_decrease``), λ shrunk
 after a kept step and grown after a refused one, a stop once no start has improved enough for
-10 iterations), written so that
-its arithmetic is the same bit for bit whatever rows of zeros pad a problem's residuals:
+10 iterations), written so that its arithmetic is the same bit for bit whatever rows of zeros
+pad a problem's residuals:
 
 * the sums over residual rows (``|r|²``, ``JᵀJ``, ``Jᵀr``) are taken row after row, in
   order, so a padded row of zeros adds exactly nothing;
@@ -158,11 +158,10 @@ def minimise_starts(
     floored (:func:`~handeye_jax.optim._lm.damped_normal_matrix`), for every start in the box
     coordinates and keeps a start's step only if it lowers its ``|r|²`` by enough (at least
     1e-5 of the first-order decrease along it); λ shrinks after a kept step and grows after a
-    refused one. A parameter on a bound is held there while the
-    cost pushes it outward (an active set), so an optimum on a bound is reached, not stalled
-    before. All starts stop together, once
-    none has lowered its cost by more than ``rtol·cost + atol`` for 10 iterations, or after
-    ``max_steps``.
+    refused one. A parameter on a bound is held there while the cost pushes it outward (an
+    active set), so an optimum on a bound is reached, not stalled before. All starts stop
+    together, once none has lowered its cost by more than ``rtol·cost + atol`` for 10
+    iterations, or after ``max_steps``.
 
     Args:
         fn: the problem; pass an equinox Module so repeated calls reuse the compiled program.
