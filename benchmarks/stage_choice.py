@@ -1,6 +1,7 @@
 """Issue 26: does the stage ``calibrate`` deploys do as well as the better of the two?
 
     python benchmarks/stage_choice.py [--seeds 5] [--first 1] [--rows PATH] [--run]
+                                      [--results PATH] [--out PATH]
 
 20 twins by default: seeds ``first`` … ``first + seeds − 1`` of each configuration of
 ``benchmarks/coverage.py`` (HTM and DH; one capture and three; ``paper`` noise, rendered
@@ -11,7 +12,8 @@ the deployed stage's error is on average within 1.02× of the better stage's.
 
 The twins are coverage.py's: their rows are read from ``--rows`` (``coverage.py`` writes them);
 ``--run`` computes the missing ones (``coverage.run_twins``) and adds them to the file. The
-table goes to ``benchmarks/RESULTS.md`` and the rows used to ``results/stage_choice.json``.
+table goes to ``--results`` (``benchmarks/RESULTS.md``) and the rows used to ``--out``
+(``results/stage_choice.json``).
 """
 
 from __future__ import annotations
@@ -76,6 +78,7 @@ def main() -> None:
     ap.add_argument("--rows", type=Path, default=ROWS, help="coverage.py's rows (JSON)")
     ap.add_argument("--run", action="store_true", help="compute the twins the rows lack")
     ap.add_argument("--results", type=Path, default=RESULTS, help="Markdown file to update")
+    ap.add_argument("--out", type=Path, default=OUT, help="JSON of the rows the table used")
     args = ap.parse_args()
     rows = json.loads(args.rows.read_text()) if args.rows.exists() else []
     have = {(r["model"], r["captures"], r["seed"]): r for r in rows}
@@ -99,13 +102,15 @@ def main() -> None:
                 have[(model, captures, seed)] = json.loads(json.dumps(row))
             args.rows.write_text(json.dumps(list(have.values())))
     m = measure([have[w] for w in wanted])
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(m, indent=1))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(m, indent=1))
+    where = args.out.resolve()
+    where = where.relative_to(HERE) if where.is_relative_to(HERE) else where
     ratio = np.mean([r["deployed_mm"] for r in m]) / np.mean([r["better_mm"] for r in m])
     text = "\n".join([
         HEADING, "",
         f"command: python benchmarks/stage_choice.py --seeds {args.seeds} --first {args.first}"
-        f" (the twins of benchmarks/coverage.py; rows in results/{OUT.name})",
+        f" (the twins of benchmarks/coverage.py; rows in {where})",
         "", f"{len(m)} twins; the deployed stage's mean held-out touching error is "
         f"{ratio:.3f}× the better stage's (target ≤ {TARGET}).", "", *table(m),
     ])  # fmt: skip

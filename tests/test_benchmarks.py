@@ -2,6 +2,7 @@
 
 import contextlib
 import io
+import json
 import re
 import runpy
 import subprocess
@@ -9,6 +10,7 @@ import sys
 from pathlib import Path
 from unittest import mock
 
+import numpy as np
 import pytest
 
 pytestmark = pytest.mark.slow  # subprocesses and whole scripts
@@ -114,6 +116,24 @@ def test_recalibration_benchmark_tables_every_fit():
     # The pen moved 3-15 mm: the old result misses by millimetres, a recalibration does not.
     assert min(old) > 2.0 and max(full + prior + fix) < 1.0
     assert re.search(r"^\| 4 \| \d\.\d{3} \| \d+\.\d, \d+\.\d \| [01] of 1 \|", out, re.M)
+
+
+def test_stage_choice_tables_the_recorded_twins_and_writes_only_where_told(tmp_path):
+    """The committed coverage rows (no calibration): the table of the deployed stage against
+    the better one, with the rows and the table written where asked, nowhere else."""
+    committed = BENCH / "results" / "stage_choice.json"
+    before = committed.read_bytes()
+    out, md = tmp_path / "rows.json", tmp_path / "results.md"
+    text = run_in_process("stage_choice.py", "--seeds", "2", "--rows",
+                          str(BENCH / "results" / "coverage.json"), "--out", str(out),
+                          "--results", str(md))  # fmt: skip
+    assert committed.read_bytes() == before
+    rows = json.loads(out.read_text())
+    assert len(rows) == 8 and all(r["deployed_mm"] >= r["better_mm"] for r in rows)
+    ratio = float(re.search(r"^8 twins; .* is (\d\.\d{3})× the better", text, re.M).group(1))
+    want = np.mean([r["deployed_mm"] for r in rows]) / np.mean([r["better_mm"] for r in rows])
+    assert ratio == round(want, 3) and f"rows in {out}" in text
+    assert md.read_text().count("| all | 8 |") == 1
 
 
 def test_partial_match_reads_no_picture_wrong():
